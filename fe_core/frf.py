@@ -1,0 +1,269 @@
+"""Frequency response of ``M z'' + C z' + K z = F exp(j w t)`` at selected DOFs.
+
+Two solvers with one signature:
+
+:func:`direct_frf`
+    One complex sparse LU of ``-w^2 M + j w C + K`` per frequency. Exact to
+    round-off and general in ``C``; the reference in tests.
+:func:`krylov_frf`
+    For Rayleigh damping ``C = a M + b K`` the dynamic stiffness is a pencil
+    in K and M alone,
+
+        -w^2 M + j w C + K = (1 + j w b) (K - lambda(w) M),
+        lambda(w) = (w^2 - j w a) / (1 + j w b),
+
+    so every frequency is a shifted solve of the same pencil. One real
+    factorisation of ``K - sigma M`` generates the block Krylov space of ``(K - sigma M)^-1 M``
+    started from ``(K - sigma M)^-1 F``; the Galerkin projection of (K, M) on
+    it matches moments of the transfer function about ``sigma`` (twice as
+    many as the space's dimension, since K and M are symmetric and the
+    outputs are the load DOFs or a subset). The space grows until the
+    responses at all requested frequencies stop changing to ``rtol``
+    entry-wise, so the result carries its own convergence check. The reduced
+    pencil is diagonalised once, after which any number of frequencies costs
+    a few small matrix products.
+
+    The factorisation is a LAPACK banded Cholesky at ``sigma = 0`` when K is
+    positive-definite and its bandwidth is small (the structured meshes here
+    number nodes x-slowest, giving a band of about 100 for 3510 DOFs), and a
+    SuperLU factorisation of the indefinite ``K - sigma M`` at the centre of
+    the band otherwise.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+from scipy.linalg import lapack
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+__all__ = ["direct_frf", "krylov_frf", "KrylovInfo", "hz_to_rad"]
+
+log = logging.getLogger(__name__)
+
+
+def hz_to_rad(freqs_hz) -> np.ndarray:
+    """Angular frequencies ``2 pi f``, rad/s."""
+    return 2.0 * np.pi * np.asarray(freqs_hz, dtype=float)
+
+
+def _as_load_matrix(F) -> np.ndarray:
+    F = np.asarray(F, dtype=float)
+    return F[:, None] if F.ndim == 1 else F
+
+
+def direct_frf(
+    K: sp.spmatrix,
+    M: sp.spmatrix,
+    C: sp.spmatrix,
+    F: np.ndarray,
+    omegas: np.ndarray,
+    out_dofs: np.ndarray,
+) -> np.ndarray:
+    """Receptance by a complex sparse LU per frequency.
+
+    Parameters
+    ----------
+    K, M, C : sparse, shape (n, n)
+        Stiffness (N/m), mass (kg), damping (N s/m) on the free DOFs.
+    F : ndarray, shape (n,) or (n, n_loads), N
+        Load amplitudes, one column per load case.
+    omegas : ndarray, shape (p,), rad/s
+    out_dofs : ndarray, shape (n_out,), int
+        Free-DOF indices at which the response is returned.
+
+    Returns
+    -------
+    ndarray, shape (p, n_out, n_loads), complex, m/N
+    """
+    F = _as_load_matrix(F)
+    out = np.empty((len(omegas), len(out_dofs), F.shape[1]), dtype=complex)
+    K, M, C = (sp.csc_matrix(A) for A in (K, M, C))
+    for i, w in enumerate(np.asarray(omegas, dtype=float)):
+        A = (K - w**2 * M + 1j * w * C).tocsc()
+        out[i] = spla.splu(A).solve(F.astype(complex))[out_dofs]
+    return out
+
+
+@dataclass(frozen=True)
+class KrylovInfo:
+    """Diagnostics of one :func:`krylov_frf` call.
+
+    Attributes
+    ----------
+    dimension : int
+        Size of the projection space.
+    change : float
+        Largest entry-wise relative change of the responses over the last
+        enlargement of the space (the convergence measure).
+    converged : bool
+    sigma : float, rad^2/s^2
+        Real shift of the factorised pencil.
+    """
+
+    dimension: int
+    change: float
+    converged: bool
+    sigma: float
+
+
+def krylov_frf(
+    K: sp.spmatrix,
+    M: sp.spmatrix,
+    a: float,
+    b: float,
+    F: np.ndarray,
+    omegas: np.ndarray,
+    out_dofs: np.ndarray,
+    *,
+    rtol: float = 1e-10,
+    sigma: float | None = None,
+    max_dimension: int = 240,
+    check_every: int = 8,
+    return_info: bool = False,
+):
+    """Receptance for Rayleigh damping ``C = a M + b K`` by a converged Krylov projection.
+
+    Parameters
+    ----------
+    K, M : sparse, shape (n, n)
+        Symmetric stiffness (N/m) and mass (kg) on the free DOFs.
+    a : float, 1/s
+    b : float, s
+    F : ndarray, shape (n,) or (n, n_loads), N
+    omegas : ndarray, shape (p,), rad/s
+    out_dofs : ndarray, shape (n_out,), int
+    rtol : float
+        Stop when one enlargement of the space changes the responses at every
+        frequency by at most ``rtol`` relative to the largest response at that
+        frequency. (An entry-wise test cannot go below round-off on the
+        smallest entries, about 1e-9 for the benchmark, which is also the
+        accuracy of the direct solve.)
+    sigma : float, optional, rad^2/s^2
+        Real shift of the factorised pencil. By default 0 with a banded
+        Cholesky when K is positive-definite and narrow-banded, else
+        ``w_min * w_max`` (the geometric centre of the band) with SuperLU.
+    max_dimension : int
+        Upper bound on the space's size; if reached unconverged, the direct
+        solver is used instead (logged as a warning).
+    check_every : int
+        Number of new basis vectors between convergence checks.
+    return_info : bool
+
+    Returns
+    -------
+    ndarray, shape (p, n_out, n_loads), complex, m/N
+    KrylovInfo
+        Only if ``return_info``.
+    """
+    F = _as_load_matrix(F)
+    omegas = np.asarray(omegas, dtype=float)
+    K = sp.csr_matrix(K)
+    M = sp.csr_matrix(M)
+    solve, sigma = _shifted_solver(K, M, sigma, float(omegas.min() * omegas.max()))
+
+    n, n_loads = F.shape
+    lam = (omegas**2 - 1j * omegas * a) / (1.0 + 1j * omegas * b)
+    scale = 1.0 / (1.0 + 1j * omegas * b)
+
+    basis = np.empty((n, min(max_dimension, n)))
+    dim = 0
+    block = solve(F)
+    previous = None
+    change = np.inf
+    next_check = check_every
+    while True:
+        # Block Gram-Schmidt, twice, against the whole basis (full
+        # re-orthogonalisation keeps the projection exact to round-off).
+        for _ in range(2):
+            block -= basis[:, :dim] @ (basis[:, :dim].T @ block)
+        q, r = np.linalg.qr(block)
+        keep = np.abs(np.diag(r)) > 1e-13 * max(1.0, np.abs(r).max())
+        q = q[:, keep]
+        room = basis.shape[1] - dim
+        if q.shape[1] == 0 or room == 0:
+            break
+        q = q[:, :room]
+        basis[:, dim : dim + q.shape[1]] = q
+        dim += q.shape[1]
+        if dim >= next_check:
+            next_check = dim + check_every
+            current = _project(K, M, basis[:, :dim], F, lam, scale, out_dofs)
+            if previous is not None:
+                change = _relative_change(current, previous)
+                if change <= rtol:
+                    info = KrylovInfo(dim, change, True, sigma)
+                    return (current, info) if return_info else current
+            previous = current
+        block = solve(M @ q)
+
+    if dim >= n:  # the space is everything: the projection is exact
+        current = _project(K, M, basis[:, :dim], F, lam, scale, out_dofs)
+        info = KrylovInfo(dim, 0.0, True, sigma)
+        return (current, info) if return_info else current
+    log.warning(
+        "Krylov FRF did not converge to rtol=%g within %d vectors (last change %.2e); "
+        "falling back to the direct solver",
+        rtol,
+        dim,
+        change,
+    )
+    C = a * M + b * K
+    result = direct_frf(K, M, C, F, omegas, out_dofs)
+    info = KrylovInfo(dim, change, False, sigma)
+    return (result, info) if return_info else result
+
+
+#: Largest half-bandwidth for which the banded Cholesky is used.
+MAX_BANDWIDTH = 400
+
+
+def _shifted_solver(K: sp.csr_matrix, M: sp.csr_matrix, sigma: float | None, centre: float):
+    """A solver for ``(K - sigma M) x = f`` and the shift it uses."""
+    if sigma is None or sigma == 0.0:
+        coo = K.tocoo()
+        upper = coo.row <= coo.col
+        bandwidth = int(np.max(coo.col[upper] - coo.row[upper], initial=0))
+        if bandwidth <= MAX_BANDWIDTH:
+            n = K.shape[0]
+            ab = np.zeros((bandwidth + 1, n))
+            ab[bandwidth + coo.row[upper] - coo.col[upper], coo.col[upper]] = coo.data[upper]
+            factor, info = lapack.dpbtrf(ab, lower=0)
+            if info == 0:
+                def solve(rhs: np.ndarray) -> np.ndarray:
+                    x, status = lapack.dpbtrs(factor, rhs, lower=0)
+                    if status != 0:
+                        raise RuntimeError(f"LAPACK dpbtrs failed with info={status}")
+                    return x
+
+                return solve, 0.0
+            log.debug("K is not positive-definite (dpbtrf info=%d); using SuperLU", info)
+        if sigma is None:
+            sigma = centre
+    lu = spla.splu((K - sigma * M).tocsc(), permc_spec="MMD_AT_PLUS_A")
+    return lu.solve, float(sigma)
+
+
+def _project(K, M, V, F, lam, scale, out_dofs) -> np.ndarray:
+    """Responses of the Galerkin-reduced pencil at all shifts, shape (p, n_out, n_loads)."""
+    Kr = V.T @ (K @ V)
+    Mr = V.T @ (M @ V)
+    Kr = 0.5 * (Kr + Kr.T)
+    Mr = 0.5 * (Mr + Mr.T)
+    mu, phi = sla.eigh(Kr, Mr)  # phi^T Mr phi = I
+    left = V[out_dofs] @ phi  # (n_out, m)
+    right = phi.T @ (V.T @ F)  # (m, n_loads)
+    weights = scale[:, None] / (mu[None, :] - lam[:, None])  # (p, m)
+    return np.einsum("om,pm,ml->pol", left, weights, right)
+
+
+def _relative_change(current: np.ndarray, previous: np.ndarray) -> float:
+    """Largest change per frequency relative to that frequency's largest response."""
+    p = current.shape[0]
+    diff = np.abs(current - previous).reshape(p, -1).max(axis=1)
+    size = np.abs(current).reshape(p, -1).max(axis=1)
+    return float(np.max(diff / np.maximum(size, np.finfo(float).tiny)))
