@@ -58,11 +58,12 @@ UFF_RESPONSE_DIRECTION = 3
 UFF_REFERENCE_NODE = 0
 UFF_REFERENCE_DIRECTION = 3
 UFF_LOAD_CASE = 1
-#: UFF58 stores uneven abscissae as Fortran E13.5: 6 significant digits, a
-#: relative rounding error of at most 5e-6. Ordinates are written in double
-#: precision (E20.12 in the standard, ``%20.11e`` by pyuff): 12 digits.
-UFF_FREQUENCY_RTOL = 5e-6
-UFF_ORDINATE_RTOL = 5e-12
+#: Round-trip tolerances of UFF58 ASCII. Uneven abscissae are Fortran E13.5:
+#: 6 significant digits, rounding error <= 5e-6 relative. Ordinates are written
+#: in double precision (E20.12 in the standard, ``%20.11e`` by pyuff): 12
+#: digits, <= 5e-12. Both doubled to cover the decimal-binary conversion.
+UFF_FREQUENCY_RTOL = 1e-5
+UFF_ORDINATE_RTOL = 1e-11
 
 
 class MeasuredDataError(ValueError):
@@ -418,6 +419,8 @@ def write_measured(path, measured):
     path = Path(path)
     suffix = _checked_suffix(path)
     writer = {".csv": _write_csv, ".parquet": _write_parquet}.get(suffix, _write_uff)
+    if writer is _write_uff:
+        _check_uff_frequencies(measured.frequencies_hz, path)
     temporary = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
     try:
         writer(temporary, measured)
@@ -456,16 +459,19 @@ def _write_parquet(path, measured):
     pq.write_table(pa.table(_table_columns(measured)), path)
 
 
-def _write_uff(path, measured):
-    import pyuff
-
-    frequencies = measured.frequencies_hz
-    stored = np.array([float(f"{f:13.5e}") for f in frequencies])
+def _check_uff_frequencies(frequencies, path):
+    stored = np.array([float(f"{f:13.5e}") for f in frequencies])  # as pyuff writes them
     if frequencies.size < 2 or np.unique(stored).size != frequencies.size:
         raise ValueError(f"{path}: UFF58 needs two or more frequencies distinct at 6 digits")
     change = np.max(np.abs(stored - frequencies) / frequencies)
     if change > 0:
         logger.warning("%s: UFF58 keeps 6 digits of frequency, changed by %.1e", path, change)
+
+
+def _write_uff(path, measured):
+    import pyuff
+
+    frequencies = measured.frequencies_hz
     ordinates = measured.amplitude if measured.complex_frf is None else measured.complex_frf
     datasets = []
     for j, sensor in enumerate(measured.sensors.tolist()):

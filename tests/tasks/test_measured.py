@@ -31,10 +31,6 @@ from tasks.io.measured import (
 )
 
 REPO = Path(__file__).resolve().parents[2]
-# Decimal <-> binary conversion adds ~1e-16 to the half-unit rounding of the
-# 12th (ordinate) or 6th (abscissa) significant digit that UFF ASCII keeps.
-UFF_ORDINATE_TOL = 2 * UFF_ORDINATE_RTOL
-UFF_FREQUENCY_TOL = 2 * UFF_FREQUENCY_RTOL
 # The measurement bands, on a 0.25 Hz step that 6 digits represent exactly.
 BAND_HZ = np.r_[np.arange(106.0, 116.01, 0.25), np.arange(285.0, 295.01, 0.25)]
 HYPOTHESIS = settings(
@@ -67,7 +63,8 @@ def _rows(measured):
         for j, s in enumerate(measured.sensors.tolist()):
             row = [s, f, float(measured.amplitude[i, j])]
             if measured.complex_frf is not None:
-                row += [float(measured.complex_frf[i, j].real), float(measured.complex_frf[i, j].imag)]
+                value = complex(measured.complex_frf[i, j])
+                row += [value.real, value.imag]
             rows.append(row)
     return rows
 
@@ -209,7 +206,9 @@ BAD_INPUTS = [
 
 
 @pytest.mark.parametrize(
-    "name, content, expected", [case[1:] for case in BAD_INPUTS], ids=[case[0] for case in BAD_INPUTS]
+    "name, content, expected",
+    [case[1:] for case in BAD_INPUTS],
+    ids=[case[0] for case in BAD_INPUTS],
 )
 def test_bad_input_raises_naming_file_and_place(tmp_path, name, content, expected):
     path = tmp_path / name
@@ -377,8 +376,7 @@ def test_csv_header_is_canonical(tmp_path, rng, complex_data):
     measured = _random_measured(rng, BAND_HZ[:3], [3, 1], complex_data)
     path = write_measured(tmp_path / "m.csv", measured)
     header = path.read_text().splitlines()[0]
-    expected = "sensor,frequency_hz,amplitude,real,imag" if complex_data else "sensor,frequency_hz,amplitude"
-    assert header == expected
+    assert header == "sensor,frequency_hz,amplitude" + (",real,imag" if complex_data else "")
 
 
 def test_parquet_columns_are_canonical_and_typed(tmp_path, rng):
@@ -411,7 +409,7 @@ def test_write_goes_through_a_temporary_file_in_the_same_folder(tmp_path, rng, m
 
 def test_failed_write_leaves_no_file(tmp_path, rng):
     single_frequency = _random_measured(rng, BAND_HZ[:1], [1])
-    with pytest.raises(ValueError, match="two or more frequencies"):
+    with pytest.raises(ValueError, match=re.escape(f"{tmp_path / 'm.uff'}: UFF58 needs two")):
         write_measured(tmp_path / "m.uff", single_frequency)
     assert list(tmp_path.iterdir()) == []
 
@@ -431,9 +429,11 @@ def test_uff_round_trip(tmp_path, rng, suffix, complex_data):
     back = read_measured(write_measured(tmp_path / f"m{suffix}", measured))
     np.testing.assert_array_equal(back.frequencies_hz, BAND_HZ)  # exact at 6 digits
     np.testing.assert_array_equal(back.sensors, [1, 2, 5])
-    np.testing.assert_allclose(back.amplitude, measured.amplitude, rtol=UFF_ORDINATE_TOL, atol=0)
+    np.testing.assert_allclose(back.amplitude, measured.amplitude, rtol=UFF_ORDINATE_RTOL, atol=0)
     if complex_data:
-        np.testing.assert_allclose(back.complex_frf, measured.complex_frf, rtol=UFF_ORDINATE_TOL, atol=0)
+        np.testing.assert_allclose(
+            back.complex_frf, measured.complex_frf, rtol=UFF_ORDINATE_RTOL, atol=0
+        )
     else:
         assert back.complex_frf is None
 
@@ -441,20 +441,23 @@ def test_uff_round_trip(tmp_path, rng, suffix, complex_data):
 def test_uff_text_follows_dataset_58_layout(tmp_path, rng):
     measured = _random_measured(rng, BAND_HZ[[0, 1, -1]], [4, 7])
     lines = write_measured(tmp_path / "m.uff", measured).read_text().splitlines()
-    blocks = [lines[k : k + 17] for k in range(0, len(lines), 17)]  # -1, 58, 11 records, 3 points, -1
+    # Per dataset: -1, 58, records 1-11, 3 data lines (one per frequency), -1.
+    blocks = [lines[k : k + 17] for k in range(0, len(lines), 17)]
     assert len(blocks) == 2
     for j, block in enumerate(blocks):
         assert block[0] == "    -1" and block[1].strip() == "58" and block[-1] == "    -1"
-        # Record 6: func type, func id, version, load case, rsp name, node, dir, ref name, node, dir.
-        record6 = block[7]
-        fields = [record6[a:b].strip() for a, b in [(0, 5), (20, 30), (41, 51), (51, 55), (66, 76), (76, 80)]]
+        # Record 6, format 2(I5,I10),2(1X,10A1,I10,I4): function type, load case,
+        # response node and direction, reference node and direction.
+        spans = [(0, 5), (20, 30), (41, 51), (51, 55), (66, 76), (76, 80)]
+        fields = [block[7][a:b].strip() for a, b in spans]
         assert fields == ["4", "1", str(measured.sensors[j]), "3", "0", "3"]
         # Record 7: ordinate type 6 (complex double), 3 points, spacing 0 (uneven).
         assert block[8].split()[:3] == ["6", "3", "0"]
-        values = np.array([[float(row[0:13]), float(row[13:33]), float(row[33:53])] for row in block[13:16]])
+        # Record 12, format E13.5,2E20.12: frequency, real, imaginary.
+        values = np.array([[float(r[0:13]), float(r[13:33]), float(r[33:53])] for r in block[13:16]])
         np.testing.assert_array_equal(values[:, 0], measured.frequencies_hz)
         frf = values[:, 1] + 1j * values[:, 2]
-        np.testing.assert_allclose(frf, measured.complex_frf[:, j], rtol=UFF_ORDINATE_TOL, atol=0)
+        np.testing.assert_allclose(frf, measured.complex_frf[:, j], rtol=UFF_ORDINATE_RTOL, atol=0)
 
 
 def test_uff_keeps_six_significant_digits_of_frequency(tmp_path, rng, caplog):
@@ -465,10 +468,10 @@ def test_uff_keeps_six_significant_digits_of_frequency(tmp_path, rng, caplog):
     assert "6 digits" in caplog.text
     back = read_measured(path).frequencies_hz
     assert back[0] != frequencies[0]
-    np.testing.assert_allclose(back, frequencies, rtol=UFF_FREQUENCY_TOL, atol=0)
+    np.testing.assert_allclose(back, frequencies, rtol=UFF_FREQUENCY_RTOL, atol=0)
     with pytest.raises(MeasuredDataError, match=r"missing \[106\.0625\]"):
         read_measured(path, expected_frequencies_hz=frequencies)
-    read_measured(path, expected_frequencies_hz=frequencies, frequency_rtol=UFF_FREQUENCY_TOL)
+    read_measured(path, expected_frequencies_hz=frequencies, frequency_rtol=UFF_FREQUENCY_RTOL)
 
 
 def test_uff_writer_refuses_frequencies_equal_at_six_digits(tmp_path, rng):
@@ -564,5 +567,7 @@ def test_module_does_not_import_prefect():
         "import pyuff, pyarrow.parquet\n"  # the lazy imports too
         "print(sorted(name for name in sys.modules if name.split('.')[0] == 'prefect'))\n"
     )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    )
     assert result.stdout.strip() == "[]"
