@@ -1,0 +1,202 @@
+"""Configuration of an updating run: defaults (Table 2), a TOML file, CLI overrides.
+
+Every key is documented in ``data/update.example.toml``. A TOML file may set
+any subset of the keys at its top level; unknown keys and wrong types are
+refused with a :class:`ConfigError` that names the file and the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "MODELS"]
+
+REPO = Path(__file__).resolve().parents[1]
+TRAINERS = ("sao", "pso", "gradient")
+STRATEGIES = ("adaptive", "conventional")
+MODELS = ("three_plate",)
+
+
+class ConfigError(ValueError):
+    """A configuration value that cannot be used; the message names its source and key."""
+
+
+@dataclass(frozen=True)
+class UpdateConfig:
+    """All settings of one updating run (defaults: Table 2 of Zhou & Tang).
+
+    Attributes
+    ----------
+    run_id : str or None
+        Folder name under ``runs_dir``; a new id is made when None.
+    runs_dir : str
+    measured : str
+        Measured FRF amplitudes (CSV, Parquet or UFF58).
+    model : str
+        FE model name; ``three_plate`` is the benchmark.
+    strategy : {"adaptive", "conventional"}
+        ``conventional`` is Section 3.4's baseline: ``conventional_samples``
+        uniform FE runs, one MRGP, the best of ``w`` predictions.
+    trainer : {"sao", "pso", "gradient"}
+        MRGP hyper-parameter trainer.
+    seed : int
+        Master seed; every stage derives its own generator from it.
+    n_jobs : int
+        Parallel FE runs (joblib; -1 = all cores).
+    repeats : int
+        Independent runs with seeds ``seed, seed + 1, ...`` (Figures 10-13).
+    q, w, s, z : int
+        Initial samples, candidates per iteration, FE runs per iteration,
+        best samples defining the sampling distribution.
+    threshold : float
+        Overall error (Eq. 6b) that ends the run, e.g. 0.01 = 1 %.
+    max_iterations, max_fe_evaluations : int
+        Budgets (iteration 1 is the initial sampling).
+    lower, upper : float
+        Search box for every parameter; ``lower`` must be >= -1 (the
+        domain's edge, itself excluded).
+    min_distance_factor : float
+        Minimum distance between samples selected in one iteration, as a
+        fraction of the sampling distribution's spread.
+    std_floor : float
+        Smallest standard deviation of the sampling distribution.
+    conventional_samples : int
+    true_parameters : list of float or None
+        Known true values (synthetic data), only for reporting errors.
+    """
+
+    run_id: str | None = None
+    runs_dir: str = "data/runs"
+    measured: str = "data/benchmark/measured.csv"
+    model: str = "three_plate"
+    strategy: str = "adaptive"
+    trainer: str = "gradient"
+    seed: int = 0
+    n_jobs: int = 2
+    repeats: int = 1
+    q: int = 20
+    w: int = 10_000
+    s: int = 20
+    z: int = 20
+    threshold: float = 0.01
+    max_iterations: int = 12
+    max_fe_evaluations: int = 240
+    lower: float = -1.0
+    upper: float = 1.0
+    min_distance_factor: float = 0.1
+    std_floor: float = 1e-4
+    conventional_samples: int = 300
+    true_parameters: list[float] | None = field(default=None)
+
+    def __post_init__(self) -> None:
+        self.validate("config")
+
+    def validate(self, source: str) -> None:
+        def bad(key: str, why: str) -> ConfigError:
+            return ConfigError(f"{source}: key '{key}': {why}")
+
+        for key in ("q", "w", "s", "z", "max_iterations", "max_fe_evaluations", "repeats", "conventional_samples"):
+            if getattr(self, key) < 1:
+                raise bad(key, f"must be at least 1, got {getattr(self, key)}")
+        if self.n_jobs == 0 or self.n_jobs < -1:
+            raise bad("n_jobs", f"must be a positive number of processes or -1 (all cores), got {self.n_jobs}")
+        if self.trainer not in TRAINERS:
+            raise bad("trainer", f"unknown trainer {self.trainer!r}; choose one of {', '.join(TRAINERS)}")
+        if self.strategy not in STRATEGIES:
+            raise bad("strategy", f"unknown strategy {self.strategy!r}; choose one of {', '.join(STRATEGIES)}")
+        if self.model not in MODELS:
+            raise bad("model", f"unknown model {self.model!r}; choose one of {', '.join(MODELS)}")
+        if not self.threshold > 0:
+            raise bad("threshold", f"must be positive, got {self.threshold}")
+        if self.lower < -1.0:
+            raise bad("lower", f"must be >= -1 (stiffness factors live in (-1, inf)), got {self.lower}")
+        if not self.lower < self.upper:
+            raise bad("lower", f"lower bound {self.lower} must be below upper bound {self.upper}")
+        if self.z < 2:
+            raise bad("z", f"must be at least 2 to estimate a variance, got {self.z}")
+        if not self.min_distance_factor >= 0:
+            raise bad("min_distance_factor", f"must be >= 0, got {self.min_distance_factor}")
+        if not self.std_floor > 0:
+            raise bad("std_floor", f"must be positive, got {self.std_floor}")
+        if self.run_id is not None and (not self.run_id or "/" in self.run_id or self.run_id.startswith(".")):
+            raise bad("run_id", f"must be a plain folder name, got {self.run_id!r}")
+
+    def replace(self, **changes: Any) -> "UpdateConfig":
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def resolve(self, path: str) -> Path:
+        """A path from the config, relative to the repository when not absolute."""
+        p = Path(path)
+        return p if p.is_absolute() else REPO / p
+
+
+_TYPES: dict[str, tuple[type, ...]] = {}
+for _f in dataclasses.fields(UpdateConfig):
+    if _f.name == "true_parameters":
+        _TYPES[_f.name] = (list,)
+    elif _f.type in ("int", int):
+        _TYPES[_f.name] = (int,)
+    elif _f.type in ("float", float):
+        _TYPES[_f.name] = (int, float)
+    else:
+        _TYPES[_f.name] = (str,)
+
+
+def _check_types(values: dict[str, Any], source: str) -> dict[str, Any]:
+    known = {f.name for f in dataclasses.fields(UpdateConfig)}
+    for key, value in values.items():
+        if key not in known:
+            raise ConfigError(f"{source}: unknown key '{key}'; valid keys are {', '.join(sorted(known))}")
+        expected = _TYPES[key]
+        if isinstance(value, bool) or not isinstance(value, expected):
+            names = " or ".join(t.__name__ for t in expected)
+            raise ConfigError(f"{source}: key '{key}' must be {names}, got {type(value).__name__} {value!r}")
+        if key == "true_parameters" and not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+        ):
+            raise ConfigError(f"{source}: key 'true_parameters' must be a list of numbers, got {value!r}")
+    return values
+
+
+def load_config(path: str | Path | None = None, **overrides: Any) -> UpdateConfig:
+    """Defaults, then the TOML file (if any), then non-None ``overrides``.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file (or "command line") and the key.
+    """
+    values: dict[str, Any] = {}
+    source = "defaults"
+    if path is not None:
+        path = Path(path)
+        source = str(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read the config file ({exc.strerror})") from exc
+        try:
+            values = tomllib.loads(text)
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
+        for key, value in values.items():
+            if isinstance(value, dict):
+                raise ConfigError(f"{path}: key '{key}' is a table; all settings go at the top level")
+        _check_types(values, source)
+    cli = _check_types({k: v for k, v in overrides.items() if v is not None}, "command line")
+    merged = {**values, **cli}
+    try:
+        config = UpdateConfig(**merged)
+    except ConfigError as exc:
+        # Re-attribute to the source that set the key.
+        key = str(exc).split("'")[1] if "'" in str(exc) else ""
+        origin = "command line" if key in cli else source
+        raise ConfigError(str(exc).replace("config:", f"{origin}:", 1)) from None
+    return config

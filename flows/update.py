@@ -1,0 +1,350 @@
+"""Adaptive MRGP model updating as a Prefect flow: ``python -m flows.update``.
+
+Each iteration is a subflow run named ``iteration-<k>`` with the tasks
+``samples -> fe -> errors -> distribution -> train -> predict -> select``
+(see :mod:`tasks.stages`). Everything is written under
+``data/runs/<run-id>/``; running again with the same ``--run-id`` resumes
+where the last run stopped.
+
+Examples::
+
+    python -m flows.update                                  # benchmark, defaults of Table 2
+    python -m flows.update --trainer pso --seed 3 --run-id pso-3
+    python -m flows.update --strategy conventional
+    python -m flows.update --repeats 5
+    python -m flows.update rerun --run-id pso-3 --iteration 3 --stage train --trainer sao
+
+With no Prefect server configured (no ``PREFECT_API_URL``), Prefect starts a
+temporary local API for the run; nothing leaves the machine.
+"""
+
+from __future__ import annotations
+
+import os
+
+# Offline and quiet by default; an explicit environment wins.
+os.environ.setdefault("DO_NOT_TRACK", "1")
+os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+os.environ.setdefault("PREFECT_CLOUD_ENABLE_ORCHESTRATION_TELEMETRY", "false")
+
+import argparse  # noqa: E402
+import datetime as dt  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from prefect import flow  # noqa: E402
+
+from flows.config import STRATEGIES, TRAINERS, ConfigError, UpdateConfig, load_config  # noqa: E402
+from mrgp_core import adaptive  # noqa: E402
+from tasks import stages  # noqa: E402
+from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
+from tasks.runstore import RunStore, atomic_write_json, git_commit, package_versions  # noqa: E402
+
+__all__ = ["update_flow", "iteration_flow", "run_update", "main", "rerun_stage"]
+
+#: Config keys that may change between a run and its resume.
+RESUMABLE_CHANGES = {"n_jobs", "run_id", "runs_dir", "repeats"}
+
+
+# -- the flows ------------------------------------------------------------------------------------
+@flow(name="iteration", flow_run_name="iteration-{iteration}", log_prints=True)
+def iteration_flow(root: str, config: UpdateConfig, iteration: int, freqs_hz: np.ndarray,
+                   measured_amplitude: np.ndarray, m: int) -> dict:
+    """One iteration: FE batch and errors, then (unless stopping) the next batch."""
+    stages.samples_task(root, config, iteration, m)
+    stages.fe_task(root, config, iteration, freqs_hz)
+    info = stages.errors_task(root, config, iteration, measured_amplitude)
+    store = RunStore(root)
+    _, _, _, errors = stages.training_data(store, iteration)
+    fe_count = _fe_count(store, iteration)
+    best = float(errors.min()) if errors.size else float("inf")
+    if config.strategy == "conventional":
+        decision = adaptive.StopDecision(iteration == 2, best <= config.threshold,
+                                         "conventional: one MRGP, best prediction evaluated")
+        if iteration == 2:
+            return {"stop": True, "converged": decision.converged, "reason": decision.reason, "best": best,
+                    "fe": fe_count}
+    else:
+        decision = adaptive.stopping_rule(best, config.threshold, iteration, config.max_iterations,
+                                          fe_count, config.max_fe_evaluations, config.s)
+        if decision.stop:
+            return {"stop": True, "converged": decision.converged, "reason": decision.reason, "best": best,
+                    "fe": fe_count}
+    stages.distribution_task(root, config, iteration, m)
+    stages.train_task(root, config, iteration)
+    stages.predict_task(root, config, iteration, m)
+    stages.select_task(root, config, iteration, m, 1 if config.strategy == "conventional" else config.s)
+    print(f"iteration {iteration}: best overall error {best:.4%} after {fe_count} FE runs")
+    return {"stop": False, "converged": False, "reason": "continue", "best": best, "fe": fe_count}
+
+
+@flow(name="mrgp-update", flow_run_name="update-{config.run_id}", log_prints=True)
+def update_flow(config: UpdateConfig) -> dict:
+    """The whole updating run (all repeats); returns the summary written to ``summary.json``."""
+    return run_update(config)
+
+
+def run_update(config: UpdateConfig) -> dict:
+    t0 = time.perf_counter()
+    measured = read_measured(config.resolve(config.measured))
+    root = config.resolve(config.runs_dir) / config.run_id
+    if config.repeats == 1:
+        summary = _single_run(config, RunStore(root), measured, t0)
+    else:
+        runs = []
+        for i in range(config.repeats):
+            sub = config.replace(seed=config.seed + i, repeats=1)
+            runs.append(_single_run(sub, RunStore(root / f"repeat={i}"), measured, time.perf_counter()))
+        summary = _repeat_summary(config, runs, time.perf_counter() - t0)
+        atomic_write_json(root / "summary.json", summary)
+    return summary
+
+
+def _single_run(config: UpdateConfig, store: RunStore, measured, t0: float) -> dict:
+    _write_manifest(store, config)
+    model = stages.load_model(config.model)
+    m = model.n_segments
+    if measured.amplitude.shape[1] != model.n_sensors:
+        raise MeasuredDataError(f"{measured.source}: {measured.amplitude.shape[1]} sensors, "
+                                f"but the model {config.model!r} has {model.n_sensors}")
+    root = str(store.root)
+    last = None
+    iteration = 0
+    while True:
+        iteration += 1
+        last = iteration_flow(root, config, iteration, measured.frequencies_hz, measured.amplitude, m)
+        if last["stop"]:
+            break
+    summary = _summary(config, store, iteration, last, measured, time.perf_counter() - t0)
+    atomic_write_json(store.root / "summary.json", summary)
+    return summary
+
+
+def _fe_count(store: RunStore, iteration: int) -> int:
+    return int(sum(len(store.read_table(k, "samples")) for k in range(1, iteration + 1)))
+
+
+def _write_manifest(store: RunStore, config: UpdateConfig) -> None:
+    old = store.read_manifest()
+    cfg = config.to_dict()
+    if old is not None:
+        changed = {k for k in cfg if old["config"].get(k) != cfg[k]} - RESUMABLE_CHANGES
+        if changed:
+            raise ConfigError(
+                f"{store.manifest_path}: run {store.root.name!r} was started with other settings "
+                f"({', '.join(sorted(changed))}); resume with the same settings or choose a new --run-id"
+            )
+        old.setdefault("resumes", []).append(_now())
+        store.write_manifest(old)
+        return
+    store.write_manifest({
+        "run_id": store.root.name,
+        "created": _now(),
+        "config": cfg,
+        "seed": config.seed,
+        "versions": {"python": sys.version.split()[0], **package_versions()},
+        "git_commit": git_commit(),
+        "stages": list(stages.STAGES),
+    })
+
+
+def _now() -> str:
+    return dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _summary(config, store, iterations, last, measured, wall) -> dict:
+    ids, X, Y, E = stages.training_data(store, iterations)
+    if config.strategy == "conventional":
+        final = store.read_table(iterations, "samples")["sample_id"].to_numpy()
+        pick = np.flatnonzero(np.isin(ids, final))
+        best = int(pick[np.argmin(E[pick])]) if pick.size else int(np.argmin(E))
+    else:
+        best = int(np.argmin(E))
+    n = measured.amplitude.shape[1]
+    per_sensor = adaptive.per_sensor_error(Y[best], n)
+    names = [f"alpha_{i + 1}" for i in range(X.shape[1])]
+    summary = {
+        "parameters": dict(zip(names, map(float, X[best]))),
+        "overall_error": float(E[best]),
+        "per_sensor_error": {f"sensor_{int(s)}": float(v) for s, v in zip(measured.sensors, per_sensor)},
+        "fe_evaluations": _fe_count(store, iterations),
+        "iterations": iterations,
+        "converged": bool(last["converged"]),
+        "stop_reason": last["reason"],
+        "trainer": config.trainer,
+        "strategy": config.strategy,
+        "seed": config.seed,
+        "best_sample_id": int(ids[best]),
+        "wall_seconds": round(wall, 3),
+        "run_folder": str(store.root),
+    }
+    if config.true_parameters is not None:
+        truth = np.asarray(config.true_parameters, float)
+        summary["parameter_errors"] = dict(zip(names, map(float, np.abs(X[best] - truth))))
+    return summary
+
+
+def _repeat_summary(config, runs: list[dict], wall: float) -> dict:
+    errors = np.array([r["overall_error"] for r in runs])
+    params = pd.DataFrame([r["parameters"] for r in runs])
+    out = {
+        "parameters": params.mean().to_dict(),
+        "overall_error": float(errors.mean()),
+        "per_sensor_error": pd.DataFrame([r["per_sensor_error"] for r in runs]).mean().to_dict(),
+        "fe_evaluations": int(sum(r["fe_evaluations"] for r in runs)),
+        "iterations": int(max(r["iterations"] for r in runs)),
+        "converged": bool(all(r["converged"] for r in runs)),
+        "trainer": config.trainer,
+        "strategy": config.strategy,
+        "wall_seconds": round(wall, 3),
+        "repeats": {
+            "n": len(runs),
+            "seeds": [r["seed"] for r in runs],
+            "overall_error": _stats(errors),
+            "parameters": {c: _stats(params[c].to_numpy()) for c in params},
+            "fe_evaluations": _stats(np.array([r["fe_evaluations"] for r in runs], float)),
+            "iterations": _stats(np.array([r["iterations"] for r in runs], float)),
+            "success_rate": float(np.mean([r["converged"] for r in runs])),
+        },
+        "runs": runs,
+    }
+    if config.true_parameters is not None:
+        pe = pd.DataFrame([r["parameter_errors"] for r in runs])
+        out["repeats"]["parameter_errors"] = {c: _stats(pe[c].to_numpy()) for c in pe}
+    return out
+
+
+def _stats(x: np.ndarray) -> dict:
+    return {"mean": float(np.mean(x)), "std": float(np.std(x, ddof=1)) if len(x) > 1 else 0.0,
+            "min": float(np.min(x)), "max": float(np.max(x))}
+
+
+# -- rerun of one stage -------------------------------------------------------------------------
+RERUNNABLE = ("train", "predict")
+
+
+def rerun_stage(run_root: Path, iteration: int, stage: str, trainer: str | None = None) -> Path:
+    """Recompute one stage from its stored inputs into a new folder beside the original.
+
+    The output goes to ``iteration=<k>/stage=<stage>.rerun-<trainer>-<UTC time>/``;
+    the original stage and everything after it are untouched.
+    """
+    store = RunStore(run_root)
+    manifest = store.read_manifest()
+    if manifest is None:
+        raise ConfigError(f"{run_root}: no manifest.json; is this a run folder?")
+    if stage not in RERUNNABLE:
+        raise ConfigError(f"stage {stage!r} cannot be rerun in place; choose one of {', '.join(RERUNNABLE)}")
+    config = UpdateConfig(**manifest["config"])
+    for needed in ("errors", "distribution") if stage == "predict" else ("errors",):
+        if not store.is_finished(iteration, needed):
+            raise ConfigError(f"{run_root}: iteration {iteration} has no finished '{needed}' stage to rerun from")
+    trainer = trainer or config.trainer
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    name = f"{stage}.rerun-{trainer}-{stamp}"
+    m = stages.load_model(config.model).n_segments
+    if stage == "train":
+        stages.train_task.fn(str(store.root), config, iteration, trainer=trainer, output_stage=name)
+    else:
+        stages.predict_task.fn(str(store.root), config, iteration, m, output_stage=name)
+    return store.stage_dir(iteration, name)
+
+
+# -- command line -------------------------------------------------------------------------------
+def _run_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m flows.update",
+        description="Update the FE model's segment parameters from measured FRF amplitudes "
+                    "(adaptive MRGP, Zhou & Tang). Subcommand 'rerun' recomputes one stage of an earlier run.",
+        epilog="Settings come from the defaults, then --config, then these flags. See data/update.example.toml.",
+    )
+    p.add_argument("--config", metavar="PATH", help="TOML file with any of the settings (data/update.example.toml)")
+    p.add_argument("--measured", metavar="PATH", help="measured FRF amplitudes: .csv, .parquet or .uff "
+                                                      "(default data/benchmark/measured.csv)")
+    p.add_argument("--run-id", metavar="ID", help="run folder name under data/runs; an existing id resumes that run")
+    p.add_argument("--runs-dir", metavar="PATH", help="where run folders go (default data/runs)")
+    p.add_argument("--trainer", choices=TRAINERS, help="MRGP hyper-parameter trainer (default gradient)")
+    p.add_argument("--strategy", choices=STRATEGIES, help="adaptive (default) or the paper's conventional baseline")
+    p.add_argument("--seed", type=int, help="master random seed (default 0)")
+    p.add_argument("--n-jobs", type=int, help="parallel FE processes, -1 = all cores (default 2)")
+    p.add_argument("--repeats", type=int, help="independent runs with seeds seed..seed+N-1 (default 1)")
+    p.add_argument("--threshold", type=float, help="stop at this overall error, e.g. 0.01 = 1 %% (default)")
+    p.add_argument("--max-iterations", type=int, help="iteration budget (default 12)")
+    p.add_argument("--max-fe-evaluations", type=int, help="FE-run budget (default 240)")
+    p.add_argument("-q", type=int, help="initial uniform samples (default 20)")
+    p.add_argument("-w", type=int, help="candidates predicted per iteration (default 10000)")
+    p.add_argument("-s", type=int, help="FE runs per iteration (default 20)")
+    p.add_argument("-z", type=int, help="best samples defining the sampling distribution (default 20)")
+    return p
+
+
+def _rerun_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m flows.update rerun",
+                                description="Recompute one stage of an earlier run from its stored inputs, "
+                                            "into a new folder beside the original.")
+    p.add_argument("--run-id", required=True, metavar="ID")
+    p.add_argument("--runs-dir", default="data/runs", metavar="PATH")
+    p.add_argument("--iteration", required=True, type=int)
+    p.add_argument("--stage", required=True, choices=RERUNNABLE)
+    p.add_argument("--trainer", choices=TRAINERS, help="trainer for a rerun of 'train' (default: the run's)")
+    return p
+
+
+def print_summary(summary: dict, file=sys.stdout) -> None:
+    print(file=file)
+    print(f"run folder: {summary.get('run_folder', '')}", file=file)
+    print(f"strategy {summary['strategy']}, trainer {summary['trainer']}: "
+          f"{'converged' if summary['converged'] else 'NOT converged'} after {summary['iterations']} iterations, "
+          f"{summary['fe_evaluations']} FE runs, {summary['wall_seconds']:.1f} s", file=file)
+    print(f"overall error: {summary['overall_error']:.4%}", file=file)
+    print(f"{'parameter':<10} {'value':>9}" + (f" {'|error|':>9}" if "parameter_errors" in summary else ""),
+          file=file)
+    for name, value in summary["parameters"].items():
+        extra = f" {summary['parameter_errors'][name]:>9.4f}" if "parameter_errors" in summary else ""
+        print(f"{name:<10} {value:>9.4f}{extra}", file=file)
+    print("per-sensor error: " + ", ".join(f"{k.split('_')[-1]}: {v:.3%}"
+                                           for k, v in summary["per_sensor_error"].items()), file=file)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    try:
+        if argv and argv[0] == "rerun":
+            args = _rerun_parser().parse_args(argv[1:])
+            root = Path(args.runs_dir)
+            root = root if root.is_absolute() else Path(__file__).resolve().parents[1] / root
+            out = rerun_stage(root / args.run_id, args.iteration, args.stage, args.trainer)
+            print(f"rerun written to {out}")
+            return 0
+        args = _run_parser().parse_args(argv)
+        config = load_config(
+            args.config, measured=args.measured, run_id=args.run_id, runs_dir=args.runs_dir, trainer=args.trainer,
+            strategy=args.strategy, seed=args.seed, n_jobs=args.n_jobs, repeats=args.repeats,
+            threshold=args.threshold, max_iterations=args.max_iterations,
+            max_fe_evaluations=args.max_fe_evaluations, q=args.q, w=args.w, s=args.s, z=args.z,
+        )
+        if config.run_id is None:
+            stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+            config = config.replace(run_id=f"{config.strategy}-{config.trainer}-seed{config.seed}-{stamp}")
+        if config.measured == "data/benchmark/measured.csv" and config.true_parameters is None:
+            from fe_core.benchmark import ALPHA_ACTUAL
+
+            config = config.replace(true_parameters=ALPHA_ACTUAL.tolist())
+        read_measured(config.resolve(config.measured))  # refuse bad data before any work
+    except FileNotFoundError as exc:
+        print(f"error: {exc.filename}: no such file", file=sys.stderr)
+        return 2
+    except (ConfigError, MeasuredDataError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    summary = update_flow(config)
+    print_summary(summary)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,405 @@
+"""Prefect tasks of one updating iteration; each wraps one core call.
+
+Every task reads its inputs from the run folder, calls the core, writes its
+outputs with :class:`tasks.runstore.RunStore` and returns a small value. A
+task whose stage is already finished (record present, checksums intact) reads
+its result back instead of recomputing it, so a killed run resumes where it
+stopped. The logic is reachable without Prefect through ``task.fn(...)``.
+
+Stages of iteration k (``STAGES``)::
+
+    samples -> fe -> errors -> distribution -> train -> predict -> select
+                               (stop check)                        -> samples of k + 1
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from joblib import Parallel, delayed
+from prefect import task
+from prefect.cache_policies import NO_CACHE
+
+import mrgp_core
+from mrgp_core import adaptive
+from tasks.runstore import RunStore
+
+__all__ = [
+    "STAGES",
+    "stage_rng",
+    "samples_task",
+    "fe_task",
+    "errors_task",
+    "distribution_task",
+    "train_task",
+    "predict_task",
+    "select_task",
+    "evaluate_sample",
+    "training_data",
+    "load_model",
+]
+
+#: Environment variable: seconds each FE run sleeps (only for interruption tests).
+FE_DELAY_ENV = "MRGP_FE_DELAY_SECONDS"
+
+STAGES = ("samples", "fe", "errors", "distribution", "train", "predict", "select")
+_STAGE_CODES = {name: i for i, name in enumerate(STAGES)}
+
+log = logging.getLogger(__name__)
+
+
+def _logger():
+    """Prefect's run logger inside a run (shown in the UI), the module logger outside."""
+    try:
+        from prefect import get_run_logger
+
+        return get_run_logger()
+    except Exception:
+        return log
+
+
+def stage_rng(seed: int, iteration: int, stage: str) -> np.random.Generator:
+    """The generator of one stage: a pure function of (seed, iteration, stage), so resumes repeat it."""
+    return np.random.default_rng([seed, iteration, _STAGE_CODES[stage]])
+
+
+def load_model(name: str):
+    """The FE model by name (built once per process, then cached)."""
+    if name == "three_plate":
+        from fe_core.benchmark import three_plate
+
+        return three_plate()
+    raise ValueError(f"unknown model {name!r}")
+
+
+def param_columns(m: int) -> list[str]:
+    return [f"alpha_{i + 1}" for i in range(m)]
+
+
+# -- FE evaluation (runs in joblib worker processes) ---------------------------------------------
+def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz: np.ndarray) -> pd.DataFrame:
+    """One FE run: the complex FRF at the sensors as a long table.
+
+    A failed evaluation (for instance a singular system) does not raise: it
+    returns rows with NaN responses, ``status = "failed"`` and the reason, so
+    the run records it, excludes the sample and goes on.
+
+    Returns
+    -------
+    DataFrame
+        Columns ``sample_id, sensor, frequency_hz, real, imag, status, message, seconds, pid``;
+        one row per (frequency, sensor), frequency-major.
+    """
+    t0 = time.perf_counter()
+    model = load_model(model_name)
+    n, p = model.n_sensors, len(freqs_hz)
+    delay = float(os.environ.get(FE_DELAY_ENV, "0") or 0)
+    if delay > 0:  # fault-injection tests need FE runs slow enough to be interrupted
+        time.sleep(delay)
+    try:
+        Z = model.frf(np.asarray(alpha, dtype=float), freqs_hz)
+        if not np.all(np.isfinite(Z)):
+            raise FloatingPointError("the FRF has non-finite values")
+        status, message = "ok", ""
+    except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
+        Z = np.full((p, n), np.nan + 1j * np.nan)
+        status, message = "failed", f"{type(exc).__name__}: {exc}"
+    return pd.DataFrame(
+        {
+            "sample_id": np.full(p * n, sample_id, dtype=np.int64),
+            "sensor": np.tile(np.arange(1, n + 1), p).astype(np.int64),
+            "frequency_hz": np.repeat(np.asarray(freqs_hz, float), n),
+            "real": Z.real.ravel(),
+            "imag": Z.imag.ravel(),
+            "status": status,
+            "message": message,
+            "seconds": time.perf_counter() - t0,
+            "pid": os.getpid(),
+        }
+    )
+
+
+# -- helpers over the run folder ----------------------------------------------------------------
+def training_data(store: RunStore, iteration: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """All successfully FE-evaluated samples of iterations 1..``iteration``.
+
+    Returns
+    -------
+    sample_ids : ndarray, shape (r,)
+    X : ndarray, shape (r, m)
+    Y : ndarray, shape (r, p * n)
+        Relative residuals (Eq. 5 layout).
+    errors : ndarray, shape (r,)
+        Overall errors (Eq. 6b).
+    """
+    ids, X, Y, E = [], [], [], []
+    for k in range(1, iteration + 1):
+        samples = store.read_table(k, "samples")
+        errs = store.read_table(k, "errors", "errors")
+        res = store.read_table(k, "errors", "residuals")
+        ok = errs[errs["status"] == "ok"]
+        cols = [c for c in samples.columns if c.startswith("alpha_")]
+        merged = samples.merge(ok[["sample_id", "overall_error"]], on="sample_id")
+        wide = res.pivot_table(index="sample_id", columns=["frequency_hz", "sensor"], values="residual")
+        wide = wide.sort_index(axis=1)  # frequency-major, sensors fastest (Eq. 5)
+        ids.append(merged["sample_id"].to_numpy())
+        X.append(merged[cols].to_numpy())
+        Y.append(wide.loc[merged["sample_id"]].to_numpy())
+        E.append(merged["overall_error"].to_numpy())
+    return np.concatenate(ids), np.vstack(X), np.vstack(Y), np.concatenate(E)
+
+
+def _done(store: RunStore, iteration: int, stage: str) -> bool:
+    if store.is_finished(iteration, stage):
+        _logger().info("iteration %d, stage %s: finished earlier, read back", iteration, stage)
+        return True
+    return False
+
+
+# -- the tasks ------------------------------------------------------------------------------------
+@task(name="samples", task_run_name="iteration-{iteration}-samples", cache_policy=NO_CACHE)
+def samples_task(root: str, config, iteration: int, m: int) -> int:
+    """The FE batch of an iteration: uniform samples first, then the previous selection."""
+    store = RunStore(root)
+    if not _done(store, iteration, "samples"):
+        cols = param_columns(m)
+        if iteration == 1:
+            n = config.conventional_samples if config.strategy == "conventional" else config.q
+            lower, upper = np.full(m, config.lower), np.full(m, config.upper)
+            X = adaptive.uniform_samples(n, lower, upper, stage_rng(config.seed, iteration, "samples"))
+            first_id = 0
+        else:
+            X = store.read_table(iteration - 1, "select")[cols].to_numpy()
+            first_id = int(store.stage_info(iteration - 1, "select")["next_sample_id"])
+        df = pd.DataFrame(X, columns=cols)
+        df.insert(0, "iteration", np.int64(iteration))
+        df.insert(0, "sample_id", np.arange(first_id, first_id + len(df), dtype=np.int64))
+        store.write_table(iteration, "samples", "samples", df)
+        store.finish(iteration, "samples", ["samples"], {"n": len(df)})
+    return int(store.stage_info(iteration, "samples")["n"])
+
+
+@task(name="fe", task_run_name="iteration-{iteration}-fe", cache_policy=NO_CACHE)
+def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray) -> int:
+    """FE runs of the iteration's samples in parallel (joblib, loky processes).
+
+    Each result is written as soon as it arrives, so a crash loses at most
+    the runs in flight; on resume, samples with a result on disk are not run
+    again. Returns the number of FE runs made by this call.
+    """
+    store = RunStore(root)
+    logger = _logger()
+    if _done(store, iteration, "fe"):
+        return 0
+    samples = store.read_table(iteration, "samples")
+    cols = [c for c in samples.columns if c.startswith("alpha_")]
+    done = store.finished_samples(iteration)
+    todo = samples[~samples["sample_id"].isin(list(done))]
+    for x in todo[cols].to_numpy():  # the domain guard: nothing invalid reaches the FE model
+        if np.any(~np.isfinite(x)) or np.any(x <= -1.0):
+            raise ValueError(f"sample outside the valid domain reached the FE stage: {x}")
+    if done:
+        logger.info("iteration %d, stage fe: %d of %d FE results found on disk", iteration, len(done), len(samples))
+    total, count = len(samples), len(done)
+    jobs = (
+        delayed(evaluate_sample)(config.model, int(sid), x, freqs_hz)
+        for sid, x in zip(todo["sample_id"], todo[cols].to_numpy())
+    )
+    ran = 0
+    if len(todo):
+        parallel = Parallel(n_jobs=config.n_jobs, backend="loky", return_as="generator_unordered")
+        log_path = store.root / "fe_evaluations.jsonl"
+        for result in parallel(jobs):
+            sid = int(result["sample_id"].iloc[0])
+            store.write_sample(iteration, sid, result)
+            with open(log_path, "a") as fh:
+                fh.write(json.dumps({"iteration": iteration, "sample_id": sid, "status": result["status"].iloc[0],
+                                     "pid": int(result["pid"].iloc[0]), "unix": time.time()}) + "\n")
+            ran += 1
+            count += 1
+            logger.info("iteration %d, stage fe: %d/%d FE runs done", iteration, count, total)
+    parts = [pd.read_parquet(p) for sid, p in sorted(store.finished_samples(iteration).items())
+             if sid in set(samples["sample_id"])]
+    fe = pd.concat(parts, ignore_index=True).sort_values(["sample_id", "frequency_hz", "sensor"], kind="stable")
+    store.write_table(iteration, "fe", "fe", fe.reset_index(drop=True))
+    store.finish(iteration, "fe", ["fe"], {"n": int(fe["sample_id"].nunique())})
+    return ran
+
+
+@task(name="errors", task_run_name="iteration-{iteration}-errors", cache_policy=NO_CACHE)
+def errors_task(root: str, config, iteration: int, measured_amplitude: np.ndarray) -> dict:
+    """Residuals (Eq. 5), overall (Eq. 6b) and per-sensor (Eq. 15) errors of the iteration's FE runs."""
+    store = RunStore(root)
+    if not _done(store, iteration, "errors"):
+        fe = store.read_table(iteration, "fe")
+        p, n = measured_amplitude.shape
+        status = fe.groupby("sample_id", sort=True)["status"].first()
+        ids = status.index.to_numpy()
+        amp = np.hypot(fe["real"].to_numpy(), fe["imag"].to_numpy()).reshape(len(ids), p, n)
+        res = adaptive.relative_residuals(amp, measured_amplitude)  # (r, p*n)
+        overall = adaptive.overall_error(res)
+        sensor = adaptive.per_sensor_error(res, n)
+        errors = pd.DataFrame({"sample_id": ids, "iteration": np.int64(iteration), "overall_error": overall,
+                               "status": status.to_numpy()})
+        for j in range(n):
+            errors[f"error_sensor_{j + 1}"] = sensor[:, j]
+        failed = errors["status"] != "ok"
+        if failed.any():
+            messages = fe[fe["status"] != "ok"].groupby("sample_id")["message"].first()
+            for sid, msg in messages.items():
+                _logger().warning("iteration %d: FE run of sample %d failed and is excluded: %s", iteration, sid, msg)
+        residuals = pd.DataFrame({
+            "sample_id": np.repeat(ids, p * n),
+            "frequency_hz": fe["frequency_hz"].to_numpy(),
+            "sensor": fe["sensor"].to_numpy(),
+            "residual": res.ravel(),
+        })
+        store.write_table(iteration, "errors", "errors", errors)
+        store.write_table(iteration, "errors", "residuals", residuals)
+        ok = errors.loc[~failed, "overall_error"]
+        store.finish(iteration, "errors", ["errors", "residuals"],
+                     {"best": float(ok.min()) if len(ok) else float("inf"), "failed": int(failed.sum())})
+    return store.stage_info(iteration, "errors")
+
+
+@task(name="distribution", task_run_name="iteration-{iteration}-distribution", cache_policy=NO_CACHE)
+def distribution_task(root: str, config, iteration: int, m: int) -> dict:
+    """Step f: the sampling distribution of the next candidates, and the minimum distance."""
+    store = RunStore(root)
+    if not _done(store, iteration, "distribution"):
+        lower, upper = np.full(m, config.lower), np.full(m, config.upper)
+        if iteration == 1 or config.strategy == "conventional":
+            # Table 2, step c: the first candidates are uniform over the whole box.
+            kind, mean, std, dist = "uniform", (lower + upper) / 2, (upper - lower) / np.sqrt(12), None
+        else:
+            _, X, _, E = training_data(store, iteration)
+            dist = adaptive.fit_distribution(X, E, config.z, config.std_floor)
+            kind, mean, std = "normal", dist.mean, dist.std
+        d_min = adaptive.default_min_distance(dist, lower, upper, config.min_distance_factor)
+        df = pd.DataFrame({"parameter": param_columns(m), "mean": mean, "std": std})
+        store.write_table(iteration, "distribution", "distribution", df)
+        store.finish(iteration, "distribution", ["distribution"], {"kind": kind, "min_distance": d_min})
+    return store.stage_info(iteration, "distribution")
+
+
+@task(name="train", task_run_name="iteration-{iteration}-train", cache_policy=NO_CACHE, retries=1)
+def train_task(root: str, config, iteration: int, trainer: str | None = None, output_stage: str = "train") -> dict:
+    """MRGP training on all FE data so far; the hyper-parameters are stored, not the model."""
+    store = RunStore(root)
+    trainer = trainer or config.trainer
+    if not _done(store, iteration, output_stage):
+        _, X, Y, _ = training_data(store, iteration)
+        previous = _previous_hyperparameters(store, iteration)
+        rng = stage_rng(config.seed, iteration, "train")
+        t0 = time.perf_counter()
+        hyper, info = train_mrgp(X, Y, trainer, rng, previous)
+        seconds = time.perf_counter() - t0
+        df = pd.DataFrame({"name": list(hyper), "value": [float(v) for v in hyper.values()]})
+        store.write_table(iteration, output_stage, "hyperparameters", df)
+        store.finish(iteration, output_stage, ["hyperparameters"],
+                     {"trainer": trainer, "seconds": seconds, "n_train": int(X.shape[0]), **info})
+        _logger().info("iteration %d, stage train: %s on %d runs in %.2f s", iteration, trainer, X.shape[0], seconds)
+    return store.stage_info(iteration, output_stage)
+
+
+def _previous_hyperparameters(store: RunStore, iteration: int) -> dict | None:
+    if iteration > 1 and store.is_finished(iteration - 1, "train"):
+        df = store.read_table(iteration - 1, "train", "hyperparameters")
+        return dict(zip(df["name"], df["value"]))
+    return None
+
+
+@task(name="predict", task_run_name="iteration-{iteration}-predict", cache_policy=NO_CACHE)
+def predict_task(root: str, config, iteration: int, m: int, train_stage: str = "train",
+                 output_stage: str = "predict") -> dict:
+    """Draw ``w`` candidates and predict their overall errors with the trained MRGP."""
+    store = RunStore(root)
+    if not _done(store, iteration, output_stage):
+        lower, upper = np.full(m, config.lower), np.full(m, config.upper)
+        rng = stage_rng(config.seed, iteration, "predict")
+        info = store.stage_info(iteration, "distribution")
+        if info["kind"] == "uniform":
+            C = adaptive.uniform_samples(config.w, lower, upper, rng)
+        else:
+            d = store.read_table(iteration, "distribution")
+            dist = adaptive.SamplingDistribution(d["mean"].to_numpy(), d["std"].to_numpy())
+            C = adaptive.draw_candidates(dist, config.w, lower, upper, rng)
+        _, X, Y, _ = training_data(store, iteration)
+        hp = store.read_table(iteration, train_stage, "hyperparameters")
+        t0 = time.perf_counter()
+        predicted = predict_overall_error(X, Y, dict(zip(hp["name"], hp["value"])), C)
+        seconds = time.perf_counter() - t0
+        df = pd.DataFrame(C, columns=param_columns(m))
+        df.insert(0, "candidate_id", np.arange(len(df), dtype=np.int64))
+        df["predicted_error"] = predicted
+        store.write_table(iteration, output_stage, "candidates", df)
+        store.finish(iteration, output_stage, ["candidates"],
+                     {"seconds": seconds, "best_predicted": float(np.nanmin(predicted))})
+    return store.stage_info(iteration, output_stage)
+
+
+@task(name="select", task_run_name="iteration-{iteration}-select", cache_policy=NO_CACHE)
+def select_task(root: str, config, iteration: int, m: int, s: int | None = None) -> dict:
+    """Step d: the next FE batch, the best predicted candidates at least a minimum distance apart."""
+    store = RunStore(root)
+    if not _done(store, iteration, "select"):
+        s = s or config.s
+        cand = store.read_table(iteration, "predict", "candidates")
+        cols = param_columns(m)
+        ids, X, _, _ = training_data(store, iteration)
+        d_min = float(store.stage_info(iteration, "distribution")["min_distance"])
+        chosen = adaptive.select_diverse(cand[cols].to_numpy(), cand["predicted_error"].to_numpy(), s, d_min,
+                                         exclude=_all_evaluated(store, iteration, cols))
+        df = cand.iloc[chosen].reset_index(drop=True)
+        next_id = _next_sample_id(store, iteration)
+        store.write_table(iteration, "select", "select", df)
+        store.finish(iteration, "select", ["select"], {"n": len(df), "next_sample_id": next_id})
+    return store.stage_info(iteration, "select")
+
+
+def _all_evaluated(store: RunStore, iteration: int, cols: list[str]) -> np.ndarray:
+    return np.vstack([store.read_table(k, "samples")[cols].to_numpy() for k in range(1, iteration + 1)])
+
+
+def _next_sample_id(store: RunStore, iteration: int) -> int:
+    return int(max(store.read_table(k, "samples")["sample_id"].max() for k in range(1, iteration + 1)) + 1)
+
+
+# -- MRGP adapters: the only place that knows the mrgp_core API ---------------------------------
+def train_mrgp(X: np.ndarray, Y: np.ndarray, trainer: str, rng: np.random.Generator,
+               previous: dict | None) -> tuple[dict, dict]:
+    """Fit the MRGP's hyper-parameters; returns (hyper-parameters, diagnostics).
+
+    For the paper's trainers (``sao``, ``pso``) the squared length scale is
+    bounded above by the previous iteration's optimum, Table 1's ``l~``; the
+    gradient trainer searches the default bounds every time.
+    """
+    l_upper = None
+    if previous is not None and trainer in ("sao", "pso"):
+        l_upper = _length_scales(previous)
+        l_upper = float(l_upper[0]) if l_upper.size == 1 else l_upper
+    model = mrgp_core.fit(X, Y, trainer, rng=rng, l_upper=l_upper)
+    h = model.hyperparameters
+    hyper = {f"length_scale_{i + 1}": float(v) for i, v in enumerate(np.atleast_1d(h.length_scale))}
+    hyper["nugget"] = float(h.nugget)
+    info = {"log_likelihood": float(model.log_likelihood), "evaluations": int(model.training.result.nfev),
+            "l_upper": None if l_upper is None else np.atleast_1d(l_upper).tolist()}
+    return hyper, info
+
+
+def predict_overall_error(X: np.ndarray, Y: np.ndarray, hyper: dict, C: np.ndarray) -> np.ndarray:
+    """Predicted overall error (Eq. 6b) of each candidate, shape (w,), from stored hyper-parameters."""
+    h = mrgp_core.Hyperparameters(length_scale=_length_scales(hyper), nugget=float(hyper["nugget"]))
+    return mrgp_core.condition(X, Y, h).predicted_overall_error(C)
+
+
+def _length_scales(hyper: dict) -> np.ndarray:
+    """``length_scale_1 .. length_scale_d`` of a stored hyper-parameter record, in input order."""
+    keys = sorted((k for k in hyper if k.startswith("length_scale_")), key=lambda k: int(k.rsplit("_", 1)[1]))
+    return np.array([hyper[k] for k in keys], dtype=float)
