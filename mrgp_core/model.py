@@ -22,7 +22,7 @@ Search space of every trainer (log scale, ``theta = [log l..., log g]``):
   model fixes ``sigma_f = 1`` and the amplitude of every response lives in
   ``Q``. With a fixed nugget (``nugget=0.0`` is the paper's noise-free case) the
   trainers search ``l`` alone.
-* start (``sao``, and the first start of ``gradient``; particle 0 of ``pso``):
+* start (``sao``; the first screened point of ``gradient``; particle 0 of ``pso``):
   ``l = 1`` as in Table 1 (clipped into the box) and ``g = 1e-4``.
 
 Prediction (standardised units, ``L`` the Cholesky factor of Sigma,
