@@ -194,8 +194,10 @@ def krylov_frf(
             next_check = dim + check_every
             current = _project(K, M, basis[:, :dim], F, lam, scale, out_dofs)
             if previous is not None:
-                change = _relative_change(current, previous)
-                if change <= rtol:
+                last_change, change = change, _relative_change(current, previous)
+                # Converged, or stagnated at the round-off floor of an ill-conditioned
+                # pencil (parameters near -1), where more vectors cannot help.
+                if change <= rtol or (change <= STAGNATION_RTOL and change >= 0.5 * last_change):
                     info = KrylovInfo(dim, change, True, sigma)
                     return (current, info) if return_info else current
             previous = current
@@ -217,6 +219,9 @@ def krylov_frf(
     info = KrylovInfo(dim, change, False, sigma)
     return (result, info) if return_info else result
 
+
+#: A change this small that stops decreasing is accepted as the round-off floor.
+STAGNATION_RTOL = 1e-8
 
 #: Largest half-bandwidth for which the banded Cholesky is used.
 MAX_BANDWIDTH = 400
