@@ -1,0 +1,45 @@
+"""Markdown table of repeated updating runs (issue 4's results table).
+
+    python -m flows.update --run-id table-gradient --trainer gradient --repeats 5
+    ...                                                 # likewise sao, pso, --strategy conventional
+    python -m benchmarks.update_table data/runs/table-gradient data/runs/table-sao ...
+
+One row per seed: iterations, FE runs, final overall error (Eq. 6b) and each
+parameter's absolute error against the known truth.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+
+def rows(run_dir: Path) -> list[str]:
+    summary = json.loads((run_dir / "summary.json").read_text())
+    runs = summary.get("runs", [summary])
+    out = []
+    for r in runs:
+        pe = r.get("parameter_errors", {})
+        label = f"{r['strategy']} / {r['trainer']}"
+        out.append(
+            f"| {label} | {r['seed']} | {r['iterations']} | {r['fe_evaluations']} | {r['overall_error']:.2%} | "
+            + " | ".join(f"{v:.3f}" for v in pe.values())
+            + f" | {max(pe.values()):.3f} |"
+        )
+    return out
+
+
+def main(argv=None) -> int:
+    dirs = [Path(a) for a in (sys.argv[1:] if argv is None else argv)]
+    print("| strategy / trainer | seed | iterations | FE runs | overall error | "
+          + " | ".join(f"\\|err\\| alpha_{i}" for i in range(1, 7)) + " | largest |")
+    print("|" + "---|" * 13)
+    for d in dirs:
+        for line in rows(d):
+            print(line)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
