@@ -42,6 +42,7 @@ import warnings  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from benchmarks.timing import median_time  # noqa: E402
 from mrgp_core import ProfileLikelihood, fit, predicted_overall_error, standardise  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -137,15 +138,6 @@ def candidates(data: dict, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 # -- measurements ----------------------------------------------------------
-def median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
-
-
 def heldout_rmse(pred_overall: np.ndarray, true_overall: np.ndarray) -> float:
     return float(np.sqrt(np.mean((pred_overall - true_overall) ** 2)))
 
