@@ -11,7 +11,7 @@ small for long, slender structures.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -167,7 +167,3 @@ def mesh_blocks(blocks: Sequence[Block]) -> Mesh:
         start += count
     return mesh
 
-
-def merge_cell_sets(sets: Mapping[str, np.ndarray], names: Sequence[str]) -> np.ndarray:
-    """Union of the named cell sets, sorted."""
-    return np.unique(np.concatenate([np.asarray(sets[n], dtype=int) for n in names]))

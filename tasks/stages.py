@@ -224,8 +224,8 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray) -> int:
             ran += 1
             count += 1
             logger.info("iteration %d, stage fe: %d/%d FE runs done", iteration, count, total)
-    parts = [pd.read_parquet(p) for sid, p in sorted(store.finished_samples(iteration).items())
-             if sid in set(samples["sample_id"])]
+    wanted = set(samples["sample_id"])
+    parts = [pd.read_parquet(p) for sid, p in sorted(store.finished_samples(iteration).items()) if sid in wanted]
     fe = pd.concat(parts, ignore_index=True).sort_values(["sample_id", "frequency_hz", "sensor"], kind="stable")
     store.write_table(iteration, "fe", "fe", fe.reset_index(drop=True))
     store.finish(iteration, "fe", ["fe"], {"n": int(fe["sample_id"].nunique())})
