@@ -1,0 +1,282 @@
+"""Which parameters can the sensors see? Correlation and sensitivity of FRF amplitudes.
+
+Two views of the same question (Zhou & Tang, Section 3.5):
+
+:func:`pearson_correlation`
+    Eq. (16): the Pearson coefficient of each parameter with each response
+    over a Monte Carlo sample, ``cov(alpha_k, Z_ij) / (sigma_alpha_k sigma_Z_ij)``.
+    Global (over the whole sampled box) but only linear and one parameter
+    at a time.
+:func:`log_amplitude_jacobian` and :func:`identifiability`
+    The normalised sensitivity ``d log|Z| / d alpha`` at one parameter point
+    (exact derivative of the FE model by the adjoint of the dynamic
+    stiffness) and the singular values of that matrix. This is local but sees
+    combinations: a parameter whose column is small, or that moves the
+    responses the same way as another parameter, lies along a small singular
+    value and cannot be pinned down from these sensors and frequencies.
+
+``log|Z|`` is used because the updating error is the relative residual
+``(|Z| - u) / u``, whose derivative at the solution is ``d log|Z| / d alpha``;
+``alpha`` is itself a relative stiffness change, so the matrix has no units.
+
+Plain numpy/scipy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .frf import hz_to_rad
+from .model import ParametricModel, check_parameters
+
+__all__ = [
+    "pearson_correlation",
+    "frf_jacobian",
+    "log_amplitude_jacobian",
+    "identifiability",
+    "Identifiability",
+]
+
+
+def pearson_correlation(X, Y) -> np.ndarray:
+    """Pearson correlation of every column of ``X`` with every column of ``Y`` (Eq. 16).
+
+    Parameters
+    ----------
+    X : array_like, shape (N, m)
+        Samples of the inputs (one column per parameter).
+    Y : array_like, shape (N, k)
+        Samples of the responses (one column per response).
+
+    Returns
+    -------
+    ndarray, shape (m, k)
+        ``rho[a, b] = cov(X[:, a], Y[:, b]) / (std(X[:, a]) std(Y[:, b]))``.
+        NaN where either column is constant (the coefficient is undefined).
+
+    Raises
+    ------
+    ValueError
+        If the row counts differ, there are fewer than 2 rows, or a value is
+        not finite.
+    """
+    X = np.asarray(X, dtype=float)
+    Y = np.asarray(Y, dtype=float)
+    if X.ndim == 1:
+        X = X[:, None]
+    if Y.ndim == 1:
+        Y = Y[:, None]
+    if X.ndim != 2 or Y.ndim != 2:
+        raise ValueError(f"X and Y must be 2-D (samples x variables), got shapes {X.shape} and {Y.shape}")
+    if X.shape[0] != Y.shape[0]:
+        raise ValueError(f"X has {X.shape[0]} samples but Y has {Y.shape[0]}")
+    if X.shape[0] < 2:
+        raise ValueError(f"a correlation needs at least 2 samples, got {X.shape[0]}")
+    for name, A in (("X", X), ("Y", Y)):
+        bad = ~np.isfinite(A)
+        if bad.any():
+            row, col = np.argwhere(bad)[0]
+            raise ValueError(f"{name}[{row}, {col}] = {A[row, col]} is not finite; drop failed samples first")
+    # Centre and scale each column to unit norm (two-pass, so large offsets cost no precision).
+    Xc = X - X.mean(axis=0)
+    Yc = Y - Y.mean(axis=0)
+    nx = np.linalg.norm(Xc, axis=0)
+    ny = np.linalg.norm(Yc, axis=0)
+    # A column is constant when its spread is at round-off level of its magnitude.
+    tiny_x = nx <= 1e-14 * np.sqrt(X.shape[0]) * np.maximum(np.abs(X).max(axis=0), np.finfo(float).tiny)
+    tiny_y = ny <= 1e-14 * np.sqrt(Y.shape[0]) * np.maximum(np.abs(Y).max(axis=0), np.finfo(float).tiny)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = (Xc / np.where(tiny_x, 1.0, nx)).T @ (Yc / np.where(tiny_y, 1.0, ny))
+    rho[tiny_x, :] = np.nan
+    rho[:, tiny_y] = np.nan
+    return np.clip(rho, -1.0, 1.0)  # round-off can step just past +-1; NaN stays NaN
+
+
+def frf_jacobian(model: ParametricModel, alpha, freqs_hz) -> tuple[np.ndarray, np.ndarray]:
+    """The receptance at the sensors and its exact derivative with respect to alpha.
+
+    The dynamic stiffness ``D(w) = K(alpha) - w^2 M + j w (a M + b K(alpha))``
+    depends on ``alpha_i`` through ``dD/dalpha_i = (1 + j w b) K_i``, so with
+    ``h = D^-1 F`` (the response to the combined load) and ``g_s = D^-1 e_s``
+    (the adjoint for sensor s; D is complex symmetric)::
+
+        dZ_s / dalpha_i = -(1 + j w b) g_s^T K_i h
+
+    One complex sparse LU per frequency, with 1 + n_sensors right-hand sides.
+
+    Parameters
+    ----------
+    model : ParametricModel
+    alpha : array_like, shape (m,)
+    freqs_hz : array_like, shape (p,), Hz
+
+    Returns
+    -------
+    Z : ndarray, shape (p, n_sensors), complex, m/N
+        Same as ``model.frf(alpha, freqs_hz)``.
+    dZ : ndarray, shape (p, n_sensors, m), complex, m/N per unit alpha
+    """
+    alpha = check_parameters(alpha, model.n_segments, "alpha")
+    freqs = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
+    if freqs.ndim != 1 or freqs.size == 0 or np.any(~np.isfinite(freqs)) or np.any(freqs <= 0):
+        raise ValueError(f"frequencies must be a non-empty 1-D array of positive values in Hz, got {freqs_hz!r}")
+    K = sp.csc_matrix(model.stiffness(alpha))
+    M = sp.csc_matrix(model.mass())
+    a, b = model.damping
+    segments = [model.stiffness_segments.segment(i) for i in range(model.n_segments)]
+    n_s = model.n_sensors
+    rhs = np.zeros((model.n_dofs, 1 + n_s), dtype=complex)
+    rhs[:, 0] = model.combined_load()
+    rhs[model.sensor_dofs, 1 + np.arange(n_s)] = 1.0
+    Z = np.empty((freqs.size, n_s), dtype=complex)
+    dZ = np.empty((freqs.size, n_s, model.n_segments), dtype=complex)
+    for f, w in enumerate(hz_to_rad(freqs)):
+        D = (K - w**2 * M + 1j * w * (a * M + b * K)).tocsc()
+        sol = spla.splu(D).solve(rhs)
+        h, G = sol[:, 0], sol[:, 1:]
+        Z[f] = h[model.sensor_dofs]
+        for i, Ki in enumerate(segments):
+            dZ[f, :, i] = -(1.0 + 1j * w * b) * (G.T @ (Ki @ h))
+    return Z, dZ
+
+
+def log_amplitude_jacobian(model: ParametricModel, alpha, freqs_hz) -> np.ndarray:
+    """Normalised sensitivity ``d log|Z_fs| / d alpha_i`` of the FRF amplitudes.
+
+    Returns
+    -------
+    ndarray, shape (p * n_sensors, m)
+        Rows frequency-major with sensors fastest (the layout of Eq. 5), one
+        column per parameter; dimensionless.
+    """
+    Z, dZ = frf_jacobian(model, alpha, freqs_hz)
+    J = np.real(dZ / Z[:, :, None])  # d log|Z| = Re(dZ / Z)
+    return J.reshape(-1, J.shape[-1])
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """What a sensitivity matrix says about which parameters can be identified.
+
+    Attributes
+    ----------
+    singular_values : ndarray, shape (m,)
+        Of the normalised sensitivity matrix, descending.
+    directions : ndarray, shape (m, m)
+        ``directions[j]`` is the unit parameter combination (right singular
+        vector) belonging to ``singular_values[j]``, sign fixed so its largest
+        entry is positive.
+    column_norms : ndarray, shape (m,)
+        Sensitivity of the responses to each parameter alone.
+    std : ndarray, shape (m,)
+        Linearised standard deviation of each parameter estimate when every
+        amplitude carries relative noise ``noise``:
+        ``noise * sqrt(diag((J^T J)^-1))`` (inf for a rank-deficient J).
+    direction_std : ndarray, shape (m,)
+        ``noise / singular_values``: the same for each combination.
+    identifiable : ndarray of bool, shape (m,)
+        ``std <= tolerance``.
+    noise, tolerance : float
+    names : list of str
+    """
+
+    singular_values: np.ndarray
+    directions: np.ndarray
+    column_norms: np.ndarray
+    std: np.ndarray
+    direction_std: np.ndarray
+    identifiable: np.ndarray
+    noise: float
+    tolerance: float
+    names: list
+
+    @property
+    def condition_number(self) -> float:
+        s = self.singular_values
+        return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+
+    def describe_direction(self, j: int, threshold: float = 0.3) -> str:
+        """A combination as text, e.g. ``"0.71 alpha_3 - 0.69 alpha_4"`` (entries above ``threshold``)."""
+        v = self.directions[j]
+        order = np.argsort(-np.abs(v))
+        terms = [(v[i], self.names[i]) for i in order if abs(v[i]) >= threshold] or [(v[order[0]], self.names[order[0]])]
+        text = ""
+        for k, (c, name) in enumerate(terms):
+            sign = "-" if c < 0 else ("+" if k else "")
+            text += (f" {sign} " if k else sign) + f"{abs(c):.2f} {name}"
+        return text.strip()
+
+    def summary_lines(self) -> list[str]:
+        """Plain-language verdicts, one line per parameter, then the weakest combinations."""
+        lines = []
+        for name, s, c, ok in zip(self.names, self.std, self.column_norms, self.identifiable):
+            verdict = "can be pinned down" if ok else "can NOT be pinned down"
+            lines.append(f"{name}: {verdict} (+/- {s:.3g} at {self.noise:.2%} amplitude noise; "
+                         f"sensitivity norm {c:.3g})")
+        for j in range(len(self.singular_values)):
+            if self.direction_std[j] > self.tolerance:
+                lines.append(f"weak combination {self.describe_direction(j)}: singular value "
+                             f"{self.singular_values[j]:.3g}, +/- {self.direction_std[j]:.3g}")
+        return lines
+
+
+def identifiability(J, names=None, noise: float = 0.01, tolerance: float = 0.05) -> Identifiability:
+    """Singular values and parameter verdicts of a normalised sensitivity matrix.
+
+    Parameters
+    ----------
+    J : array_like, shape (k, m)
+        ``d log|Z| / d alpha`` (rows responses, columns parameters).
+    names : list of str, optional
+        Parameter names; ``alpha_1 ...`` by default.
+    noise : float
+        Relative amplitude noise, e.g. 0.01 = 1 %, assumed independent per response.
+    tolerance : float
+        Largest linearised standard deviation (in units of alpha) that still
+        counts as "pinned down".
+
+    Returns
+    -------
+    Identifiability
+    """
+    J = np.asarray(J, dtype=float)
+    if J.ndim != 2 or J.shape[0] < 1 or J.shape[1] < 1:
+        raise ValueError(f"J must be a 2-D matrix (responses x parameters), got shape {J.shape}")
+    if not np.all(np.isfinite(J)):
+        raise ValueError("J has non-finite entries")
+    if not noise > 0 or not tolerance > 0:
+        raise ValueError(f"noise and tolerance must be positive, got {noise} and {tolerance}")
+    m = J.shape[1]
+    names = list(names) if names is not None else [f"alpha_{i + 1}" for i in range(m)]
+    if len(names) != m:
+        raise ValueError(f"{len(names)} names for {m} parameters")
+    _, s, Vt = np.linalg.svd(J, full_matrices=False)
+    if s.size < m:  # fewer responses than parameters: the missing singular values are zero
+        s = np.concatenate([s, np.zeros(m - s.size)])
+        Vt = np.linalg.svd(J, full_matrices=True)[2]
+    signs = np.sign(Vt[np.arange(m), np.argmax(np.abs(Vt), axis=1)])
+    Vt = Vt * signs[:, None]
+    rank_tol = s[0] * max(J.shape) * np.finfo(float).eps if s[0] > 0 else 0.0
+    full = s > rank_tol
+    # diag((J^T J)^-1) = sum_j V[i, j]^2 / s_j^2: a parameter with any weight on a null direction is unbounded.
+    V2 = Vt.T**2
+    finite_part = (V2[:, full] / s[full] ** 2).sum(axis=1)
+    on_null = (V2[:, ~full] > 1e-24).any(axis=1)
+    std = np.where(on_null, np.inf, noise * np.sqrt(finite_part))
+    direction_std = np.full(m, np.inf)
+    direction_std[full] = noise / s[full]
+    return Identifiability(
+        singular_values=s,
+        directions=Vt,
+        column_norms=np.linalg.norm(J, axis=0),
+        std=std,
+        direction_std=direction_std,
+        identifiable=std <= tolerance,
+        noise=float(noise),
+        tolerance=float(tolerance),
+        names=names,
+    )
