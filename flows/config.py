@@ -8,6 +8,7 @@ refused with a :class:`ConfigError` that names the file and the key.
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +20,7 @@ REPO = Path(__file__).resolve().parents[1]
 TRAINERS = ("sao", "pso", "gradient")
 STRATEGIES = ("adaptive", "conventional")
 MODELS = ("three_plate",)
+FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
 
 
 class ConfigError(ValueError):
@@ -46,7 +48,14 @@ class UpdateConfig:
     seed : int
         Master seed; every stage derives its own generator from it.
     n_jobs : int
-        Parallel FE runs (joblib; -1 = all cores).
+        Parallel FE runs (joblib; -1 = all cores); loky backend only.
+    fe_backend : {"loky", "dask"}
+        Where FE runs execute: loky processes on this machine, or the
+        workers of the Dask cluster at ``dask_address``
+        (:mod:`tasks.fe_backends`). Results do not depend on it.
+    dask_address : str or None
+        Scheduler address for ``fe_backend = "dask"``, e.g.
+        ``tcp://10.0.0.5:8786``; not used with loky.
     repeats : int
         Independent runs with seeds ``seed, seed + 1, ...`` (Figures 10-13).
     q, w, s, z : int
@@ -65,8 +74,24 @@ class UpdateConfig:
     std_floor : float
         Smallest standard deviation of the sampling distribution.
     conventional_samples : int
+    polish : bool
+        After the MRGP loop (adaptive strategy only), run the polish stage:
+        trust-region least squares on the FE model from the best sample
+        (:mod:`tasks.polish`). Its FE runs count in ``fe_evaluations``.
+    polish_max_fe : int
+        FE runs reserved for the polish out of ``max_fe_evaluations``: the
+        MRGP loop stops at ``max_fe_evaluations - polish_max_fe``.
+    polish_target : float
+        Overall error at which the polish stops, e.g. 1e-4 = 0.01 %
+        (the noise floor of noise-free data; set it near the measurement's
+        noise level for real data).
     true_parameters : list of float or None
-        Known true values (synthetic data), only for reporting errors.
+        Known true values (synthetic data), only for reporting errors;
+        each must be > -1.
+    min_free_mb : float
+        Free disk space the run folder needs before any work starts, MB;
+        0 (default) = twice the run's estimated output
+        (:func:`flows.preflight.expected_output_mb`).
     """
 
     run_id: str | None = None
@@ -77,6 +102,8 @@ class UpdateConfig:
     trainer: str = "gradient"
     seed: int = 0
     n_jobs: int = 2
+    fe_backend: str = "loky"
+    dask_address: str | None = None
     repeats: int = 1
     q: int = 20
     w: int = 10_000
@@ -90,7 +117,11 @@ class UpdateConfig:
     min_distance_factor: float = 0.1
     std_floor: float = 1e-4
     conventional_samples: int = 300
+    polish: bool = True
+    polish_max_fe: int = 80
+    polish_target: float = 1e-4
     true_parameters: list[float] | None = field(default=None)
+    min_free_mb: float = 0.0
 
     def __post_init__(self) -> None:
         self.validate("config")
@@ -104,6 +135,11 @@ class UpdateConfig:
                 raise bad(key, f"must be at least 1, got {getattr(self, key)}")
         if self.n_jobs == 0 or self.n_jobs < -1:
             raise bad("n_jobs", f"must be a positive number of processes or -1 (all cores), got {self.n_jobs}")
+        if self.fe_backend not in FE_BACKENDS:
+            raise bad("fe_backend", f"unknown backend {self.fe_backend!r}; choose one of {', '.join(FE_BACKENDS)}")
+        if self.fe_backend == "dask" and not self.dask_address:
+            raise bad("dask_address", "is required with fe_backend 'dask': the scheduler's address, "
+                                      "e.g. tcp://127.0.0.1:8786")
         if self.trainer not in TRAINERS:
             raise bad("trainer", f"unknown trainer {self.trainer!r}; choose one of {', '.join(TRAINERS)}")
         if self.strategy not in STRATEGIES:
@@ -122,6 +158,21 @@ class UpdateConfig:
             raise bad("min_distance_factor", f"must be >= 0, got {self.min_distance_factor}")
         if not self.std_floor > 0:
             raise bad("std_floor", f"must be positive, got {self.std_floor}")
+        if self.true_parameters is not None:
+            for i, v in enumerate(self.true_parameters):
+                if not (isinstance(v, (int, float)) and math.isfinite(v) and v > -1.0):
+                    raise bad("true_parameters", f"entry {i + 1} is {v!r}; parameters must be finite and > -1")
+        if not (math.isfinite(self.min_free_mb) and self.min_free_mb >= 0):
+            raise bad("min_free_mb", f"must be >= 0 (0 = derived from the run's size), got {self.min_free_mb}")
+        if self.polish and self.strategy == "adaptive":
+            if self.polish_max_fe < 1:
+                raise bad("polish_max_fe", f"must be at least 1 when polish is on, got {self.polish_max_fe}")
+            if self.max_fe_evaluations - self.polish_max_fe < self.q:
+                raise bad("polish_max_fe", f"{self.polish_max_fe} reserved for the polish leaves fewer than q = "
+                                           f"{self.q} of max_fe_evaluations = {self.max_fe_evaluations} for the "
+                                           "MRGP loop")
+        if not self.polish_target > 0:
+            raise bad("polish_target", f"must be positive, got {self.polish_target}")
         if self.run_id is not None and (not self.run_id or "/" in self.run_id or self.run_id.startswith(".")):
             raise bad("run_id", f"must be a plain folder name, got {self.run_id!r}")
 
@@ -141,6 +192,8 @@ _TYPES: dict[str, tuple[type, ...]] = {}
 for _f in dataclasses.fields(UpdateConfig):
     if _f.name == "true_parameters":
         _TYPES[_f.name] = (list,)
+    elif _f.type in ("bool", bool):
+        _TYPES[_f.name] = (bool,)
     elif _f.type in ("int", int):
         _TYPES[_f.name] = (int,)
     elif _f.type in ("float", float):
@@ -155,7 +208,7 @@ def _check_types(values: dict[str, Any], source: str) -> dict[str, Any]:
         if key not in known:
             raise ConfigError(f"{source}: unknown key '{key}'; valid keys are {', '.join(sorted(known))}")
         expected = _TYPES[key]
-        if isinstance(value, bool) or not isinstance(value, expected):
+        if (isinstance(value, bool) and bool not in expected) or not isinstance(value, expected):
             names = " or ".join(t.__name__ for t in expected)
             raise ConfigError(f"{source}: key '{key}' must be {names}, got {type(value).__name__} {value!r}")
         if key == "true_parameters" and not all(

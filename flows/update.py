@@ -26,6 +26,8 @@ import os
 os.environ.setdefault("DO_NOT_TRACK", "1")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 os.environ.setdefault("PREFECT_CLOUD_ENABLE_ORCHESTRATION_TELEMETRY", "false")
+# The temporary local API must start on a busy 2-core machine too (Prefect's default: 20 s).
+os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
 # One BLAS thread per process: the MRGP's small dense algebra is ~15x slower with
 # OpenBLAS's default threading on 2 cores, and FE workers run in parallel anyway.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -42,16 +44,20 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from prefect import flow  # noqa: E402
 
+from flows import preflight  # noqa: E402
 from flows.config import STRATEGIES, TRAINERS, ConfigError, UpdateConfig, load_config  # noqa: E402
 from mrgp_core import adaptive  # noqa: E402
-from tasks import stages  # noqa: E402
+from tasks import fe_backends, stages  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
+from tasks.polish import POLISH_STAGE, polish_results, polish_task  # noqa: E402
+from tasks.runlock import RunLock, RunLockedError  # noqa: E402
 from tasks.runstore import RunStore, atomic_write_json, git_commit, package_versions  # noqa: E402
 
 __all__ = ["update_flow", "iteration_flow", "run_update", "main", "rerun_stage"]
 
 #: Config keys that may change between a run and its resume.
-RESUMABLE_CHANGES = {"n_jobs", "run_id", "runs_dir", "repeats"}
+# (where FE runs execute does not change their results: fe_backend, dask_address).
+RESUMABLE_CHANGES = {"n_jobs", "run_id", "runs_dir", "repeats", "min_free_mb", "fe_backend", "dask_address"}
 
 
 # -- the flows ------------------------------------------------------------------------------------
@@ -74,7 +80,7 @@ def iteration_flow(root: str, config: UpdateConfig, iteration: int, freqs_hz: np
                     "fe": fe_count}
     else:
         decision = adaptive.stopping_rule(best, config.threshold, iteration, config.max_iterations,
-                                          fe_count, config.max_fe_evaluations, config.s)
+                                          fe_count, loop_budget(config), config.s)
         if decision.stop:
             return {"stop": True, "converged": decision.converged, "reason": decision.reason, "best": best,
                     "fe": fe_count}
@@ -92,10 +98,40 @@ def update_flow(config: UpdateConfig) -> dict:
     return run_update(config)
 
 
+def check_before_run(config: UpdateConfig):
+    """Every check that needs no run folder: measured data, model, resume settings, disk.
+
+    Returns the measured data. Raises ConfigError or MeasuredDataError naming
+    the file and key; nothing has been written into the run folder then.
+    """
+    measured = read_measured(config.resolve(config.measured))
+    model = stages.load_model(config.model)
+    preflight.check_inputs(config, measured, model)
+    root = config.resolve(config.runs_dir) / config.run_id
+    preflight.check_resume(config, root, RESUMABLE_CHANGES)
+    required = config.min_free_mb or 2 * preflight.expected_output_mb(
+        config, measured.amplitude.size, model.n_segments)
+    preflight.check_disk(config, root, required)
+    if config.fe_backend == "dask":  # an unreachable cluster is refused before any work, not in iteration 1
+        try:
+            fe_backends.check_dask(config.dask_address)
+        except fe_backends.FEBackendError as exc:
+            raise ConfigError(str(exc)) from None
+    return measured
+
+
 def run_update(config: UpdateConfig) -> dict:
     t0 = time.perf_counter()
-    measured = read_measured(config.resolve(config.measured))
+    measured = check_before_run(config)
     root = config.resolve(config.runs_dir) / config.run_id
+    with RunLock(root):
+        stale = RunStore(root).remove_temporaries()
+        if stale:
+            print(f"removed {len(stale)} temporary files left by an interrupted run")
+        return _run_locked(config, root, measured, t0)
+
+
+def _run_locked(config: UpdateConfig, root: Path, measured, t0: float) -> dict:
     if config.repeats == 1:
         summary = _single_run(config, RunStore(root), measured, t0)
     else:
@@ -123,13 +159,31 @@ def _single_run(config: UpdateConfig, store: RunStore, measured, t0: float) -> d
         last = iteration_flow(root, config, iteration, measured.frequencies_hz, measured.amplitude, m)
         if last["stop"]:
             break
+    if uses_polish(config):
+        info = polish_task(root, config, iteration, measured.frequencies_hz, measured.amplitude)
+        print(f"polish: {info['status']} after {info['n']} FE runs, overall error "
+              f"{info['error_before']:.4%} -> {info['error_after']:.4%}")
     summary = _summary(config, store, iteration, last, measured, time.perf_counter() - t0)
     atomic_write_json(store.root / "summary.json", summary)
     return summary
 
 
+def uses_polish(config: UpdateConfig) -> bool:
+    """The polish stage follows the adaptive loop (the conventional baseline stays the paper's)."""
+    return bool(config.polish) and config.strategy == "adaptive"
+
+
+def loop_budget(config: UpdateConfig) -> int:
+    """FE runs the MRGP loop may use: the budget minus what is reserved for the polish."""
+    return config.max_fe_evaluations - (config.polish_max_fe if uses_polish(config) else 0)
+
+
 def _fe_count(store: RunStore, iteration: int) -> int:
-    return int(sum(len(store.read_table(k, "samples")) for k in range(1, iteration + 1)))
+    """FE runs of iterations 1..``iteration``, plus the polish's once it has finished."""
+    n = int(sum(len(store.read_table(k, "samples")) for k in range(1, iteration + 1)))
+    if store.is_finished(iteration, POLISH_STAGE):
+        n += int(store.stage_info(iteration, POLISH_STAGE)["n"])
+    return n
 
 
 def _write_manifest(store: RunStore, config: UpdateConfig) -> None:
@@ -168,6 +222,10 @@ def _summary(config, store, iterations, last, measured, wall) -> dict:
         best = int(pick[np.argmin(E[pick])]) if pick.size else int(np.argmin(E))
     else:
         best = int(np.argmin(E))
+    polished = polish_results(store, iterations) if uses_polish(config) else None
+    if polished is not None and polished[0].size and polished[3].min() < E[best]:
+        ids, X, Y, E = (np.concatenate([a, b]) for a, b in zip((ids, X, Y, E), polished))
+        best = int(np.argmin(E))
     n = measured.amplitude.shape[1]
     per_sensor = adaptive.per_sensor_error(Y[best], n)
     names = [f"alpha_{i + 1}" for i in range(X.shape[1])]
@@ -177,7 +235,7 @@ def _summary(config, store, iterations, last, measured, wall) -> dict:
         "per_sensor_error": {f"sensor_{int(s)}": float(v) for s, v in zip(measured.sensors, per_sensor)},
         "fe_evaluations": _fe_count(store, iterations),
         "iterations": iterations,
-        "converged": bool(last["converged"]),
+        "converged": bool(E[best] <= config.threshold),
         "stop_reason": last["reason"],
         "trainer": config.trainer,
         "strategy": config.strategy,
@@ -186,6 +244,9 @@ def _summary(config, store, iterations, last, measured, wall) -> dict:
         "wall_seconds": round(wall, 3),
         "run_folder": str(store.root),
     }
+    if polished is not None:
+        info = store.stage_info(iterations, POLISH_STAGE)
+        summary["polish"] = {k: info[k] for k in ("status", "n", "error_before", "error_after")}
     if config.true_parameters is not None:
         truth = np.asarray(config.true_parameters, float)
         summary["parameter_errors"] = dict(zip(names, map(float, np.abs(X[best] - truth))))
@@ -275,6 +336,10 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--strategy", choices=STRATEGIES, help="adaptive (default) or the paper's conventional baseline")
     p.add_argument("--seed", type=int, help="master random seed (default 0)")
     p.add_argument("--n-jobs", type=int, help="parallel FE processes, -1 = all cores (default 2)")
+    p.add_argument("--fe-backend", choices=fe_backends.FE_BACKENDS,
+                   help="where FE runs execute: loky processes here (default) or a Dask cluster")
+    p.add_argument("--dask-address", metavar="ADDR",
+                   help="Dask scheduler for --fe-backend dask, e.g. tcp://127.0.0.1:8786")
     p.add_argument("--repeats", type=int, help="independent runs with seeds seed..seed+N-1 (default 1)")
     p.add_argument("--threshold", type=float, help="stop at this overall error, e.g. 0.01 = 1 %% (default)")
     p.add_argument("--max-iterations", type=int, help="iteration budget (default 12)")
@@ -283,6 +348,12 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("-w", type=int, help="candidates predicted per iteration (default 10000)")
     p.add_argument("-s", type=int, help="FE runs per iteration (default 20)")
     p.add_argument("-z", type=int, help="best samples defining the sampling distribution (default 20)")
+    p.add_argument("--polish", action=argparse.BooleanOptionalAction, default=None,
+                   help="after the MRGP loop, least squares on the FE model from the best sample (default on)")
+    p.add_argument("--polish-max-fe", type=int, metavar="N",
+                   help="FE runs reserved for the polish out of --max-fe-evaluations (default 80)")
+    p.add_argument("--polish-target", type=float, metavar="E",
+                   help="overall error at which the polish stops (default 1e-4 = 0.01 %%)")
     return p
 
 
@@ -327,9 +398,11 @@ def main(argv: list[str] | None = None) -> int:
         args = _run_parser().parse_args(argv)
         config = load_config(
             args.config, measured=args.measured, run_id=args.run_id, runs_dir=args.runs_dir, trainer=args.trainer,
-            strategy=args.strategy, seed=args.seed, n_jobs=args.n_jobs, repeats=args.repeats,
+            strategy=args.strategy, seed=args.seed, n_jobs=args.n_jobs, fe_backend=args.fe_backend,
+            dask_address=args.dask_address, repeats=args.repeats,
             threshold=args.threshold, max_iterations=args.max_iterations,
             max_fe_evaluations=args.max_fe_evaluations, q=args.q, w=args.w, s=args.s, z=args.z,
+            polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target,
         )
         if config.run_id is None:
             stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
@@ -345,7 +418,24 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, MeasuredDataError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    summary = update_flow(config)
+    try:
+        # Refuse bad inputs, a run in use, or a full / read-only disk before any work.
+        check_before_run(config)
+        lock = RunLock(config.resolve(config.runs_dir) / config.run_id).acquire()
+        if lock.stale_owner:
+            owner = lock.stale_owner
+            print(f"warning: {lock.path}: stale lock of pid {owner.get('pid')} on host {owner.get('host')}, which "
+                  "no longer runs; taken over, resuming", file=sys.stderr)
+    except (ConfigError, MeasuredDataError, RunLockedError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    try:
+        summary = update_flow(config)
+    finally:
+        lock.release()
     print_summary(summary)
     return 0
 

@@ -175,7 +175,7 @@ def polish(
         status, message = "target", f"start error {error_start:.3e} already <= target {target:.3e}"
     else:
         try:
-            sol = least_squares(fun, x0, jac="2-point", bounds=(lower, upper), method="trf", x_scale="jac",
+            sol = least_squares(fun, x0, jac="2-point", bounds=(lower, upper), method="trf", x_scale=1.0,
                                 diff_step=diff_step, ftol=tolerance, xtol=tolerance, gtol=tolerance,
                                 workers=workers)
             status = "converged" if sol.status > 0 else "stalled"

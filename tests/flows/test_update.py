@@ -36,15 +36,19 @@ def test_whole_flow_under_the_test_harness(reduced_config):
     store = RunStore(Path(reduced_config.runs_dir) / "reduced")
     on_disk = json.loads((store.root / "summary.json").read_text())
     assert on_disk == summary
-    # q = 8, then s = 4 per iteration, 3 iterations: 16 FE runs, the budget.
-    assert summary["fe_evaluations"] == 16 and summary["iterations"] == 3
+    # q = 8, then s = 4 per iteration, 3 iterations: 16 FE runs for the loop, then at most 7 for the polish.
+    polish = store.read_table(3, "polish")
+    assert summary["iterations"] == 3
+    assert summary["fe_evaluations"] == 16 + len(polish) == 16 + summary["polish"]["n"] <= 23
+    assert summary["polish"]["error_after"] <= summary["polish"]["error_before"]
     for k in (1, 2):
         for stage in ("samples", "fe", "errors", "distribution", "train", "predict", "select"):
             assert store.is_finished(k, stage), (k, stage)
     manifest = store.read_manifest()
     assert manifest["config"]["seed"] == reduced_config.seed and "numpy" in manifest["versions"]
     # The reported parameters are the best FE-evaluated sample.
-    best = min(store.read_table(k, "errors", "errors")["overall_error"].min() for k in (1, 2, 3))
+    best = min([store.read_table(k, "errors", "errors")["overall_error"].min() for k in (1, 2, 3)]
+               + [polish["overall_error"].min()])
     assert summary["overall_error"] == pytest.approx(best)
 
 
@@ -105,7 +109,7 @@ def test_rerun_of_the_train_stage_writes_a_new_folder_and_leaves_the_original(re
     from prefect.testing.utilities import prefect_test_harness
 
     with prefect_test_harness():
-        update.update_flow(reduced_config.replace(max_iterations=2, max_fe_evaluations=12))
+        update.update_flow(reduced_config.replace(max_iterations=2, max_fe_evaluations=19))
     root = Path(reduced_config.runs_dir) / "reduced"
     store = RunStore(root)
     original = (store.stage_dir(1, "train") / "hyperparameters.parquet").read_bytes()

@@ -58,7 +58,7 @@ def test_reaches_the_exact_parameters_and_stops_at_the_target():
 
 def test_agrees_with_plain_scipy_least_squares():
     ref = least_squares(lambda x: (model(x) - MEASURED) / 2.0, np.zeros(3), bounds=(LOWER, UPPER),
-                        x_scale="jac", diff_step=1e-6, ftol=1e-12, xtol=1e-12, gtol=1e-12)
+                        diff_step=1e-6, ftol=1e-12, xtol=1e-12, gtol=1e-12)
     res = polish(Recorder(), np.zeros(3), LOWER, UPPER, target=1e-300, max_evaluations=500)
     np.testing.assert_allclose(res.x, ref.x, atol=1e-7)
 

@@ -1,0 +1,171 @@
+"""The polish stage: local least squares on the FE model after the MRGP loop.
+
+Runs :func:`mrgp_core.polish.polish` from the best FE-evaluated sample of the
+loop, inside the search box, with the FE runs of each finite-difference
+Jacobian in parallel (joblib). Every FE run is written as soon as it finishes
+to ``iteration=<K>/stage=polish/sample=<id>.parquet`` (with its parameters)
+and logged to ``fe_evaluations.jsonl``; the polish is deterministic, so a
+resumed polish replays the same points and reads their results back instead
+of running them again. When it ends, ``polish.parquet`` (one row per FE run:
+parameters, overall and per-sensor errors) and ``residuals.parquet`` are
+written and the stage is recorded as finished.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+from joblib import Parallel, delayed
+from prefect import task
+from prefect.cache_policies import NO_CACHE
+
+from mrgp_core import adaptive
+from mrgp_core.polish import polish
+from tasks import stages
+from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes
+
+__all__ = ["POLISH_STAGE", "polish_task", "polish_results", "polish_lower_bound"]
+
+POLISH_STAGE = "polish"
+
+#: The polish's lower bound when the search box starts at the domain's edge
+#: (alpha = -1 means zero stiffness; the FE model refuses it).
+DOMAIN_MARGIN = 1e-3
+
+
+def polish_lower_bound(lower: float) -> float:
+    return max(lower, -1.0 + DOMAIN_MARGIN)
+
+
+def _sample_files(store: RunStore, iteration: int) -> dict[int, Path]:
+    out = {}
+    for path in sorted(store.stage_dir(iteration, POLISH_STAGE).glob("sample=*.parquet")):
+        try:
+            pq.read_metadata(path)
+        except Exception:
+            stages._logger().warning("polish FE result %s is unreadable; that point will be evaluated again", path)
+            continue
+        out[int(path.stem.split("=")[1])] = path
+    return out
+
+
+@task(name="polish", task_run_name="iteration-{iteration}-polish", cache_policy=NO_CACHE)
+def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measured_amplitude: np.ndarray) -> dict:
+    """Least squares on the FE model from the best sample of iterations 1..``iteration``."""
+    store = RunStore(root)
+    logger = stages._logger()
+    if stages._done(store, iteration, POLISH_STAGE):
+        return store.stage_info(iteration, POLISH_STAGE)
+    ids, X, Y, E = stages.training_data(store, iteration)
+    m = X.shape[1]
+    cols = stages.param_columns(m)
+    p, n = measured_amplitude.shape
+    best = int(np.argmin(E))
+    lower = np.full(m, polish_lower_bound(config.lower))
+    upper = np.full(m, config.upper)
+
+    # FE runs of an earlier, interrupted polish: replayed by parameters (bit-exact floats).
+    cache: dict[bytes, tuple[int, np.ndarray]] = {}
+    for sid, path in _sample_files(store, iteration).items():
+        df = pd.read_parquet(path)
+        x = df[cols].to_numpy()[0].astype(float)
+        cache[x.tobytes()] = (sid, _residuals(df, measured_amplitude))
+    next_id = max([stages._next_sample_id(store, iteration), *(sid + 1 for sid, _ in cache.values())])
+    order: list[int] = []
+    state = {"next": next_id, "ran": 0}
+
+    def evaluate(points: list[np.ndarray]) -> list[np.ndarray]:
+        todo = []
+        for x in points:
+            if x.tobytes() not in cache:
+                todo.append((state["next"], x))
+                state["next"] += 1
+        if todo:
+            jobs = (delayed(stages.evaluate_sample)(config.model, sid, x, freqs_hz) for sid, x in todo)
+            alpha = dict(todo)
+            for result in Parallel(n_jobs=config.n_jobs, backend="loky", return_as="generator_unordered")(jobs):
+                sid = int(result["sample_id"].iloc[0])
+                for j, c in enumerate(cols):
+                    result[c] = alpha[sid][j]
+                atomic_write_bytes(store.stage_dir(iteration, POLISH_STAGE) / f"sample={sid:06d}.parquet",
+                                   _parquet_bytes(result))
+                stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE, "sample_id": sid,
+                                           "event": "evaluated", "status": result["status"].iloc[0],
+                                           "pid": int(result["pid"].iloc[0]), "unix": time.time()})
+                cache[alpha[sid].tobytes()] = (sid, _residuals(result, measured_amplitude))
+                state["ran"] += 1
+        out = []
+        for x in points:
+            sid, r = cache[x.tobytes()]
+            order.append(sid)
+            out.append(r)
+        logger.info("iteration %d, stage polish: %d FE runs, best overall error so far %.4g %%", iteration,
+                    len(set(order)), 100 * min([E[best]] + [float(np.mean(np.abs(c[1]))) for c in cache.values()
+                                                            if np.all(np.isfinite(c[1]))]))
+        return out
+
+    t0 = time.perf_counter()
+    result = polish(evaluate, X[best], lower, upper, residuals0=Y[best], target=config.polish_target,
+                    max_evaluations=config.polish_max_fe)
+    seconds = time.perf_counter() - t0
+
+    # One row per FE run of the polish, in request order.
+    seen, rows, res_parts = set(), [], []
+    by_id = {sid: (x, r) for x, (sid, r) in ((np.frombuffer(k), v) for k, v in cache.items())}
+    for step, sid in enumerate(order):
+        if sid in seen:
+            continue
+        seen.add(sid)
+        x, r = by_id[sid]
+        ok = bool(np.all(np.isfinite(r)))
+        row = {"sample_id": sid, "step": len(rows), **dict(zip(cols, x)),
+               "overall_error": float(adaptive.overall_error(r)) if ok else np.nan,
+               "status": "ok" if ok else "failed"}
+        for j, e in enumerate(adaptive.per_sensor_error(r, n) if ok else np.full(n, np.nan)):
+            row[f"error_sensor_{j + 1}"] = float(e)
+        rows.append(row)
+        res_parts.append(pd.DataFrame({"sample_id": np.int64(sid), "frequency_hz": np.repeat(freqs_hz, n),
+                                       "sensor": np.tile(np.arange(1, n + 1), p).astype(np.int64),
+                                       "residual": r}))
+    table = pd.DataFrame(rows, columns=["sample_id", "step", *cols, "overall_error", "status",
+                                        *(f"error_sensor_{j + 1}" for j in range(n))])
+    table = table.astype({"sample_id": np.int64, "step": np.int64})
+    residuals = (pd.concat(res_parts, ignore_index=True) if res_parts else
+                 pd.DataFrame({"sample_id": pd.Series(dtype=np.int64), "frequency_hz": pd.Series(dtype=float),
+                               "sensor": pd.Series(dtype=np.int64), "residual": pd.Series(dtype=float)}))
+    store.write_table(iteration, POLISH_STAGE, POLISH_STAGE, table)
+    store.write_table(iteration, POLISH_STAGE, "residuals", residuals)
+    best_id = int(ids[best])
+    if len(table) and table["overall_error"].min() < E[best]:
+        best_id = int(table.loc[table["overall_error"].idxmin(), "sample_id"])
+    info = {"n": int(len(table)), "ran_now": state["ran"], "status": result.status, "message": result.message,
+            "start_sample_id": int(ids[best]), "error_before": float(E[best]), "error_after": float(result.error),
+            "best_sample_id": best_id, "seconds": seconds}
+    store.finish(iteration, POLISH_STAGE, [POLISH_STAGE, "residuals"], info)
+    logger.info("iteration %d, stage polish: %s after %d FE runs, overall error %.4g %% -> %.4g %%", iteration,
+                result.status, len(table), 100 * E[best], 100 * result.error)
+    return store.stage_info(iteration, POLISH_STAGE)
+
+
+def _residuals(fe: pd.DataFrame, measured_amplitude: np.ndarray) -> np.ndarray:
+    """Relative residuals (Eq. 5 layout) of one per-sample FE table; NaN for a failed run."""
+    fe = fe.sort_values(["frequency_hz", "sensor"], kind="stable")
+    amp = np.hypot(fe["real"].to_numpy(), fe["imag"].to_numpy()).reshape(1, *measured_amplitude.shape)
+    return adaptive.relative_residuals(amp, measured_amplitude)[0]
+
+
+def polish_results(store: RunStore, iteration: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """(sample_ids, X, residuals, errors) of a finished polish's successful FE runs, or None."""
+    if not store.is_finished(iteration, POLISH_STAGE):
+        return None
+    table = store.read_table(iteration, POLISH_STAGE)
+    table = table[table["status"] == "ok"]
+    res = store.read_table(iteration, POLISH_STAGE, "residuals")
+    wide = res.pivot_table(index="sample_id", columns=["frequency_hz", "sensor"], values="residual").sort_index(axis=1)
+    cols = [c for c in table.columns if c.startswith("alpha_")]
+    ids = table["sample_id"].to_numpy()
+    return ids, table[cols].to_numpy(), wide.loc[ids].to_numpy(), table["overall_error"].to_numpy()
