@@ -22,12 +22,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed
+from joblib import delayed
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
 import mrgp_core
 from mrgp_core import adaptive
+from tasks.fe_backends import run_unordered
 from tasks.runstore import RunStore
 
 __all__ = [
@@ -187,11 +188,13 @@ def samples_task(root: str, config, iteration: int, m: int) -> int:
 
 @task(name="fe", task_run_name="iteration-{iteration}-fe", cache_policy=NO_CACHE)
 def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray) -> int:
-    """FE runs of the iteration's samples in parallel (joblib, loky processes).
+    """FE runs of the iteration's samples in parallel (joblib: loky processes or a Dask cluster).
 
     Each result is written as soon as it arrives, so a crash loses at most
     the runs in flight; on resume, samples with a result on disk are not run
-    again. Returns the number of FE runs made by this call.
+    again. A lost worker costs only its runs in flight: they are submitted
+    again (:func:`tasks.fe_backends.run_unordered`). Returns the number of FE
+    runs made by this call.
     """
     store = RunStore(root)
     logger = _logger()
@@ -207,15 +210,17 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray) -> int:
     if done:
         logger.info("iteration %d, stage fe: %d of %d FE results found on disk", iteration, len(done), len(samples))
     total, count = len(samples), len(done)
-    jobs = (
-        delayed(evaluate_sample)(config.model, int(sid), x, freqs_hz)
+    jobs = {
+        int(sid): delayed(evaluate_sample)(config.model, int(sid), x, freqs_hz)
         for sid, x in zip(todo["sample_id"], todo[cols].to_numpy())
-    )
+    }
     ran = 0
     if len(todo):
-        parallel = Parallel(n_jobs=config.n_jobs, backend="loky", return_as="generator_unordered")
+        results = run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=config.fe_backend,
+                                n_jobs=config.n_jobs, dask_address=config.dask_address,
+                                label=f"iteration {iteration}, stage fe", logger=logger)
         log_path = store.root / "fe_evaluations.jsonl"
-        for result in parallel(jobs):
+        for result in results:
             sid = int(result["sample_id"].iloc[0])
             store.write_sample(iteration, sid, result)
             with open(log_path, "a") as fh:
