@@ -28,6 +28,7 @@ from prefect.cache_policies import NO_CACHE
 
 import mrgp_core
 from mrgp_core import adaptive
+from tasks.faults import kill_point
 from tasks.fe_backends import run_unordered
 from tasks.runstore import RunStore
 
@@ -156,6 +157,74 @@ def training_data(store: RunStore, iteration: int) -> tuple[np.ndarray, np.ndarr
     return np.concatenate(ids), np.vstack(X), np.vstack(Y), np.concatenate(E)
 
 
+def _finish(store: RunStore, iteration: int, stage: str, names: list[str], info: dict) -> None:
+    """Record a stage as finished; if it replaced a different earlier result, later stages are stale."""
+    if store.finish(iteration, stage, names, info):
+        store.invalidate_after(iteration, stage, STAGES)
+
+
+#: Columns of one FE result as written per sample (``evaluate_sample`` plus the parameters).
+FE_RESULT_COLUMNS = ("sample_id", "sensor", "frequency_hz", "real", "imag", "status", "message", "seconds", "pid")
+FE_LOG = "fe_evaluations.jsonl"
+
+
+def _append_log(store: RunStore, entry: dict) -> None:
+    """Append one line to ``fe_evaluations.jsonl`` with a single write (a kill cannot split it)."""
+    path = store.root / FE_LOG
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        lead = b""
+        if os.fstat(fd).st_size:  # a line cut short by a crash of the filesystem: start a new line
+            with open(path, "rb") as fh:
+                fh.seek(-1, os.SEEK_END)
+                lead = b"" if fh.read(1) == b"\n" else b"\n"
+        os.write(fd, lead + (json.dumps(entry) + "\n").encode())
+    finally:
+        os.close(fd)
+
+
+def read_fe_log(root: Path | str) -> list[dict]:
+    """The entries of a run's ``fe_evaluations.jsonl`` (unparsable lines are skipped).
+
+    Each entry has ``iteration``, ``sample_id`` and ``event``: ``evaluated``
+    (an FE run whose result was written), ``recovered`` (a result found on
+    disk without its log line, written back on resume: still one FE run) or
+    ``discarded`` (a result file found corrupt and set aside; the sample is
+    evaluated again). Entries written before ``event`` existed count as
+    ``evaluated``.
+    """
+    path = Path(root) / FE_LOG
+    out = []
+    if path.exists():
+        for line in path.read_text().splitlines():
+            try:
+                entry = json.loads(line)
+            except ValueError:
+                continue
+            entry.setdefault("event", "evaluated")
+            out.append(entry)
+    return out
+
+
+def _sample_check(samples: pd.DataFrame, cols: list[str], rows: int):
+    """A validator of per-sample FE files: right columns, rows, sample id and parameters."""
+    alpha = {int(sid): x for sid, x in zip(samples["sample_id"], samples[cols].to_numpy())}
+
+    def check(sid: int, table: pd.DataFrame) -> str | None:
+        missing = [c for c in (*FE_RESULT_COLUMNS, *cols) if c not in table.columns]
+        if missing:
+            return f"wrong schema: columns {missing} missing"
+        if len(table) != rows:
+            return f"{len(table)} rows, expected {rows}"
+        if not (table["sample_id"] == sid).all():
+            return f"holds sample ids {sorted(set(table['sample_id']))}, not {sid}"
+        if sid in alpha and not np.array_equal(table[cols].to_numpy()[0], alpha[sid]):
+            return "computed for other parameters than the sample's"
+        return None
+
+    return check
+
+
 def _done(store: RunStore, iteration: int, stage: str) -> bool:
     if store.is_finished(iteration, stage):
         _logger().info("iteration %d, stage %s: finished earlier, read back", iteration, stage)
@@ -182,7 +251,7 @@ def samples_task(root: str, config, iteration: int, m: int) -> int:
         df.insert(0, "iteration", np.int64(iteration))
         df.insert(0, "sample_id", np.arange(first_id, first_id + len(df), dtype=np.int64))
         store.write_table(iteration, "samples", "samples", df)
-        store.finish(iteration, "samples", ["samples"], {"n": len(df)})
+        _finish(store, iteration, "samples", ["samples"], {"n": len(df)})
     return int(store.stage_info(iteration, "samples")["n"])
 
 
@@ -202,11 +271,15 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray) -> int:
         return 0
     samples = store.read_table(iteration, "samples")
     cols = [c for c in samples.columns if c.startswith("alpha_")]
-    done = store.finished_samples(iteration)
+    check = _sample_check(samples, cols, len(freqs_hz) * load_model(config.model).n_sensors)
+    done = store.finished_samples(iteration, check)
+    _reconcile_log(store, iteration, done)
     todo = samples[~samples["sample_id"].isin(list(done))]
-    for x in todo[cols].to_numpy():  # the domain guard: nothing invalid reaches the FE model
+    for sid, x in zip(todo["sample_id"], todo[cols].to_numpy()):
+        # The model refuses these (the run records the failure and goes on); sampling should never make one.
         if np.any(~np.isfinite(x)) or np.any(x <= -1.0):
-            raise ValueError(f"sample outside the valid domain reached the FE stage: {x}")
+            logger.warning("iteration %d: sample %d is outside the valid domain (alpha > -1): %s",
+                           iteration, sid, x)
     if done:
         logger.info("iteration %d, stage fe: %d of %d FE results found on disk", iteration, len(done), len(samples))
     total, count = len(samples), len(done)
@@ -219,22 +292,49 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray) -> int:
         results = run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=config.fe_backend,
                                 n_jobs=config.n_jobs, dask_address=config.dask_address,
                                 label=f"iteration {iteration}, stage fe", logger=logger)
-        log_path = store.root / "fe_evaluations.jsonl"
+        alpha = dict(zip(todo["sample_id"], todo[cols].to_numpy()))
         for result in results:
             sid = int(result["sample_id"].iloc[0])
+            for j, c in enumerate(cols):  # the parameters travel with the result, so it cannot be mismatched
+                result[c] = alpha[sid][j]
             store.write_sample(iteration, sid, result)
-            with open(log_path, "a") as fh:
-                fh.write(json.dumps({"iteration": iteration, "sample_id": sid, "status": result["status"].iloc[0],
-                                     "pid": int(result["pid"].iloc[0]), "unix": time.time()}) + "\n")
+            kill_point(f"fe-result-written/iteration={iteration}/sample={sid}")
+            _append_log(store, {"iteration": iteration, "sample_id": sid, "event": "evaluated",
+                                "status": result["status"].iloc[0], "pid": int(result["pid"].iloc[0]),
+                                "unix": time.time()})
+            kill_point(f"fe-logged/iteration={iteration}/sample={sid}")
             ran += 1
             count += 1
             logger.info("iteration %d, stage fe: %d/%d FE runs done", iteration, count, total)
     wanted = set(samples["sample_id"])
-    parts = [pd.read_parquet(p) for sid, p in sorted(store.finished_samples(iteration).items()) if sid in wanted]
+    parts = [pd.read_parquet(p) for sid, p in sorted(store.finished_samples(iteration, check).items())
+             if sid in wanted]
+    missing = wanted - {int(part["sample_id"].iloc[0]) for part in parts}
+    if missing:
+        raise RuntimeError(f"iteration {iteration}: FE results of samples {sorted(missing)} were lost while the "
+                           "stage ran; run again to evaluate them")
     fe = pd.concat(parts, ignore_index=True).sort_values(["sample_id", "frequency_hz", "sensor"], kind="stable")
     store.write_table(iteration, "fe", "fe", fe.reset_index(drop=True))
-    store.finish(iteration, "fe", ["fe"], {"n": int(fe["sample_id"].nunique())})
+    _finish(store, iteration, "fe", ["fe"], {"n": int(fe["sample_id"].nunique())})
     return ran
+
+
+def _reconcile_log(store: RunStore, iteration: int, done: dict[int, Path]) -> None:
+    """Log discarded result files, and results on disk whose log line a kill prevented."""
+    for k, sid, path, reason in store.discarded:
+        _append_log(store, {"iteration": k, "sample_id": sid, "event": "discarded", "file": str(path),
+                            "reason": reason, "unix": time.time()})
+    store.discarded.clear()
+    last = {}
+    for entry in read_fe_log(store.root):
+        if entry.get("iteration") == iteration:
+            last[entry["sample_id"]] = entry["event"]
+    for sid, path in sorted(done.items()):
+        if last.get(sid) not in ("evaluated", "recovered"):
+            table = pd.read_parquet(path, columns=["status", "pid"])
+            _append_log(store, {"iteration": iteration, "sample_id": sid, "event": "recovered",
+                                "status": table["status"].iloc[0], "pid": int(table["pid"].iloc[0]),
+                                "unix": time.time()})
 
 
 @task(name="errors", task_run_name="iteration-{iteration}-errors", cache_policy=NO_CACHE)
@@ -268,7 +368,7 @@ def errors_task(root: str, config, iteration: int, measured_amplitude: np.ndarra
         store.write_table(iteration, "errors", "errors", errors)
         store.write_table(iteration, "errors", "residuals", residuals)
         ok = errors.loc[~failed, "overall_error"]
-        store.finish(iteration, "errors", ["errors", "residuals"],
+        _finish(store, iteration, "errors", ["errors", "residuals"],
                      {"best": float(ok.min()) if len(ok) else float("inf"), "failed": int(failed.sum())})
     return store.stage_info(iteration, "errors")
 
@@ -289,7 +389,7 @@ def distribution_task(root: str, config, iteration: int, m: int) -> dict:
         d_min = adaptive.default_min_distance(dist, lower, upper, config.min_distance_factor)
         df = pd.DataFrame({"parameter": param_columns(m), "mean": mean, "std": std})
         store.write_table(iteration, "distribution", "distribution", df)
-        store.finish(iteration, "distribution", ["distribution"], {"kind": kind, "min_distance": d_min})
+        _finish(store, iteration, "distribution", ["distribution"], {"kind": kind, "min_distance": d_min})
     return store.stage_info(iteration, "distribution")
 
 
@@ -307,7 +407,7 @@ def train_task(root: str, config, iteration: int, trainer: str | None = None, ou
         seconds = time.perf_counter() - t0
         df = pd.DataFrame({"name": list(hyper), "value": [float(v) for v in hyper.values()]})
         store.write_table(iteration, output_stage, "hyperparameters", df)
-        store.finish(iteration, output_stage, ["hyperparameters"],
+        _finish(store, iteration, output_stage, ["hyperparameters"],
                      {"trainer": trainer, "seconds": seconds, "n_train": int(X.shape[0]), **info})
         _logger().info("iteration %d, stage train: %s on %d runs in %.2f s", iteration, trainer, X.shape[0], seconds)
     return store.stage_info(iteration, output_stage)
@@ -344,7 +444,7 @@ def predict_task(root: str, config, iteration: int, m: int, train_stage: str = "
         df.insert(0, "candidate_id", np.arange(len(df), dtype=np.int64))
         df["predicted_error"] = predicted
         store.write_table(iteration, output_stage, "candidates", df)
-        store.finish(iteration, output_stage, ["candidates"],
+        _finish(store, iteration, output_stage, ["candidates"],
                      {"seconds": seconds, "best_predicted": float(np.nanmin(predicted))})
     return store.stage_info(iteration, output_stage)
 
@@ -364,7 +464,7 @@ def select_task(root: str, config, iteration: int, m: int, s: int | None = None)
         df = cand.iloc[chosen].reset_index(drop=True)
         next_id = _next_sample_id(store, iteration)
         store.write_table(iteration, "select", "select", df)
-        store.finish(iteration, "select", ["select"], {"n": len(df), "next_sample_id": next_id})
+        _finish(store, iteration, "select", ["select"], {"n": len(df), "next_sample_id": next_id})
     return store.stage_info(iteration, "select")
 
 
@@ -385,6 +485,7 @@ def train_mrgp(X: np.ndarray, Y: np.ndarray, trainer: str, rng: np.random.Genera
     bounded above by the previous iteration's optimum, Table 1's ``l~``; the
     gradient trainer searches the default bounds every time.
     """
+    X, Y = merge_duplicates(X, Y)
     l_upper = None
     if previous is not None and trainer in ("sao", "pso"):
         l_upper = _length_scales(previous)
@@ -401,7 +502,46 @@ def train_mrgp(X: np.ndarray, Y: np.ndarray, trainer: str, rng: np.random.Genera
 def predict_overall_error(X: np.ndarray, Y: np.ndarray, hyper: dict, C: np.ndarray) -> np.ndarray:
     """Predicted overall error (Eq. 6b) of each candidate, shape (w,), from stored hyper-parameters."""
     h = mrgp_core.Hyperparameters(length_scale=_length_scales(hyper), nugget=float(hyper["nugget"]))
+    X, Y = merge_duplicates(X, Y)
     return mrgp_core.condition(X, Y, h).predicted_overall_error(C)
+
+
+#: Samples closer than this (max-norm, relative to the largest spread of a parameter) are one input.
+DUPLICATE_RTOL = 1e-6
+
+
+def merge_duplicates(X: np.ndarray, Y: np.ndarray, rtol: float = DUPLICATE_RTOL) -> tuple[np.ndarray, np.ndarray]:
+    """Merge (nearly) duplicated inputs into one row with the mean of their responses.
+
+    Two FE runs at the same parameters make the MRGP's correlation matrix
+    Sigma singular up to its jitter; the profile likelihood then rewards
+    vanishing length scales (measured: the gradient trainer's length scale
+    falls from 0.5 to 2e-8 with five duplicates 1e-12 apart) and the
+    emulator degrades to its linear trend. One row per distinct input keeps
+    the information and the likelihood well posed.
+    """
+    X, Y = np.asarray(X, float), np.asarray(Y, float)
+    if len(X) < 2:
+        return X, Y
+    tol = rtol * max(float(np.ptp(X, axis=0).max()), 1e-300)
+    group = np.full(len(X), -1)
+    n = 0
+    for i in range(len(X)):  # r is a few hundred at most: the quadratic scan is cheap
+        if group[i] >= 0:
+            continue
+        close = (group < 0) & (np.max(np.abs(X - X[i]), axis=1) <= tol)
+        group[close] = n
+        n += 1
+    if n == len(X):
+        return X, Y
+    _logger().warning("%d FE samples duplicate others (within %.1g); merged into %d distinct inputs for the MRGP",
+                      len(X) - n, tol, n)
+    counts = np.bincount(group, minlength=n)[:, None]
+    Xm = np.zeros((n, X.shape[1]))
+    Ym = np.zeros((n, Y.shape[1]))
+    np.add.at(Xm, group, X)
+    np.add.at(Ym, group, Y)
+    return Xm / counts, Ym / counts
 
 
 def _length_scales(hyper: dict) -> np.ndarray:

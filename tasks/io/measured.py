@@ -294,8 +294,17 @@ def _uff_columns(path):
         kinds.add(np.iscomplexobj(data))
         if len(kinds) > 1:
             raise MeasuredDataError(f"{path}: {place}: real and complex FRFs mixed in one file")
+        x = np.asarray(dataset["x"], dtype=float)
+        # A dataset 58 abscissa runs upwards; one that does not is a damaged or mis-exported file.
+        back = np.flatnonzero(~(np.diff(x) > 0))
+        if back.size:
+            j = back[0] + 1
+            raise MeasuredDataError(
+                f"{path}: {place} point {j + 1}: frequency {x[j]!r} Hz is not above the previous"
+                f" point's {x[j - 1]!r} Hz (frequencies out of order)"
+            )
         sensor = np.full(data.size, dataset["rsp_node"], dtype=float)
-        parts.append((sensor, np.asarray(dataset["x"], dtype=float), data))
+        parts.append((sensor, x, data))
         where += [f"{place} point {j + 1}" for j in range(data.size)]
     if not parts:
         raise MeasuredDataError(f"{path}: no FRF found (dataset 58 with function type 4)")

@@ -65,11 +65,11 @@ def test_fe_stage_resumes_without_rerunning_finished_samples(reduced_config, mea
     store = run_first_stages(reduced_config, measured)
     log_lines = (store.root / "fe_evaluations.jsonl").read_text().splitlines()
     assert len(log_lines) == reduced_config.q
+    before = store.read_table(1, "fe")
     # Simulate a crash after three results were written: drop the stage record and four results.
     (store.stage_dir(1, "fe") / "_stage.json").unlink()
     for path in sorted(store.stage_dir(1, "fe").glob("sample=*.parquet"))[3:7]:
         path.unlink()
-    before = store.read_table(1, "fe")
     ran = stages.fe_task.fn(str(store.root), reduced_config, 1, measured.frequencies_hz)
     assert ran == 4
     pd.testing.assert_frame_equal(

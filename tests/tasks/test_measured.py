@@ -515,8 +515,9 @@ def test_uff_reader_skips_datasets_that_are_not_frfs(tmp_path):
             ["dataset 2 (sensor 2)", "mixed"],
         ),
         ([(1, [106.0, 107.0], [0.9, 0.9], 6, 3)], ["no FRF"]),
+        ([(1, [106.0, 108.0, 107.0], [1e-6, 2e-6, 3e-6], 4, 3)], ["dataset 1 (sensor 1) point 3", "out of order"]),
     ],
-    ids=["direction", "negative", "grid", "duplicate", "mixed", "coherence only"],
+    ids=["direction", "negative", "grid", "duplicate", "mixed", "coherence only", "frequencies out of order"],
 )
 def test_bad_uff_names_dataset(tmp_path, datasets, expected):
     path = tmp_path / "m.uff"

@@ -1,0 +1,137 @@
+"""Checks made before an updating run writes anything: inputs against the model, resume, disk.
+
+Every check raises :class:`flows.config.ConfigError` or
+:class:`tasks.io.measured.MeasuredDataError` with a message that names the
+file and the key, sensor or frequency; the CLI turns them into exit code 2.
+
+The model's frequency range
+    A measured frequency must be above 0 Hz and at most the highest
+    frequency the FE mesh resolves, :func:`max_frequency_hz`: the frequency
+    at which the bending wavelength of the plates is six elements long (the
+    usual minimum for linear elements; above it the FE model is too stiff
+    and the updating would fit discretisation error). For the three-plate
+    benchmark (10 mm steel, largest element 14.375 mm) this is 13.1 kHz; the
+    measurement is at 106-295 Hz.
+
+Disk
+    The runs folder must be writable (checked by writing and removing a
+    file: permission bits, read-only mounts and immutable folders all count,
+    also for root) and the filesystem must have ``min_free_mb`` free, or,
+    when that setting is 0, twice :func:`expected_output_mb`.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import math
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from flows.config import ConfigError, UpdateConfig
+from tasks.io.measured import MeasuredDataError, MeasuredFRF
+
+__all__ = ["max_frequency_hz", "check_inputs", "check_resume", "check_disk", "expected_output_mb",
+           "ELEMENTS_PER_WAVELENGTH"]
+
+#: Linear elements per bending wavelength below which the mesh no longer resolves the response.
+ELEMENTS_PER_WAVELENGTH = 6
+
+
+def max_frequency_hz(model_name: str) -> float:
+    """Highest frequency the model's mesh resolves, Hz (see the module docstring)."""
+    if model_name == "three_plate":
+        from fe_core import benchmark as b
+
+        h = max(max(x1 - x0 for x0, x1, _ in b.PLATES) / b.ELEMENTS_ALONG_X, b.ELEMENT_SIZE_Y)
+        m = b.STEEL
+        D = m.E * b.THICKNESS**3 / (12 * (1 - m.nu**2))  # plate bending stiffness, N m
+        k = 2 * math.pi / (ELEMENTS_PER_WAVELENGTH * h)  # wavenumber of the shortest resolved wave, 1/m
+        return k**2 * math.sqrt(D / (m.rho * b.THICKNESS)) / (2 * math.pi)
+    raise ConfigError(f"config: key 'model': unknown model {model_name!r}")
+
+
+def check_inputs(config: UpdateConfig, measured: MeasuredFRF, model) -> None:
+    """The measured data and the parameters fit the model."""
+    source = measured.source
+    want = np.arange(1, model.n_sensors + 1)
+    have = np.asarray(measured.sensors)
+    if have.size != want.size or np.any(have != want):
+        missing = sorted(set(want.tolist()) - set(have.tolist()))
+        extra = sorted(set(have.tolist()) - set(want.tolist()))
+        raise MeasuredDataError(
+            f"{source}: the model {config.model!r} has sensors 1..{model.n_sensors}; the file has "
+            f"{have.size} sensors (missing {missing}, unknown {extra})"
+        )
+    f_max = max_frequency_hz(config.model)
+    above = np.flatnonzero(np.asarray(measured.frequencies_hz) > f_max)
+    if above.size:
+        raise MeasuredDataError(
+            f"{source}: frequency_hz {float(measured.frequencies_hz[above[0]])!r} is above {f_max:.0f} Hz, "
+            f"the highest frequency the mesh of {config.model!r} resolves ({ELEMENTS_PER_WAVELENGTH} elements per bending "
+            f"wavelength); {above.size} frequencies are out of range"
+        )
+    if config.true_parameters is not None:
+        truth = np.asarray(config.true_parameters, float)
+        if truth.shape != (model.n_segments,):
+            raise ConfigError(f"config: key 'true_parameters': the model {config.model!r} has "
+                              f"{model.n_segments} parameters, got {truth.size}")
+
+
+def check_resume(config: UpdateConfig, root: Path, resumable: set[str]) -> None:
+    """An existing run folder may be resumed only with the settings it was started with."""
+    manifest = root / "manifest.json"
+    if not manifest.exists():
+        return
+    try:
+        old = json.loads(manifest.read_text())["config"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"{manifest}: unreadable run manifest ({exc}); choose a new --run-id") from None
+    cfg = config.to_dict()
+    changed = sorted(k for k in cfg if k not in resumable and old.get(k, cfg[k]) != cfg[k])
+    if changed:
+        raise ConfigError(
+            f"{manifest}: run {root.name!r} was started with other settings ({', '.join(changed)}); "
+            "resume with the same settings or choose a new --run-id"
+        )
+
+
+def expected_output_mb(config: UpdateConfig, n_values: int, m: int) -> float:
+    """A generous estimate of a run's output size, MB.
+
+    ``n_values`` responses (frequencies x sensors) per FE run, ``m`` parameters.
+    Per FE run: its own file, its rows in ``fe.parquet`` and ``residuals.parquet``
+    (about 100 bytes a value in all). Per iteration: ``w`` candidates of
+    ``m + 2`` doubles, plus small tables. Repeats multiply.
+    """
+    n_fe = config.conventional_samples + 1 if config.strategy == "conventional" else config.max_fe_evaluations
+    iterations = 2 if config.strategy == "conventional" else config.max_iterations
+    per_run = n_fe * (n_values * 100 + 4096) + iterations * (config.w * (m + 2) * 8 + 64 * 1024)
+    return config.repeats * per_run / 1e6
+
+
+def check_disk(config: UpdateConfig, root: Path, required_mb: float) -> None:
+    """The runs folder (or the run folder, when resuming) is writable and has ``required_mb`` free."""
+    runs_dir = root.parent
+    try:
+        runs_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{runs_dir}: cannot create the runs folder ({exc.strerror}); "
+                          "set runs_dir / --runs-dir to a writable folder") from None
+    target = root if root.is_dir() else runs_dir
+    try:
+        fd, probe = tempfile.mkstemp(dir=target, prefix=".write-test-", suffix=".tmp")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        why = "read-only filesystem" if exc.errno == errno.EROFS else exc.strerror
+        raise ConfigError(f"{target}: cannot write into the {'run' if target == root else 'runs'} folder "
+                          f"({why}); nothing was computed. Make it writable or set runs_dir / --runs-dir") from None
+    free_mb = shutil.disk_usage(target).free / 1e6
+    if free_mb < required_mb:
+        raise ConfigError(f"{target}: {free_mb:.0f} MB free, the run needs at least {required_mb:.0f} MB "
+                          "(key 'min_free_mb'); free space or choose another runs_dir")

@@ -1,0 +1,208 @@
+"""Bad input to ``python -m flows.update``: exit code 2, a message naming the file, row or key, nothing written.
+
+Every case of ``BAD_INPUTS`` is given twice: for a new run id (the run
+folder must not be created) and for an existing run folder (its files and
+their contents must not change). The cases run ``flows.update.main``
+in-process (no Prefect run starts, because every check comes first);
+``test_the_real_command_exits_2`` checks one case through the real command.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyuff
+import pytest
+
+from fe_core.benchmark import ALPHA_ACTUAL
+from flows import update
+from flows.config import REPO, load_config
+from tasks.io.measured import read_measured, write_measured
+from tasks.runstore import RunStore
+
+BENCHMARK = REPO / "data" / "benchmark" / "measured.csv"
+LINES = BENCHMARK.read_text().splitlines()  # header + 72 rows, frequency-major (6 sensors per frequency)
+
+
+def _csv(lines: list[str]) -> str:
+    return "\n".join(lines) + "\n"
+
+
+def _replace(line_no: int, field: int, value: str) -> str:
+    """The benchmark CSV with one field of one line (1-based, header = line 1) replaced."""
+    lines = list(LINES)
+    cells = lines[line_no - 1].split(",")
+    cells[field] = value
+    lines[line_no - 1] = ",".join(cells)
+    return _csv(lines)
+
+
+def _amplitude_only(line_no: int, value: str) -> str:
+    lines = [",".join(line.split(",")[:3]) for line in LINES]
+    cells = lines[line_no - 1].split(",")
+    cells[2] = value
+    lines[line_no - 1] = ",".join(cells)
+    return _csv(lines)
+
+
+def _uff_out_of_order(path: Path) -> None:
+    """The benchmark as UFF58, with two frequencies of sensor 3 swapped (and their values)."""
+    m = read_measured(BENCHMARK)
+    sets = []
+    for j, sensor in enumerate(m.sensors):
+        x, data = m.frequencies_hz.copy(), m.complex_frf[:, j].copy()
+        if sensor == 3:
+            x[[4, 5]], data[[4, 5]] = x[[5, 4]], data[[5, 4]]
+        sets.append(pyuff.prepare_58(
+            binary=0, func_type=4, rsp_node=int(sensor), rsp_dir=3, ref_node=0, ref_dir=3, abscissa_spacing=0,
+            abscissa_spec_data_type=18, ordinate_spec_data_type=8, orddenom_spec_data_type=13, data=data, x=x))
+    pyuff.UFF(str(path)).write_sets(sets, mode="overwrite")
+
+
+def _scaled_frequencies(path: Path, factor: float) -> None:
+    m = read_measured(BENCHMARK)
+    write_measured(path, type(m)(m.frequencies_hz * factor, m.sensors, m.amplitude, m.complex_frf, ""))
+
+
+def _drop_sensor(sensor: int) -> str:
+    return _csv([LINES[0]] + [line for line in LINES[1:] if line.split(",")[0] != str(sensor)])
+
+
+def _renumber_sensor(old: int, new: int) -> str:
+    out = [LINES[0]]
+    for line in LINES[1:]:
+        cells = line.split(",")
+        if cells[0] == str(old):
+            cells[0] = str(new)
+        out.append(",".join(cells))
+    return _csv(out)
+
+
+# (id, measured file name, its content (str, bytes or a writer), config lines, extra CLI args, message parts).
+# "{measured}" and "{config}" in message parts are replaced by the paths.
+BAD_INPUTS = [
+    ("nan amplitude", "m.csv", _replace(5, 2, "nan"), "", [], ["{measured}", "line 5", "amplitude"]),
+    ("negative amplitude", "m.csv", _amplitude_only(9, "-1e-6"), "", [], ["{measured}", "line 9", "> 0"]),
+    ("zero amplitude", "m.csv", _amplitude_only(2, "0"), "", [], ["{measured}", "line 2", "amplitude 0.0"]),
+    ("missing sensor", "m.csv", _drop_sensor(6), "", [], ["{measured}", "missing [6]"]),
+    ("unknown sensor", "m.csv", _renumber_sensor(6, 7), "", [], ["{measured}", "missing [6]", "unknown [7]"]),
+    ("duplicated row", "m.csv", _csv(LINES + [LINES[3]]), "", [], ["{measured}", "line 4 and line 74"]),
+    ("unknown column", "m.csv", _csv([LINES[0] + ",phase"] + [x + ",0.1" for x in LINES[1:]]), "", [],
+     ["{measured}", "'phase'"]),
+    ("frequencies out of order", "m.uff", _uff_out_of_order, "", [],
+     ["{measured}", "sensor 3) point 6", "out of order"]),
+    ("frequency above the model's range", "m.csv", lambda p: _scaled_frequencies(p, 100.0), "", [],
+     ["{measured}", "frequency_hz 28500.0", "above 13"]),
+    ("empty file", "m.csv", "", "", [], ["{measured}", "empty file"]),
+    ("binary file", "m.csv", bytes(range(256)) * 4, "", [], ["{measured}", "not a CSV"]),
+    ("binary parquet", "m.parquet", b"PAR1" + os.urandom(64), "", [], ["{measured}", "not a Parquet"]),
+    ("missing file", None, None, "", ["--measured", "nowhere/m.csv"], ["nowhere/m.csv", "no such file"]),
+    ("config not TOML", None, None, "q = = 3", [], ["{config}", "not valid TOML"]),
+    ("config unknown key", None, None, 'trainr = "sao"', [], ["{config}", "unknown key 'trainr'"]),
+    ("config wrong type", None, None, 'q = "eight"', [], ["{config}", "key 'q' must be int"]),
+    ("config float for int", None, None, "s = 4.5", [], ["{config}", "key 's' must be int"]),
+    ("config lower >= upper", None, None, "lower = 0.5\nupper = 0.5", [], ["{config}", "key 'lower'"]),
+    ("config q of zero", None, None, "q = 0", [], ["{config}", "key 'q'", "at least 1"]),
+    ("config s of zero", None, None, "s = 0", [], ["{config}", "key 's'", "at least 1"]),
+    ("config unknown trainer", None, None, 'trainer = "newton"', [], ["{config}", "'newton'", "sao, pso, gradient"]),
+    ("config bound below -1", None, None, "lower = -1.5", [], ["{config}", "key 'lower'", ">= -1"]),
+    ("config true parameter at -1", None, None, "true_parameters = [-0.6, -1.0, -0.3, -0.2, -0.2, -0.4]", [],
+     ["{config}", "key 'true_parameters'", "entry 2", "> -1"]),
+    ("config true parameter below -1", None, None, "true_parameters = [-0.6, -0.1, -0.3, -0.2, -0.2, -3]", [],
+     ["{config}", "key 'true_parameters'", "entry 6"]),
+    ("config true parameters wrong length", None, None, "true_parameters = [0.1, 0.2]", [],
+     ["key 'true_parameters'", "6 parameters"]),
+    ("config negative disk reserve", None, None, "min_free_mb = -5", [], ["{config}", "key 'min_free_mb'"]),
+    ("command line s of zero", None, None, "", ["-s", "0"], ["command line", "key 's'"]),
+    ("command line unknown trainer", None, None, "", ["--trainer", "newton"], ["--trainer", "invalid choice"]),
+]
+
+
+def _snapshot(root: Path) -> dict[str, str]:
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture
+def existing_run(tmp_path) -> Path:
+    """A run folder as a run leaves it after its start: the manifest of the default settings."""
+    runs = tmp_path / "runs"
+    # As the command line makes it for the benchmark measurement (true parameters known).
+    config = load_config(None, runs_dir=str(runs), run_id="existing", true_parameters=ALPHA_ACTUAL.tolist())
+    store = RunStore(runs / "existing")
+    update._write_manifest(store, config)
+    (store.root / "iteration=1" / "stage=samples").mkdir(parents=True)
+    return store.root
+
+
+@pytest.mark.parametrize("run_id", ["new", "existing"])
+@pytest.mark.parametrize("case", BAD_INPUTS, ids=[c[0] for c in BAD_INPUTS])
+def test_bad_input_exits_2_names_the_place_and_writes_nothing(case, run_id, tmp_path, existing_run, capsys):
+    _, name, content, config_text, extra, needles = case
+    runs = tmp_path / "runs"
+    args = ["--run-id", run_id, "--runs-dir", str(runs)]
+    measured = None
+    if name is not None:
+        measured = tmp_path / name
+        if callable(content):
+            content(measured)
+        elif isinstance(content, bytes):
+            measured.write_bytes(content)
+        else:
+            measured.write_text(content)
+        args += ["--measured", str(measured)]
+    config = None
+    if config_text:
+        config = tmp_path / "bad.toml"
+        config.write_text(config_text + "\n")
+        args += ["--config", str(config)]
+    before = _snapshot(runs)
+    if "invalid choice" in needles:  # argparse's own refusal: SystemExit(2)
+        with pytest.raises(SystemExit) as info:
+            update.main(args + extra)
+        code = info.value.code
+    else:
+        code = update.main(args + extra)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    for needle in needles:
+        assert needle.format(measured=measured, config=config) in err, err
+    assert "Traceback" not in err
+    assert _snapshot(runs) == before  # the existing run folder unchanged
+    assert not (runs / "new").exists()
+
+
+def test_resume_with_other_settings_is_refused_before_any_write(tmp_path, existing_run, capsys):
+    before = _snapshot(existing_run)
+    assert update.main(["--run-id", "existing", "--runs-dir", str(tmp_path / "runs"), "--seed", "5"]) == 2
+    err = capsys.readouterr().err
+    assert f"{existing_run / 'manifest.json'}: run 'existing' was started with other settings (seed)" in err
+    assert _snapshot(existing_run) == before
+
+
+def test_the_model_frequency_limit_follows_the_six_elements_per_wavelength_rule():
+    """An independent check of max_frequency_hz: bending wavelength at that frequency = 6 x 14.375 mm."""
+    from flows.preflight import max_frequency_hz
+
+    f = max_frequency_hz("three_plate")
+    E, nu, rho, t = 2.06e11, 0.3, 7850.0, 0.010  # SPEC.md section 3
+    D = E * t**3 / (12 * (1 - nu**2))
+    wavelength = 2 * np.pi / (2 * np.pi * f) ** 0.5 * (D / (rho * t)) ** 0.25
+    assert wavelength == pytest.approx(6 * 0.230 / 16, rel=1e-12)
+    assert 295.0 < f  # the benchmark's measurement is inside
+
+
+def test_the_real_command_exits_2(tmp_path):
+    bad = tmp_path / "m.csv"
+    bad.write_text(_replace(7, 2, "nan"))
+    runs = tmp_path / "runs"
+    proc = subprocess.run([sys.executable, "-m", "flows.update", "--measured", str(bad), "--runs-dir", str(runs),
+                           "--run-id", "x"], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert f"{bad}: line 7: amplitude is nan" in proc.stderr
+    assert not runs.exists() or not any(runs.iterdir())
