@@ -4,7 +4,8 @@
     ...                                                 # likewise sao, pso, --strategy conventional
     python -m benchmarks.update_table data/runs/table-gradient data/runs/table-sao ...
 
-One row per seed: iterations, FE runs, final overall error (Eq. 6b) and each
+One row per seed: iterations, FE runs (and how many of them the polish made),
+final overall error (Eq. 6b) and each
 parameter's absolute error against the known truth.
 """
 
@@ -22,8 +23,10 @@ def rows(run_dir: Path) -> list[str]:
     for r in runs:
         pe = r.get("parameter_errors", {})
         label = f"{r['strategy']} / {r['trainer']}"
+        polish = r.get("polish", {}).get("n", "-")
         out.append(
-            f"| {label} | {r['seed']} | {r['iterations']} | {r['fe_evaluations']} | {r['overall_error']:.2%} | "
+            f"| {label} | {r['seed']} | {r['iterations']} | {r['fe_evaluations']} | {polish} | "
+            f"{r['overall_error']:.4%} | "
             + " | ".join(f"{v:.3f}" for v in pe.values())
             + f" | {max(pe.values()):.3f} |"
         )
@@ -32,9 +35,9 @@ def rows(run_dir: Path) -> list[str]:
 
 def main(argv=None) -> int:
     dirs = [Path(a) for a in (sys.argv[1:] if argv is None else argv)]
-    print("| strategy / trainer | seed | iterations | FE runs | overall error | "
+    print("| strategy / trainer | seed | iterations | FE runs | of which polish | overall error | "
           + " | ".join(f"\\|err\\| alpha_{i}" for i in range(1, 7)) + " | largest |")
-    print("|" + "---|" * 13)
+    print("|" + "---|" * 14)
     for d in dirs:
         for line in rows(d):
             print(line)
