@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pyarrow.parquet as pq
 from joblib import Parallel, delayed
 from prefect import task
 from prefect.cache_policies import NO_CACHE
@@ -32,6 +31,10 @@ __all__ = ["POLISH_STAGE", "polish_task", "polish_results", "polish_lower_bound"
 
 POLISH_STAGE = "polish"
 
+#: Stored polish FE runs are reused for requested points this close (max-norm, as a
+#: fraction of the box width): far below any finite-difference step (1e-6).
+REPLAY_TOLERANCE = 1e-12
+
 #: The polish's lower bound when the search box starts at the domain's edge
 #: (alpha = -1 means zero stiffness; the FE model refuses it).
 DOMAIN_MARGIN = 1e-3
@@ -41,15 +44,28 @@ def polish_lower_bound(lower: float) -> float:
     return max(lower, -1.0 + DOMAIN_MARGIN)
 
 
-def _sample_files(store: RunStore, iteration: int) -> dict[int, Path]:
+def _sample_files(store: RunStore, iteration: int, cols: list[str], rows: int) -> dict[int, Path]:
+    """Valid per-sample FE results of an earlier polish; a damaged one is set aside and run again."""
     out = {}
     for path in sorted(store.stage_dir(iteration, POLISH_STAGE).glob("sample=*.parquet")):
+        sid = int(path.stem.split("=")[1])
         try:
-            pq.read_metadata(path)
-        except Exception:
-            stages._logger().warning("polish FE result %s is unreadable; that point will be evaluated again", path)
+            table = pd.read_parquet(path)
+            problem = None
+            missing = [c for c in (*stages.FE_RESULT_COLUMNS, *cols) if c not in table.columns]
+            if missing:
+                problem = f"columns {missing} missing"
+            elif len(table) != rows or not (table["sample_id"] == sid).all():
+                problem = f"{len(table)} rows or wrong sample ids"
+        except Exception as exc:  # noqa: BLE001 - any unreadable file is set aside
+            problem = f"unreadable ({type(exc).__name__})"
+        if problem:
+            aside = path.with_name(f"{path.name}.corrupt-{int(time.time())}")
+            path.rename(aside)
+            stages._logger().warning("polish FE result %s: %s; set aside as %s, that point runs again",
+                                     path, problem, aside.name)
             continue
-        out[int(path.stem.split("=")[1])] = path
+        out[sid] = path
     return out
 
 
@@ -68,12 +84,29 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
     lower = np.full(m, polish_lower_bound(config.lower))
     upper = np.full(m, config.upper)
 
-    # FE runs of an earlier, interrupted polish: replayed by parameters (bit-exact floats).
+    # FE runs of an earlier, interrupted polish, replayed by their parameters. A resumed
+    # least-squares step can differ from the stored one in the last bits (BLAS results
+    # depend on memory alignment), so points match within REPLAY_TOLERANCE of the box.
     cache: dict[bytes, tuple[int, np.ndarray]] = {}
-    for sid, path in _sample_files(store, iteration).items():
+    logged = {e["sample_id"] for e in stages.read_fe_log(store.root) if e.get("stage") == POLISH_STAGE}
+    for sid, path in _sample_files(store, iteration, cols, measured_amplitude.size).items():
         df = pd.read_parquet(path)
         x = df[cols].to_numpy()[0].astype(float)
         cache[x.tobytes()] = (sid, _residuals(df, measured_amplitude))
+        if sid not in logged:  # killed between writing the result and logging it: still one FE run
+            stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE, "sample_id": sid,
+                                       "event": "recovered", "status": df["status"].iloc[0],
+                                       "pid": int(df["pid"].iloc[0]), "unix": time.time()})
+    tol = REPLAY_TOLERANCE * float(np.max(upper - lower))
+
+    def lookup(x: np.ndarray) -> bytes | None:
+        key = x.tobytes()
+        if key in cache:
+            return key
+        for k in cache:
+            if np.max(np.abs(np.frombuffer(k) - x)) <= tol:
+                return k
+        return None
     next_id = max([stages._next_sample_id(store, iteration), *(sid + 1 for sid, _ in cache.values())])
     order: list[int] = []
     state = {"next": next_id, "ran": 0}
@@ -81,7 +114,7 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
     def evaluate(points: list[np.ndarray]) -> list[np.ndarray]:
         todo = []
         for x in points:
-            if x.tobytes() not in cache:
+            if lookup(x) is None:
                 todo.append((state["next"], x))
                 state["next"] += 1
         if todo:
@@ -100,7 +133,7 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
                 state["ran"] += 1
         out = []
         for x in points:
-            sid, r = cache[x.tobytes()]
+            sid, r = cache[lookup(x)]
             order.append(sid)
             out.append(r)
         logger.info("iteration %d, stage polish: %d FE runs, best overall error so far %.4g %%", iteration,
