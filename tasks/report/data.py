@@ -1,0 +1,437 @@
+"""Read one run folder into plain DataFrames for the report (nothing but its Parquet and JSON).
+
+Everything is read tolerantly: only stages whose ``_stage.json`` record
+exists are used (a run that is still going, or was killed, gives a report of
+what is finished); stage folders this module does not know (a ``polish``
+stage, ``train.rerun-*`` folders, stages added later) are listed, not
+refused; a polish table is picked up when one with ``alpha_*`` columns exists.
+
+The measured amplitudes are recovered from the run's own data: the errors
+stage stores ``residual = (|Z| - u) / u`` beside the FE stage's ``Z``, so
+``u = |Z| / (1 + residual)``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from mrgp_core import adaptive
+
+__all__ = [
+    "ReportError",
+    "RunData",
+    "RepeatsData",
+    "KNOWN_STAGES",
+    "load_run",
+    "load_repeats",
+    "is_repeats_folder",
+    "param_columns",
+    "best_so_far",
+    "stage_inventory",
+    "find_polish",
+    "find_closure",
+    "residual_frame",
+]
+
+STAGE_RECORD = "_stage.json"
+#: Stages this report draws (``polish``: its points, when the folder holds them).
+KNOWN_STAGES = ("samples", "fe", "errors", "distribution", "train", "predict", "select", "polish")
+_ITER = re.compile(r"^iteration=(\d+)$")
+_STAGE = re.compile(r"^stage=(.+)$")
+_REPEAT = re.compile(r"^repeat=(\d+)$")
+
+
+class ReportError(ValueError):
+    """A run folder that cannot be reported; the message names the folder or file."""
+
+
+def param_columns(df: pd.DataFrame) -> list[str]:
+    """``alpha_1 .. alpha_m`` columns of a table, in numeric order."""
+    cols = [c for c in df.columns if re.fullmatch(r"alpha_\d+", str(c))]
+    return sorted(cols, key=lambda c: int(c.split("_")[1]))
+
+
+def _read_json(path: Path) -> dict | None:
+    if not path.exists():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ReportError(f"{path}: not readable JSON ({exc})") from exc
+
+
+def _read_parquet(path: Path) -> pd.DataFrame:
+    try:
+        return pd.read_parquet(path)
+    except Exception as exc:  # pyarrow raises several types for damaged files
+        raise ReportError(f"{path}: not a readable Parquet file ({exc})") from exc
+
+
+def _iterations(root: Path) -> list[int]:
+    out = []
+    for p in root.iterdir():
+        m = _ITER.match(p.name)
+        if m and p.is_dir():
+            out.append(int(m.group(1)))
+    return sorted(out)
+
+
+def _finished(root: Path, iteration: int, stage: str) -> bool:
+    return (root / f"iteration={iteration}" / f"stage={stage}" / STAGE_RECORD).exists()
+
+
+def _stage_record(root: Path, iteration: int, stage: str) -> dict:
+    return _read_json(root / f"iteration={iteration}" / f"stage={stage}" / STAGE_RECORD) or {}
+
+
+def stage_inventory(root: Path) -> pd.DataFrame:
+    """Every stage folder of every iteration, known or not.
+
+    Returns
+    -------
+    DataFrame
+        ``iteration, stage, finished, known, seconds, info`` (``info`` as JSON text).
+    """
+    rows = []
+    for k in _iterations(root):
+        for p in sorted((root / f"iteration={k}").iterdir()):
+            m = _STAGE.match(p.name)
+            if not (m and p.is_dir()):
+                continue
+            name = m.group(1)
+            record = _read_json(p / STAGE_RECORD) if (p / STAGE_RECORD).exists() else None
+            info = (record or {}).get("info", {})
+            rows.append({
+                "iteration": k,
+                "stage": name,
+                "finished": record is not None,
+                "known": name in KNOWN_STAGES,
+                "seconds": float(info["seconds"]) if isinstance(info.get("seconds"), (int, float)) else np.nan,
+                "info": json.dumps(info, default=str),
+            })
+    return pd.DataFrame(rows, columns=["iteration", "stage", "finished", "known", "seconds", "info"])
+
+
+@dataclass
+class RunData:
+    """One run's tables, as the report needs them.
+
+    Attributes
+    ----------
+    root : Path
+    manifest : dict
+    summary : dict or None
+        ``summary.json`` when the run finished.
+    samples : DataFrame
+        ``sample_id, iteration, alpha_*`` of every FE-evaluated batch.
+    errors : DataFrame
+        ``sample_id, iteration, overall_error, status, error_sensor_*``.
+    residuals : DataFrame
+        ``sample_id, frequency_hz, sensor, residual`` (relative, Eq. 5).
+    measured : DataFrame
+        ``frequency_hz, sensor, amplitude`` (m/N), recovered from the run.
+    distributions : DataFrame
+        ``iteration, kind, parameter, mean, std``.
+    training : DataFrame
+        ``iteration, stage, trainer, seconds, n_train`` (``train`` and ``train.rerun-*``).
+    stages : DataFrame
+        :func:`stage_inventory`.
+    polish : DataFrame or None
+        Points of a polish stage (``alpha_*`` and, when known, ``overall_error``).
+    closure : dict or None
+        ``closure.json`` of a close-the-loop run, with its folder under ``"_folder"``.
+    """
+
+    root: Path
+    manifest: dict
+    summary: dict | None
+    samples: pd.DataFrame
+    errors: pd.DataFrame
+    residuals: pd.DataFrame
+    measured: pd.DataFrame
+    distributions: pd.DataFrame
+    training: pd.DataFrame
+    stages: pd.DataFrame
+    polish: pd.DataFrame | None = None
+    closure: dict | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def config(self) -> dict:
+        return self.manifest.get("config", {})
+
+    @property
+    def names(self) -> list[str]:
+        return param_columns(self.samples)
+
+    @property
+    def true_parameters(self) -> np.ndarray | None:
+        t = self.config.get("true_parameters")
+        return None if t is None else np.asarray(t, dtype=float)
+
+    @property
+    def sensors(self) -> list[int]:
+        return sorted(int(s) for s in self.measured["sensor"].unique())
+
+    @property
+    def frequencies(self) -> np.ndarray:
+        return np.sort(self.measured["frequency_hz"].unique())
+
+    def best(self) -> tuple[int, np.ndarray, float]:
+        """The reported solution: ``summary.json``'s parameters, else the best FE sample so far.
+
+        Returns
+        -------
+        sample_id (or -1 when it is not an FE sample of the run), alpha, overall error
+        """
+        names = self.names
+        if self.summary and "parameters" in self.summary:
+            alpha = np.array([self.summary["parameters"][n] for n in names], dtype=float)
+            return int(self.summary.get("best_sample_id", -1)), alpha, float(self.summary["overall_error"])
+        ok = self.errors[self.errors["status"] == "ok"]
+        if ok.empty:
+            raise ReportError(f"{self.root}: no successful FE sample to report")
+        row = ok.loc[ok["overall_error"].idxmin()]
+        sid = int(row["sample_id"])
+        alpha = self.samples.loc[self.samples["sample_id"] == sid, names].to_numpy()[0]
+        return sid, alpha, float(row["overall_error"])
+
+
+def is_repeats_folder(root: Path) -> bool:
+    return any(_REPEAT.match(p.name) and p.is_dir() for p in Path(root).iterdir())
+
+
+def load_run(root: Path | str) -> RunData:
+    """Read one (single, not repeats) run folder.
+
+    Raises
+    ------
+    ReportError
+        If the folder or its manifest is missing, or no iteration has a finished errors stage.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise ReportError(f"{root}: no such run folder")
+    manifest = _read_json(root / "manifest.json")
+    if manifest is None:
+        raise ReportError(f"{root}: no manifest.json; is this a run folder of flows.update?")
+    summary = _read_json(root / "summary.json")
+    samples, errors, residuals, fe_first = [], [], [], None
+    dists, training = [], []
+    for k in _iterations(root):
+        if not (_finished(root, k, "samples") and _finished(root, k, "errors")):
+            continue
+        base = root / f"iteration={k}"
+        samples.append(_read_parquet(base / "stage=samples" / "samples.parquet"))
+        errors.append(_read_parquet(base / "stage=errors" / "errors.parquet"))
+        residuals.append(_read_parquet(base / "stage=errors" / "residuals.parquet"))
+        if fe_first is None and _finished(root, k, "fe"):
+            fe_first = (_read_parquet(base / "stage=fe" / "fe.parquet"), residuals[-1])
+        if _finished(root, k, "distribution"):
+            d = _read_parquet(base / "stage=distribution" / "distribution.parquet")
+            d.insert(0, "kind", _stage_record(root, k, "distribution").get("info", {}).get("kind", "normal"))
+            d.insert(0, "iteration", k)
+            dists.append(d)
+        for p in sorted(base.glob("stage=train*")):
+            name = p.name.split("=", 1)[1]
+            if (p / STAGE_RECORD).exists() and (name == "train" or name.startswith("train.rerun")):
+                info = _read_json(p / STAGE_RECORD).get("info", {})
+                training.append({"iteration": k, "stage": name, "trainer": info.get("trainer", "?"),
+                                 "seconds": float(info.get("seconds", np.nan)),
+                                 "n_train": info.get("n_train", np.nan)})
+    if not samples:
+        raise ReportError(f"{root}: no iteration with finished 'samples' and 'errors' stages yet")
+    samples_df = pd.concat(samples, ignore_index=True)
+    errors_df = pd.concat(errors, ignore_index=True)
+    if fe_first is None:
+        raise ReportError(f"{root}: no finished 'fe' stage to recover the measured amplitudes from")
+    data = RunData(
+        root=root,
+        manifest=manifest,
+        summary=summary,
+        samples=samples_df,
+        errors=errors_df,
+        residuals=pd.concat(residuals, ignore_index=True),
+        measured=_measured_from_run(*fe_first, root),
+        distributions=pd.concat(dists, ignore_index=True) if dists else pd.DataFrame(
+            columns=["iteration", "kind", "parameter", "mean", "std"]),
+        training=pd.DataFrame(training, columns=["iteration", "stage", "trainer", "seconds", "n_train"]),
+        stages=stage_inventory(root),
+    )
+    data.polish = find_polish(root, data.names)
+    data.closure = find_closure(root)
+    unknown = sorted(set(data.stages.loc[~data.stages["known"], "stage"]))
+    if unknown:
+        data.notes.append("stage folders not drawn by this report: " + ", ".join(unknown))
+    return data
+
+
+def _measured_from_run(fe: pd.DataFrame, residuals: pd.DataFrame, root: Path) -> pd.DataFrame:
+    """``u = |Z| / (1 + residual)`` over the successful samples of one iteration (median per point)."""
+    ok = fe[fe["status"] == "ok"]
+    if ok.empty:
+        raise ReportError(f"{root}: the first finished FE stage has no successful sample")
+    merged = ok.merge(residuals, on=["sample_id", "frequency_hz", "sensor"], how="inner")
+    amp = np.hypot(merged["real"].to_numpy(), merged["imag"].to_numpy()) / (1.0 + merged["residual"].to_numpy())
+    out = merged.assign(amplitude=amp).groupby(["frequency_hz", "sensor"], as_index=False)["amplitude"].median()
+    return out.sort_values(["frequency_hz", "sensor"], ignore_index=True)
+
+
+def best_so_far(data: RunData) -> pd.DataFrame:
+    """After each iteration: the best FE sample of iterations 1..k.
+
+    Returns
+    -------
+    DataFrame
+        ``iteration, sample_id, overall_error, fe_evaluations, alpha_*, error_sensor_*``.
+    """
+    ok = data.errors[data.errors["status"] == "ok"].merge(
+        data.samples[["sample_id"] + data.names], on="sample_id", how="left")
+    sensor_cols = [c for c in ok.columns if c.startswith("error_sensor_")]
+    rows = []
+    for k in sorted(data.errors["iteration"].unique()):
+        upto = ok[ok["iteration"] <= k]
+        if upto.empty:
+            continue
+        best = upto.loc[upto["overall_error"].idxmin()]
+        row = {"iteration": int(k), "sample_id": int(best["sample_id"]), "overall_error": float(best["overall_error"]),
+               "fe_evaluations": int((data.samples["iteration"] <= k).sum())}
+        row.update({c: float(best[c]) for c in data.names + sensor_cols})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+# -- optional parts: polish, close-the-loop -----------------------------------------------------
+def find_polish(root: Path, names: list[str]) -> pd.DataFrame | None:
+    """Points of a polish stage, if the run has one: ``sample_id, alpha_*, overall_error, ...``.
+
+    Looks at ``iteration=*/stage=polish*/`` (where :mod:`tasks.polish` writes
+    ``polish.parquet``, one row per FE run) and ``polish/``. Without a
+    ``polish.parquet``, any table there with ``alpha_*`` and ``overall_error``
+    columns is used; failing that, the per-sample files (``sample=*.parquet``)
+    give the points and a residual table (``sample_id, frequency_hz, sensor,
+    residual``), if any, their overall error (Eq. 6b).
+    """
+    folders = sorted(root.glob("iteration=*/stage=polish*")) + [p for p in [root / "polish"] if p.is_dir()]
+    frames = []
+    for folder in folders:
+        if (folder / "polish.parquet").exists():
+            df = _read_parquet(folder / "polish.parquet")
+        else:
+            tables = {p.name: _read_parquet(p) for p in sorted(folder.glob("*.parquet"))}
+            with_error = [t for t in tables.values() if {*names, "overall_error"} <= set(t.columns)]
+            if with_error:
+                df = pd.concat(with_error, ignore_index=True)
+            else:
+                per_sample = [_read_parquet(p) for p in sorted(folder.glob("sample=*.parquet"))]
+                per_sample = [t for t in per_sample if {*names, "sample_id"} <= set(t.columns)]
+                if not per_sample:
+                    continue
+                df = pd.concat(per_sample, ignore_index=True).groupby("sample_id", as_index=False)[names].first()
+                res = [t for t in tables.values() if {"sample_id", "residual"} <= set(t.columns)]
+                if res:
+                    r = pd.concat(res, ignore_index=True)
+                    err = r.groupby("sample_id")["residual"].apply(
+                        lambda x: float(adaptive.overall_error(x.to_numpy())))
+                    df = df.merge(err.rename("overall_error"), left_on="sample_id", right_index=True, how="left")
+        if not set(names) <= set(df.columns):
+            continue
+        m = re.search(r"iteration=(\d+)", str(folder))
+        df = df.assign(iteration=int(m.group(1)) if m else np.nan, source=str(folder.relative_to(root)))
+        frames.append(df)
+    if not frames:
+        return None
+    out = pd.concat(frames, ignore_index=True)
+    if "status" in out.columns:
+        out = out[out["status"] == "ok"]
+    return out.reset_index(drop=True)
+
+
+def find_closure(root: Path) -> dict | None:
+    """``closure.json`` in the run folder or one level below, with ``"_folder"`` added."""
+    for path in [root / "closure.json", *sorted(root.glob("*/closure.json"))]:
+        if path.exists():
+            closure = _read_json(path)
+            if not isinstance(closure, dict):
+                raise ReportError(f"{path}: expected a JSON object")
+            closure["_folder"] = str(path.parent)
+            return closure
+    return None
+
+
+def residual_frame(obj, folder: Path, frequencies=None) -> pd.DataFrame | None:
+    """A residual table ``frequency_hz, sensor, residual`` from what closure.json holds.
+
+    Accepts a list of records with those keys, a dict of equal-length lists,
+    a 2-D list (frequencies x sensors, with ``frequencies`` given), or the
+    name of a Parquet/CSV file relative to ``folder``. None when ``obj`` is
+    none of these.
+    """
+    if obj is None:
+        return None
+    if isinstance(obj, str):
+        path = Path(obj) if Path(obj).is_absolute() else folder / obj
+        if not path.exists():
+            return None
+        df = _read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
+    elif isinstance(obj, list) and obj and isinstance(obj[0], dict):
+        df = pd.DataFrame(obj)
+    elif isinstance(obj, dict) and {"frequency_hz", "sensor", "residual"} <= set(obj):
+        df = pd.DataFrame({k: obj[k] for k in ("frequency_hz", "sensor", "residual")})
+    elif isinstance(obj, list) and obj and isinstance(obj[0], list) and frequencies is not None:
+        arr = np.asarray(obj, dtype=float)
+        if arr.shape[0] != len(frequencies):
+            return None
+        f, s = np.meshgrid(np.asarray(frequencies, float), np.arange(1, arr.shape[1] + 1), indexing="ij")
+        df = pd.DataFrame({"frequency_hz": f.ravel(), "sensor": s.ravel(), "residual": arr.ravel()})
+    else:
+        return None
+    if not {"frequency_hz", "sensor", "residual"} <= set(df.columns):
+        return None
+    if "sample_id" in df.columns and df["sample_id"].nunique() > 1:
+        return None
+    return df[["frequency_hz", "sensor", "residual"]].astype({"sensor": int})
+
+
+# -- repeats ----------------------------------------------------------------------------------
+@dataclass
+class RepeatsData:
+    """A ``--repeats`` folder: its summary and each repeat's run."""
+
+    root: Path
+    summary: dict | None
+    runs: dict[int, RunData]
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def first(self) -> RunData:
+        return self.runs[min(self.runs)]
+
+    def best_run(self) -> RunData:
+        return min(self.runs.values(), key=lambda r: r.best()[2])
+
+
+def load_repeats(root: Path | str) -> RepeatsData:
+    """Read a repeats folder (``repeat=<i>/`` subfolders and, when finished, ``summary.json``).
+
+    A repeat that cannot be read yet (still running) is left out and named in ``errors``.
+    """
+    root = Path(root)
+    runs, errors = {}, []
+    for p in sorted(root.iterdir(), key=lambda p: p.name):
+        m = _REPEAT.match(p.name)
+        if not (m and p.is_dir()):
+            continue
+        try:
+            runs[int(m.group(1))] = load_run(p)
+        except ReportError as exc:
+            errors.append(str(exc))
+    if not runs:
+        raise ReportError(f"{root}: no readable repeat=<i> run folder" + (f" ({errors[0]})" if errors else ""))
+    return RepeatsData(root=root, summary=_read_json(root / "summary.json"), runs=runs, errors=errors)

@@ -1,0 +1,621 @@
+"""The report's figures: plain functions from DataFrames to PNG files (matplotlib, Agg).
+
+Each function draws one figure of Zhou & Tang (numbers in the docstrings),
+writes it to ``path`` and returns the path. No pyplot state is used (each
+figure is its own :class:`matplotlib.figure.Figure`), so they can run in any
+thread or process without a display.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # headless; must precede any pyplot import anywhere in the process
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from matplotlib import colormaps  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.ticker import FuncFormatter, MaxNLocator, PercentFormatter  # noqa: E402
+
+__all__ = [
+    "plot_frf_overview",
+    "plot_frf_zoom",
+    "plot_residual_maps",
+    "plot_error_overall",
+    "plot_error_per_sensor",
+    "plot_samples",
+    "plot_parameters",
+    "plot_distributions",
+    "plot_training_time",
+    "plot_error_trends",
+    "plot_repeats_error",
+    "plot_repeats_parameters",
+    "plot_candidates",
+    "plot_correlation",
+    "plot_correlation_heatmap",
+    "plot_singular_values",
+]
+
+DPI = 110
+CURVE_STYLE = {
+    "initial": dict(color="0.45", ls="--", lw=1.3, label="initial model (alpha = 0)"),
+    "updated": dict(color="C0", ls="-", lw=1.6, label="updated model"),
+}
+MEASURED_STYLE = dict(marker="s", ms=4.5, ls="none", mfc="none", mec="C3", mew=1.3, label="measured")
+TRUE_STYLE = dict(color="C3", ls="--", lw=1.2)
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def _grid(n: int, ncols: int) -> tuple[int, int]:
+    return max(1, math.ceil(n / ncols)), min(n, ncols)
+
+
+#: Fractions as percentages with 3 significant digits (0.0123 -> "1.23%", 1e-4 -> "0.01%").
+PERCENT = FuncFormatter(lambda y, _: f"{100 * y:.3g}%")
+
+
+def _threshold_line(ax, threshold, values) -> None:
+    """The stopping threshold as a dashed line, unless it is far below the data (it would squash the axis)."""
+    if not threshold:
+        return
+    lowest = float(np.nanmin(values)) if len(values) else threshold
+    if threshold >= lowest / 50:
+        ax.axhline(threshold, **TRUE_STYLE, label=f"threshold {100 * threshold:.3g}%")
+    else:
+        ax.plot([], [], **TRUE_STYLE, label=f"threshold {100 * threshold:.3g}% (below the axis)")
+
+
+def _bottom_labels_only(axes, n: int, ncols: int) -> None:
+    """Drop the x label of panels that have another panel below them (shared x axes)."""
+    for i, ax in enumerate(axes[:n]):
+        if i + ncols < n:
+            ax.set_xlabel("")
+
+
+def _param_label(name: str) -> str:
+    return name.replace("alpha_", "alpha ")
+
+
+# -- Figure 3: FRF amplitude ----------------------------------------------------------------------
+def plot_frf_overview(dense: pd.DataFrame, measured: pd.DataFrame, path: Path,
+                      windows: list[tuple[float, float]] | None = None, title: str | None = None) -> Path:
+    """Figure 3: measured points and the dense initial/updated FRF amplitude, one panel per sensor.
+
+    Parameters
+    ----------
+    dense : DataFrame
+        ``curve, frequency_hz, sensor, amplitude`` (m/N); curves ``initial`` and ``updated``.
+    measured : DataFrame
+        ``frequency_hz, sensor, amplitude`` (m/N).
+    windows : list of (low, high), Hz
+        Measurement windows, shaded.
+    """
+    sensors = sorted(measured["sensor"].unique())
+    nrows, ncols = _grid(len(sensors), 2)
+    fig = Figure(figsize=(11, 2.6 * nrows + 0.8), layout="constrained")
+    axes = fig.subplots(nrows, ncols, sharex=True, squeeze=False).ravel()
+    for ax, s in zip(axes, sensors):
+        for lo, hi in windows or []:
+            ax.axvspan(lo, hi, color="C1", alpha=0.08, lw=0)
+        for name, style in CURVE_STYLE.items():
+            c = dense[(dense["curve"] == name) & (dense["sensor"] == s)].sort_values("frequency_hz")
+            if not c.empty:
+                ax.semilogy(c["frequency_hz"], c["amplitude"], **style)
+        m = measured[measured["sensor"] == s]
+        ax.semilogy(m["frequency_hz"], m["amplitude"], **MEASURED_STYLE)
+        ax.set_title(f"sensor {s}", fontsize=10)
+        ax.set_ylabel("|Z| (m/N)")
+        ax.grid(True, which="major", alpha=0.3)
+    for ax in axes[len(sensors):]:
+        ax.set_visible(False)
+    for ax in axes[max(0, len(sensors) - ncols):len(sensors)]:
+        ax.set_xlabel("frequency (Hz)")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncols=3, frameon=False)
+    fig.suptitle(title or "FRF amplitude at the sensors (shaded: measurement windows)", fontsize=11)
+    return _save(fig, path)
+
+
+def plot_frf_zoom(dense: pd.DataFrame, measured: pd.DataFrame, path: Path,
+                  windows: list[tuple[float, float]]) -> Path:
+    """Figure 3, zoomed: each measurement window of each sensor, measured points against both models."""
+    sensors = sorted(measured["sensor"].unique())
+    nrows, ncols = len(sensors), len(windows)
+    fig = Figure(figsize=(4.6 * ncols + 0.6, 1.9 * nrows + 1.0), layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=False)
+    for i, s in enumerate(sensors):
+        for j, (lo, hi) in enumerate(windows):
+            ax = axes[i, j]
+            for name, style in CURVE_STYLE.items():
+                c = dense[(dense["curve"] == name) & (dense["sensor"] == s)
+                          & dense["frequency_hz"].between(lo, hi)].sort_values("frequency_hz")
+                if not c.empty:
+                    ax.semilogy(c["frequency_hz"], c["amplitude"], **style)
+            m = measured[(measured["sensor"] == s) & measured["frequency_hz"].between(lo, hi)]
+            ax.semilogy(m["frequency_hz"], m["amplitude"], **MEASURED_STYLE)
+            ax.set_xlim(lo, hi)
+            ax.grid(True, which="both", alpha=0.25)
+            if j == 0:
+                ax.set_ylabel(f"sensor {s}\n|Z| (m/N)")
+            if i == nrows - 1:
+                ax.set_xlabel("frequency (Hz)")
+            if i == 0:
+                ax.set_title(f"{lo:.0f}-{hi:.0f} Hz", fontsize=10)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside upper center", ncols=3, frameon=False)
+    return _save(fig, path)
+
+
+def plot_residual_maps(maps: dict[str, pd.DataFrame], path: Path, title: str | None = None,
+                       shared_scale: bool = False) -> Path:
+    """Relative residual ``(|Z| - u) / u`` per sensor and frequency, one heat map per entry of ``maps``.
+
+    Colour scales are symmetric about zero, per map or (``shared_scale``) common to all, so that a
+    before/after pair shows the change; the values are written in the cells in percent.
+    """
+    n = len(maps)
+    common = max(float(np.nanmax(np.abs(df["residual"].to_numpy()))) for df in maps.values())
+    fig = Figure(figsize=(min(6.4 * n, 19), 4.4), layout="constrained")
+    axes = fig.subplots(1, n, squeeze=False)[0]
+    for ax, (name, df) in zip(axes, maps.items()):
+        wide = df.pivot_table(index="sensor", columns="frequency_hz", values="residual").sort_index()
+        values = wide.to_numpy()
+        vmax = common if shared_scale else float(np.nanmax(np.abs(values))) if np.isfinite(values).any() else 1.0
+        im = ax.imshow(values, cmap="RdBu_r", vmin=-vmax, vmax=vmax, aspect="auto")
+        ax.set_xticks(range(wide.shape[1]), [f"{f:g}" for f in wide.columns], rotation=90, fontsize=8)
+        ax.set_yticks(range(wide.shape[0]), [str(s) for s in wide.index])
+        ax.set_xlabel("frequency (Hz)")
+        ax.set_ylabel("sensor")
+        mean_abs = float(np.nanmean(np.abs(values)))
+        ax.set_title(f"{name}: mean |residual| {mean_abs:.2%}", fontsize=10)
+        if values.size <= 200:
+            for (r, c), v in np.ndenumerate(values):
+                ax.text(c, r, f"{100 * v:.0f}" if abs(v) >= 0.995 else f"{100 * v:.1f}", ha="center", va="center",
+                        fontsize=6.5, color="white" if abs(v) > 0.6 * vmax else "black")
+        cb = fig.colorbar(im, ax=ax, shrink=0.9)
+        cb.ax.yaxis.set_major_formatter(PercentFormatter(1.0))
+        cb.set_label("relative residual (%)")
+    fig.suptitle(title or "Relative residual (|Z| - u) / u in percent", fontsize=11)
+    return _save(fig, path)
+
+
+# -- Figures 4 and 5: errors per iteration ------------------------------------------------------
+def _iteration_axis(ax, iterations, extra_label: str | None = None):
+    ticks = list(iterations)
+    labels = [str(k) for k in ticks]
+    if extra_label:
+        ticks.append(max(iterations) + 1)
+        labels.append(extra_label)
+    ax.set_xticks(ticks, labels)
+    ax.set_xlabel("iteration")
+
+
+def plot_error_overall(errors: pd.DataFrame, best: pd.DataFrame, path: Path, threshold: float | None = None,
+                       polish: pd.DataFrame | None = None) -> Path:
+    """Figure 4: overall error (Eq. 6b) of every FE sample per iteration and the best so far.
+
+    Parameters
+    ----------
+    errors : DataFrame
+        ``iteration, overall_error, status``.
+    best : DataFrame
+        ``iteration, overall_error, fe_evaluations`` (best so far).
+    polish : DataFrame, optional
+        Polish-stage points with ``overall_error``, drawn after the last iteration.
+    """
+    fig = Figure(figsize=(8, 4.6), layout="constrained")
+    ax = fig.subplots()
+    ok = errors[errors["status"] == "ok"]
+    rng = np.random.default_rng(0)
+    jitter = rng.uniform(-0.18, 0.18, len(ok))
+    ax.scatter(ok["iteration"] + jitter, ok["overall_error"], s=12, color="0.55", alpha=0.6, lw=0,
+               label="FE samples of the iteration")
+    ax.plot(best["iteration"], best["overall_error"], "-o", color="C0", lw=2, ms=5, label="best so far")
+    for _, row in best.iterrows():
+        ax.annotate(f"{100 * row['overall_error']:.3g}%", (row["iteration"], row["overall_error"]),
+                    textcoords="offset points", xytext=(0, -13), ha="center", fontsize=7.5, color="C0")
+    has_polish = polish is not None and "overall_error" in polish and polish["overall_error"].notna().any()
+    if has_polish:
+        x = best["iteration"].max() + 1
+        pe = polish["overall_error"].dropna()
+        ax.scatter(np.full(len(pe), x), pe, s=16, marker="D", color="C2", label="polish stage")
+        ax.plot([best["iteration"].max(), x], [best["overall_error"].iloc[-1], pe.min()], ":", color="C2")
+    _threshold_line(ax, threshold, np.concatenate([ok["overall_error"].to_numpy(),
+                                                   polish["overall_error"].dropna().to_numpy() if has_polish else []]))
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(PERCENT)
+    ax.set_ylabel("overall error, Eq. 6b (mean |relative residual|)")
+    _iteration_axis(ax, sorted(best["iteration"]), "polish" if has_polish else None)
+    ax.grid(True, which="both", alpha=0.25)
+    ax.legend(fontsize=8.5, loc="best")
+    fe = int(best["fe_evaluations"].iloc[-1])
+    n_polish = len(polish) if has_polish else 0
+    ax.set_title(f"Overall error per iteration ({fe} FE runs" + (f" + {n_polish} in the polish)" if n_polish else ")"),
+                 fontsize=11)
+    return _save(fig, path)
+
+
+def plot_error_per_sensor(best: pd.DataFrame, path: Path) -> Path:
+    """Figure 5: per-sensor error (Eq. 15) of the best sample so far, per iteration."""
+    cols = sorted([c for c in best.columns if c.startswith("error_sensor_")], key=lambda c: int(c.rsplit("_", 1)[1]))
+    fig = Figure(figsize=(8, 4.6), layout="constrained")
+    ax = fig.subplots()
+    markers = "osD^v<>ph*"
+    for i, c in enumerate(cols):
+        ax.plot(best["iteration"], best[c], marker=markers[i % len(markers)], ms=4.5, lw=1.4,
+                label=f"sensor {c.rsplit('_', 1)[1]}")
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(PERCENT)
+    ax.set_ylabel("sensor error, Eq. 15 (mean |relative residual|)")
+    _iteration_axis(ax, sorted(best["iteration"]))
+    ax.grid(True, which="both", alpha=0.25)
+    ax.legend(fontsize=8.5, ncols=2)
+    ax.set_title("Per-sensor error of the best sample so far", fontsize=11)
+    return _save(fig, path)
+
+
+# -- Figures 6-8: parameters -----------------------------------------------------------------------
+def plot_samples(samples: pd.DataFrame, names: list[str], path: Path, truth=None,
+                 polish: pd.DataFrame | None = None, bounds: tuple[float, float] = (-1.0, 1.0)) -> Path:
+    """Figure 6: every FE sample's parameters per iteration, one panel per parameter."""
+    nrows, ncols = _grid(len(names), 3)
+    fig = Figure(figsize=(12, 3.2 * nrows + 0.6), layout="constrained")
+    axes = fig.subplots(nrows, ncols, sharex=True, squeeze=False).ravel()
+    iterations = sorted(samples["iteration"].unique())
+    has_polish = polish is not None and len(polish) > 0
+    cmap = colormaps["viridis"]
+    rng = np.random.default_rng(1)
+    jitter = rng.uniform(-0.2, 0.2, len(samples))
+    colors = cmap((samples["iteration"] - 1) / max(1, len(iterations) - 1))
+    for i, (ax, name) in enumerate(zip(axes, names)):
+        ax.scatter(samples["iteration"] + jitter, samples[name], s=10, c=colors, lw=0, alpha=0.8)
+        if has_polish:
+            ax.scatter(np.full(len(polish), max(iterations) + 1), polish[name], s=14, marker="D", color="C2",
+                       label="polish-stage FE runs")
+        if truth is not None:
+            ax.axhline(truth[i], **TRUE_STYLE, label="true value")
+        ax.set_ylim(bounds[0] - 0.05, bounds[1] + 0.05)
+        ax.set_title(_param_label(name), fontsize=10)
+        ax.set_ylabel("stiffness factor (-)")
+        ax.grid(True, alpha=0.25)
+        _iteration_axis(ax, iterations, "polish" if has_polish else None)
+    for ax in axes[len(names):]:
+        ax.set_visible(False)
+    _bottom_labels_only(axes, len(names), ncols)
+    handles, labels = axes[0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", ncols=len(handles), frameon=False)
+    fig.suptitle("FE samples per iteration (iteration 1: uniform; later: chosen by the MRGP)", fontsize=11)
+    return _save(fig, path)
+
+
+def plot_parameters(best: pd.DataFrame, distributions: pd.DataFrame, names: list[str], path: Path,
+                    truth=None, bounds: tuple[float, float] = (-1.0, 1.0)) -> Path:
+    """Figure 7: each parameter of the best sample so far per iteration, with the true value when known.
+
+    The band is the sampling distribution computed at that iteration (mean +/- 1 std).
+    """
+    nrows, ncols = _grid(len(names), 3)
+    fig = Figure(figsize=(12, 3.0 * nrows + 0.6), layout="constrained")
+    axes = fig.subplots(nrows, ncols, sharex=True, squeeze=False).ravel()
+    normal = distributions[distributions["kind"] == "normal"] if len(distributions) else distributions
+    for i, (ax, name) in enumerate(zip(axes, names)):
+        d = normal[normal["parameter"] == name].sort_values("iteration") if len(normal) else normal
+        if len(d):
+            ax.fill_between(d["iteration"], d["mean"] - d["std"], d["mean"] + d["std"], color="C0", alpha=0.15,
+                            lw=0, label="sampling distribution, mean +/- 1 std")
+        ax.plot(best["iteration"], best[name], "-o", color="C0", ms=4, lw=1.6, label="best sample so far")
+        if truth is not None:
+            ax.axhline(truth[i], **TRUE_STYLE, label="true value")
+        ax.set_ylim(bounds[0] - 0.05, bounds[1] + 0.05)
+        ax.set_title(f"{_param_label(name)}: final {best[name].iloc[-1]:+.3f}"
+                     + (f" (true {truth[i]:+.2f})" if truth is not None else ""), fontsize=10)
+        ax.set_ylabel("stiffness factor (-)")
+        ax.grid(True, alpha=0.25)
+        _iteration_axis(ax, sorted(best["iteration"]))
+    for ax in axes[len(names):]:
+        ax.set_visible(False)
+    _bottom_labels_only(axes, len(names), ncols)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside upper center", ncols=3, frameon=False)
+    return _save(fig, path)
+
+
+def plot_distributions(distributions: pd.DataFrame, names: list[str], path: Path, truth=None,
+                       bounds: tuple[float, float] = (-1.0, 1.0)) -> Path:
+    """Figure 8: the sampling distribution of every iteration as a ridge of densities per parameter.
+
+    Each density is scaled to the same height so narrow late distributions and the wide uniform
+    start are both visible; the label at the right gives the standard deviation.
+    """
+    nrows, ncols = _grid(len(names), 3)
+    iterations = sorted(distributions["iteration"].unique())
+    fig = Figure(figsize=(12, max(3.2, 0.42 * len(iterations) + 1.2) * nrows + 0.6), layout="constrained")
+    axes = fig.subplots(nrows, ncols, sharey=True, squeeze=False).ravel()
+    cmap = colormaps["viridis"]
+    x = np.linspace(bounds[0], bounds[1], 801)
+    for i, (ax, name) in enumerate(zip(axes, names)):
+        d = distributions[distributions["parameter"] == name]
+        for k in iterations:
+            row = d[d["iteration"] == k]
+            if row.empty:
+                continue
+            row = row.iloc[0]
+            color = cmap((k - iterations[0]) / max(1, iterations[-1] - iterations[0]))
+            if row["kind"] == "uniform":
+                y = np.where((x >= bounds[0]) & (x <= bounds[1]), 0.5, 0.0)
+            else:
+                y = np.exp(-0.5 * ((x - row["mean"]) / row["std"]) ** 2)
+            y = 0.85 * y / y.max()
+            ax.fill_between(x, k, k + y, color=color, alpha=0.55, lw=0)
+            ax.plot(x, k + y, color=color, lw=1)
+            ax.text(bounds[1] - 0.01 * (bounds[1] - bounds[0]), k + 0.08, f"sd {row['std']:.3f}", fontsize=6.5,
+                    va="bottom", ha="right", color="0.25")
+        if truth is not None:
+            ax.axvline(truth[i], **TRUE_STYLE, label="true value")
+        ax.set_xlim(bounds)
+        ax.set_title(_param_label(name), fontsize=10)
+        ax.set_xlabel("stiffness factor (-)")
+        ax.set_ylabel("iteration")
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.grid(True, axis="x", alpha=0.25)
+    for ax in axes[len(names):]:
+        ax.set_visible(False)
+    if truth is not None:
+        ax0 = axes[0]
+        fig.legend(*ax0.get_legend_handles_labels(), loc="outside lower center", frameon=False)
+    fig.suptitle("Sampling distribution of the candidates per iteration (uniform, then normal; "
+                 "densities scaled to equal height)", fontsize=11)
+    return _save(fig, path)
+
+
+# -- Figure 9: training time -------------------------------------------------------------------
+def plot_training_time(training: pd.DataFrame, path: Path, series: str = "trainer") -> Path:
+    """Figure 9: MRGP training time per iteration, grouped bars, one colour per ``series`` value.
+
+    Parameters
+    ----------
+    training : DataFrame
+        ``iteration, seconds, n_train`` and the ``series`` column.
+    """
+    fig = Figure(figsize=(8, 4.4), layout="constrained")
+    ax = fig.subplots()
+    groups = list(dict.fromkeys(training[series]))
+    iterations = sorted(training["iteration"].unique())
+    width = 0.8 / max(1, len(groups))
+    for g_i, g in enumerate(groups):
+        part = training[training[series] == g].groupby("iteration", as_index=False)["seconds"].mean()
+        xs = part["iteration"] + (g_i - (len(groups) - 1) / 2) * width
+        ax.bar(xs, part["seconds"], width=width * 0.95, label=str(g), color=f"C{g_i % 10}")
+    n_train = training.groupby("iteration")["n_train"].max()
+    ax.set_xticks(iterations, [f"{k}\n{int(n_train[k])}" if pd.notna(n_train.get(k)) else str(k)
+                               for k in iterations], fontsize=8)
+    ax.set_xlabel("iteration\nFE runs in the training set")
+    ax.set_ylabel("training time (s)")
+    if training["seconds"].max() > 50 * max(training["seconds"].min(), 1e-6):
+        ax.set_yscale("log")
+    ax.grid(True, axis="y", which="both", alpha=0.25)
+    ax.legend(title=series, fontsize=8.5)
+    ax.set_title("MRGP hyper-parameter training time per iteration", fontsize=11)
+    return _save(fig, path)
+
+
+# -- Figures 10-13: repeated runs -----------------------------------------------------------------
+def plot_error_trends(trends: dict[str, pd.DataFrame], path: Path, threshold: float | None = None) -> Path:
+    """Best overall error so far against the number of FE runs, one line per repeat."""
+    fig = Figure(figsize=(8, 4.6), layout="constrained")
+    ax = fig.subplots()
+    for i, (label, best) in enumerate(trends.items()):
+        ax.plot(best["fe_evaluations"], best["overall_error"], "-o", ms=3.5, lw=1.4, color=f"C{i % 10}", label=label)
+    _threshold_line(ax, threshold, np.concatenate([b["overall_error"].to_numpy() for b in trends.values()]))
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(PERCENT)
+    ax.set_xlabel("FE runs")
+    ax.set_ylabel("best overall error so far (Eq. 6b)")
+    ax.grid(True, which="both", alpha=0.25)
+    ax.legend(fontsize=8, ncols=2)
+    ax.set_title("Convergence of each run", fontsize=11)
+    return _save(fig, path)
+
+
+def plot_repeats_error(table: pd.DataFrame, path: Path, threshold: float | None = None, title: str = "") -> Path:
+    """Figures 10 / 12: final overall error of each run, with the mean.
+
+    Parameters
+    ----------
+    table : DataFrame
+        ``label, overall_error`` (one row per run).
+    """
+    fig = Figure(figsize=(7.5, 4.4), layout="constrained")
+    ax = fig.subplots()
+    x = np.arange(len(table))
+    bars = ax.bar(x, table["overall_error"], color="C0", width=0.6)
+    ax.bar_label(bars, [f"{100 * v:.3g}%" for v in table["overall_error"]], fontsize=8, padding=2)
+    mean = float(table["overall_error"].mean())
+    std = float(table["overall_error"].std(ddof=1)) if len(table) > 1 else 0.0
+    ax.axhline(mean, color="C1", lw=1.5, label=f"mean {100 * mean:.3g}% (std {100 * std:.3g}%)")
+    _threshold_line(ax, threshold, table["overall_error"].to_numpy())
+    ax.set_xticks(x, table["label"], fontsize=8.5)
+    ax.set_xlabel("run")
+    ax.yaxis.set_major_formatter(PERCENT)
+    ax.set_ylabel("final overall error (Eq. 6b)")
+    ax.set_ylim(0, 1.2 * max(float(table["overall_error"].max()), threshold or 0))
+    ax.grid(True, axis="y", alpha=0.25)
+    ax.legend(fontsize=8.5, loc="upper left")
+    ax.set_title(title or "Final overall error of each run", fontsize=11)
+    return _save(fig, path)
+
+
+def plot_repeats_parameters(table: pd.DataFrame, names: list[str], path: Path, truth=None, title: str = "",
+                            bounds: tuple[float, float] = (-1.0, 1.0)) -> Path:
+    """Figures 11 / 13: identified parameters of each run, mean +/- std, true values.
+
+    Parameters
+    ----------
+    table : DataFrame
+        ``label`` and ``alpha_*`` (one row per run).
+    """
+    fig = Figure(figsize=(9, 4.6), layout="constrained")
+    ax = fig.subplots()
+    x = np.arange(len(names))
+    n = len(table)
+    offsets = np.linspace(-0.25, 0.25, n) if n > 1 else np.zeros(1)
+    for j, (_, row) in enumerate(table.iterrows()):
+        ax.scatter(x + offsets[j], row[names].to_numpy(float), s=22, color=f"C{j % 10}", label=str(row["label"]),
+                   zorder=3)
+    values = table[names].to_numpy(float)
+    ax.errorbar(x + 0.38, values.mean(axis=0), yerr=values.std(axis=0, ddof=1) if n > 1 else None, fmt="o",
+                color="k", ms=5, capsize=4, label="mean +/- std")
+    if truth is not None:
+        ax.hlines(truth, x - 0.4, x + 0.45, **{**TRUE_STYLE, "lw": 2}, label="true value")
+    ax.set_xticks(x, [_param_label(n_) for n_ in names])
+    ax.set_ylabel("identified stiffness factor (-)")
+    ax.set_ylim(bounds[0] - 0.05, bounds[1] + 0.05)
+    ax.grid(True, axis="y", alpha=0.25)
+    ax.legend(fontsize=7.5, ncols=4, loc="upper center", bbox_to_anchor=(0.5, -0.08), frameon=False)
+    ax.set_title(title or "Identified parameters of each run", fontsize=11)
+    return _save(fig, path)
+
+
+# -- close the loop ----------------------------------------------------------------------------
+def plot_candidates(table: pd.DataFrame, path: Path, score: str, chosen: str | None = None) -> Path:
+    """Ranked candidate effects of a close-the-loop run as horizontal bars (best on top).
+
+    Parameters
+    ----------
+    table : DataFrame
+        ``label`` and the ``score`` column, already ranked best first.
+    chosen : str, optional
+        Label of the effect that was added (highlighted).
+    """
+    table = table.head(25)
+    fig = Figure(figsize=(8, max(3.2, 0.34 * len(table) + 1.6)), layout="constrained")
+    ax = fig.subplots()
+    y = np.arange(len(table))[::-1]
+    colors = ["C2" if chosen is not None and str(lbl) == chosen else "C0" for lbl in table["label"]]
+    bars = ax.barh(y, table[score], color=colors)
+    ax.bar_label(bars, [f"{v:.3g}" for v in table[score]], fontsize=7.5, padding=2)
+    ax.set_yticks(y, [str(v) for v in table["label"]], fontsize=8)
+    ax.set_xlabel(score.replace("_", " "))
+    ax.grid(True, axis="x", alpha=0.25)
+    ax.set_title("Candidate effects, ranked" + (" (green: added)" if chosen else ""), fontsize=11)
+    return _save(fig, path)
+
+
+# -- Figures 14-19: correlation ----------------------------------------------------------------
+def plot_correlation(corr: pd.DataFrame, names: list[str], path: Path, n_samples: int | None = None) -> Path:
+    """Figures 14-19 in one: Pearson correlation of each parameter with each sensor's amplitude.
+
+    One panel per sensor, grouped bars: x = frequency, one bar per parameter.
+
+    Parameters
+    ----------
+    corr : DataFrame
+        ``parameter, sensor, frequency_hz, rho``.
+    """
+    sensors = sorted(corr["sensor"].unique())
+    freqs = np.sort(corr["frequency_hz"].unique())
+    nrows, ncols = _grid(len(sensors), 2)
+    fig = Figure(figsize=(13, 2.7 * nrows + 1.0), layout="constrained")
+    axes = fig.subplots(nrows, ncols, sharey=True, squeeze=False).ravel()
+    width = 0.8 / len(names)
+    x = np.arange(len(freqs))
+    for ax, s in zip(axes, sensors):
+        part = corr[corr["sensor"] == s]
+        for i, name in enumerate(names):
+            v = part[part["parameter"] == name].set_index("frequency_hz").reindex(freqs)["rho"]
+            ax.bar(x + (i - (len(names) - 1) / 2) * width, v, width=width, color=f"C{i % 10}",
+                   label=_param_label(name))
+        ax.axhline(0, color="k", lw=0.6)
+        ax.set_xticks(x, [f"{f:g}" for f in freqs], fontsize=7.5, rotation=90)
+        ax.set_ylim(-1, 1)
+        ax.set_title(f"sensor {s}", fontsize=10)
+        ax.set_ylabel("Pearson rho (-)")
+        ax.grid(True, axis="y", alpha=0.25)
+    for ax in axes[len(sensors):]:
+        ax.set_visible(False)
+    for ax in axes[max(0, len(sensors) - ncols):len(sensors)]:
+        ax.set_xlabel("frequency (Hz)")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncols=len(names), frameon=False)
+    fig.suptitle("Correlation of each parameter with each sensor's FRF amplitude (Eq. 16"
+                 + (f", {n_samples:,} FE samples uniform in [-1, 1]" if n_samples else "") + ")", fontsize=11)
+    return _save(fig, path)
+
+
+def plot_correlation_heatmap(corr: pd.DataFrame, names: list[str], path: Path) -> Path:
+    """All coefficients at once: rows parameters, columns (sensor, frequency); one map per column
+    of ``corr`` among ``rho`` (amplitude, Eq. 16) and ``rho_log`` (log amplitude)."""
+    panels = [(c, t) for c, t in (("rho", "Pearson rho with |Z| (Eq. 16)"),
+                                  ("rho_log", "Pearson rho with log |Z|")) if c in corr.columns]
+    fig = Figure(figsize=(13, (0.42 * len(names) + 1.6) * len(panels) + 0.6), layout="constrained")
+    axes = fig.subplots(len(panels), 1, squeeze=False)[:, 0]
+    for ax, (col, title) in zip(axes, panels):
+        wide = corr.pivot_table(index="parameter", columns=["sensor", "frequency_hz"], values=col).reindex(names)
+        im = ax.imshow(wide.to_numpy(), cmap="RdBu_r", vmin=-1, vmax=1, aspect="auto")
+        cols = list(wide.columns)
+        ax.set_xticks(range(len(cols)), [f"{f:g}" for _, f in cols], rotation=90, fontsize=6.5)
+        ax.set_yticks(range(len(names)), [_param_label(n) for n in names])
+        sensors = [s for s, _ in cols]
+        for i in range(1, len(cols)):
+            if sensors[i] != sensors[i - 1]:
+                ax.axvline(i - 0.5, color="k", lw=1)
+        for s in dict.fromkeys(sensors):
+            idx = [i for i, t in enumerate(sensors) if t == s]
+            ax.text(np.mean(idx), -0.7, f"sensor {s}", ha="center", va="bottom", fontsize=8.5)
+        ax.set_xlabel("frequency (Hz), grouped by sensor")
+        ax.set_title(title, fontsize=10, pad=24, loc="left")
+        cb = fig.colorbar(im, ax=ax, shrink=0.9)
+        cb.set_label("rho (-)")
+    return _save(fig, path)
+
+
+def plot_singular_values(results: dict[str, object], path: Path) -> Path:
+    """Singular values of the normalised sensitivity matrix at each reference point (log scale),
+    and the noise-implied identification limit.
+
+    Parameters
+    ----------
+    results : dict of str to :class:`fe_core.sensitivity.Identifiability`
+    """
+    fig = Figure(figsize=(11, 4.4), layout="constrained")
+    ax, ax2 = fig.subplots(1, 2)
+    for i, (label, r) in enumerate(results.items()):
+        k = np.arange(1, len(r.singular_values) + 1)
+        ax.semilogy(k, r.singular_values, "-o", color=f"C{i}", label=label)
+        x = np.arange(len(r.names))
+        xs = x + (i - (len(results) - 1) / 2) * 0.8 / len(results)
+        finite = np.isfinite(r.std)
+        ax2.bar(xs[finite], r.std[finite], width=0.8 / len(results), color=f"C{i}", label=label)
+        for xi in xs[~finite]:
+            ax2.annotate("unbounded", (xi, r.tolerance), rotation=90, ha="center", va="bottom", fontsize=7,
+                         color=f"C{i}")
+    first = next(iter(results.values()))
+    stds = np.concatenate([r.std[np.isfinite(r.std)] for r in results.values()] + [[first.tolerance]])
+    ax2.set_ylim(0.5 * stds.min(), 8 * stds.max())  # room above the bars for the legend
+    ax.axhline(first.noise / first.tolerance, **TRUE_STYLE,
+               label=f"noise / tolerance = {first.noise:.0%} / {first.tolerance:g}")
+    ax.set_xlabel("singular value index")
+    ax.set_ylabel("singular value of d log|Z| / d alpha (-)")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.grid(True, which="both", alpha=0.25)
+    ax.legend(fontsize=8)
+    ax.set_title("Normalised sensitivity: singular values", fontsize=10)
+    ax2.axhline(first.tolerance, **TRUE_STYLE, label=f"tolerance {first.tolerance:g}")
+    ax2.set_yscale("log")
+    ax2.set_xticks(np.arange(len(first.names)), [_param_label(n) for n in first.names])
+    ax2.set_ylabel(f"linearised std of the estimate at {first.noise:.0%} noise (-)")
+    ax2.grid(True, axis="y", which="both", alpha=0.25)
+    ax2.legend(fontsize=8, ncols=2, loc="upper left")
+    ax2.set_title("Which parameters the sensors pin down (below the line)", fontsize=10)
+    return _save(fig, path)

@@ -1,0 +1,320 @@
+"""The report's sections: figures and tables from a loaded run (plain functions).
+
+Each function takes the data of :mod:`tasks.report.data` and the report
+folder, writes its PNG files there and returns a :class:`~tasks.report.html.Section`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from tasks.report import figures
+from tasks.report.data import RepeatsData, RunData, best_so_far, residual_frame
+from tasks.report.frf import dense_frequencies, dense_frf, zoom_windows
+from tasks.report.html import Section
+
+__all__ = [
+    "frf_section",
+    "errors_section",
+    "parameters_section",
+    "training_section",
+    "stages_section",
+    "closure_section",
+    "repeats_section",
+    "run_intro",
+]
+
+CACHE = "cache"
+
+
+def _bounds(data: RunData) -> tuple[float, float]:
+    return float(data.config.get("lower", -1.0)), float(data.config.get("upper", 1.0))
+
+
+def run_intro(data: RunData) -> list[str]:
+    cfg = data.config
+    sid, _, err = data.best()
+    done = "finished" if data.summary else "not finished (no summary.json): this report shows the finished stages"
+    lines = [
+        f"Run folder {data.root} ({done}).",
+        f"Strategy {cfg.get('strategy', '?')}, trainer {cfg.get('trainer', '?')}, seed {cfg.get('seed', '?')}, "
+        f"model {cfg.get('model', '?')}, measured data {cfg.get('measured', '?')}.",
+        f"{int(data.errors['iteration'].max())} iterations and {len(data.samples)} FE runs; "
+        f"reported overall error {err:.3%}" + (f" (sample {sid})" if sid >= 0 else "") + ".",
+    ]
+    if data.summary:
+        lines.append(f"Stop reason: {data.summary.get('stop_reason', '?')}; "
+                     f"{'converged' if data.summary.get('converged') else 'not converged'}; "
+                     f"wall time {data.summary.get('wall_seconds', float('nan')):.1f} s.")
+    return lines
+
+
+# -- Figure 3 -------------------------------------------------------------------------------------
+def frf_section(data: RunData, out: Path, label: str = "") -> Section:
+    """Measured vs. initial (alpha = 0) vs. updated FRF amplitude, dense in frequency; residual maps."""
+    names = data.names
+    _, updated, _ = data.best()
+    initial = np.zeros(len(names))
+    freqs = data.frequencies
+    grid = dense_frequencies(freqs)
+    windows = zoom_windows(freqs)
+    dense = dense_frf(data.config.get("model", "three_plate"), {"initial": initial, "updated": updated}, grid,
+                      out / CACHE / "frf_dense.parquet")
+    fig1 = figures.plot_frf_overview(dense, data.measured, out / "frf_overview.png", windows)
+    fig2 = figures.plot_frf_zoom(dense, data.measured, out / "frf_zoom.png", windows)
+    # Residuals of both models at the measured points (the dense grid holds them exactly).
+    maps, rows = {}, []
+    for name in ("initial", "updated"):
+        c = dense.loc[dense["curve"] == name, ["frequency_hz", "sensor", "amplitude"]]
+        merged = data.measured.assign(key=data.measured["frequency_hz"].round(6)).merge(
+            c.assign(key=c["frequency_hz"].round(6)).drop(columns="frequency_hz"),
+            on=["key", "sensor"], suffixes=("", "_model")).drop(columns="key")
+        merged["residual"] = (merged["amplitude_model"] - merged["amplitude"]) / merged["amplitude"]
+        maps[f"{name} model"] = merged[["frequency_hz", "sensor", "residual"]]
+        per_sensor = merged.assign(a=merged["residual"].abs()).groupby("sensor")["a"].mean()
+        rows.append({"model": name, "overall error (Eq. 6b)": f"{merged['residual'].abs().mean():.3%}",
+                     **{f"sensor {s}": f"{v:.2%}" for s, v in per_sensor.items()}})
+    fig3 = figures.plot_residual_maps(maps, out / "residual_map.png",
+                                      "Relative residual (|Z| - u) / u at the measured points, percent")
+    truth = data.true_parameters
+    params = pd.DataFrame({"parameter": names, "initial": initial, "updated": updated})
+    if truth is not None and len(truth) == len(names):
+        params["true"] = truth
+        params["|updated - true|"] = np.abs(updated - truth)
+    return Section(
+        title=f"Measured and model FRF amplitudes (Figure 3){label}",
+        paragraphs=[f"The initial model has every stiffness factor at 0; the updated model has the reported "
+                    f"parameters. Curves are FE runs on {grid.size} frequencies (cached in "
+                    f"{CACHE}/frf_dense.parquet); squares are the {freqs.size} measured frequencies."],
+        tables=[("Parameters", params), ("Errors at the measured points", pd.DataFrame(rows))],
+        figures=[(fig1, "FRF amplitude per sensor over the band"),
+                 (fig2, "Each measurement window per sensor"),
+                 (fig3, "Where each model misses the measurement")],
+    )
+
+
+# -- Figures 4, 5 ---------------------------------------------------------------------------------
+def errors_section(data: RunData, out: Path) -> Section:
+    best = best_so_far(data)
+    threshold = data.config.get("threshold")
+    fig1 = figures.plot_error_overall(data.errors, best, out / "error_overall.png", threshold, data.polish)
+    fig2 = figures.plot_error_per_sensor(best, out / "error_per_sensor.png")
+    table = best[["iteration", "fe_evaluations", "sample_id", "overall_error"]].copy()
+    table["overall_error"] = table["overall_error"].map(lambda v: f"{v:.3%}")
+    notes = []
+    if data.config.get("strategy") == "conventional":
+        notes.append("Conventional strategy (Section 3.4): iteration 1 is the uniform FE sample that trains one "
+                     "MRGP; iteration 2 is the FE run of its best prediction.")
+    polish = (data.summary or {}).get("polish")
+    if isinstance(polish, dict):
+        notes.append(f"Polish stage (least squares on the FE model after the MRGP loop): {polish.get('status')}, "
+                     f"{polish.get('n')} FE runs, overall error {polish.get('error_before', float('nan')):.3%} -> "
+                     f"{polish.get('error_after', float('nan')):.3%}; drawn after the last iteration.")
+    failed = int((data.errors["status"] != "ok").sum())
+    if failed:
+        notes.append(f"{failed} FE runs failed and are left out.")
+    return Section(
+        title="Error per iteration (Figures 4 and 5)",
+        notes=notes,
+        tables=[("Best sample so far", table)],
+        figures=[(fig1, "Overall error (Eq. 6b) of every FE sample and the best so far"),
+                 (fig2, "Per-sensor error (Eq. 15) of the best sample so far")],
+    )
+
+
+# -- Figures 6-8 ----------------------------------------------------------------------------------
+def parameters_section(data: RunData, out: Path) -> Section:
+    names, truth, bounds = data.names, data.true_parameters, _bounds(data)
+    best = best_so_far(data)
+    figs = [(figures.plot_samples(data.samples, names, out / "samples.png", truth, data.polish, bounds),
+             "Sampled parameters per iteration (Figure 6)"),
+            (figures.plot_parameters(best, data.distributions, names, out / "parameters.png", truth, bounds),
+             "Parameter trajectories (Figure 7)")]
+    if len(data.distributions):
+        figs.append((figures.plot_distributions(data.distributions, names, out / "distributions.png", truth, bounds),
+                     "Sampling distributions (Figure 8)"))
+    tables = []
+    if len(data.distributions):
+        last = data.distributions[data.distributions["iteration"] == data.distributions["iteration"].max()]
+        tables.append((f"Sampling distribution of iteration {int(last['iteration'].iloc[0])}",
+                       last[["parameter", "kind", "mean", "std"]]))
+    if data.polish is not None:
+        cols = [c for c in ["sample_id", "overall_error", *names, "source"] if c in data.polish.columns]
+        tables.append(("Polish-stage points", data.polish[cols].head(30)))
+    return Section(title="Parameters (Figures 6-8)", tables=tables, figures=figs,
+                   paragraphs=["Dashed red lines are the true values (manifest true_parameters)."]
+                   if truth is not None else ["The true parameters are not known for this data."])
+
+
+# -- Figure 9 -------------------------------------------------------------------------------------
+def _training_series(training: pd.DataFrame) -> pd.DataFrame:
+    t = training.copy()
+    t["trainer"] = np.where(t["stage"] == "train", t["trainer"], t["trainer"] + " (rerun)")
+    return t
+
+
+def training_section(data: RunData, out: Path) -> Section | None:
+    if data.training.empty:
+        return None
+    t = _training_series(data.training)
+    fig = figures.plot_training_time(t, out / "training_time.png", "trainer")
+    total = t.groupby("trainer")["seconds"].sum().map(lambda v: f"{v:.2f}")
+    return Section(title="MRGP training time (Figure 9)",
+                   tables=[("Total training time (s)", total.reset_index())],
+                   figures=[(fig, "Training time per iteration from each train stage's _stage.json")])
+
+
+# -- inventory -------------------------------------------------------------------------------------
+def stages_section(data: RunData) -> Section:
+    inv = data.stages
+    rows = []
+    for k, part in inv.groupby("iteration"):
+        rows.append({"iteration": int(k),
+                     "finished stages": ", ".join(part.loc[part["finished"], "stage"]),
+                     "unfinished": ", ".join(part.loc[~part["finished"], "stage"]) or "-"})
+    return Section(title="Stages in the run folder", notes=list(data.notes), tables=[("Stages", pd.DataFrame(rows))])
+
+
+# -- close the loop ---------------------------------------------------------------------------------
+SCORE_KEYS = ("score", "delta_bic", "bic", "delta_aic", "aic", "explained", "explained_fraction", "error_after",
+              "error")
+
+
+def _candidate_table(candidates) -> tuple[pd.DataFrame, str] | None:
+    if not isinstance(candidates, list) or not candidates:
+        return None
+    rows = []
+    for i, c in enumerate(candidates):
+        if not isinstance(c, dict):
+            c = {"candidate": c}
+        rows.append(c)
+    df = pd.DataFrame(rows)
+    numeric = [k for k in df.columns if pd.api.types.is_numeric_dtype(df[k])]
+    score = next((k for k in SCORE_KEYS if k in numeric), numeric[0] if numeric else None)
+    if score is None:
+        return None
+
+    def label(row):
+        parts = [str(row[k]) for k in ("type", "name", "effect", "kind") if k in row and pd.notna(row[k])][:1]
+        loc = row.get("location") if "location" in row else None
+        if loc is not None and not (isinstance(loc, float) and np.isnan(loc)):
+            parts.append(f"@ {json.dumps(loc) if isinstance(loc, (list, dict)) else loc}")
+        return " ".join(parts) or f"candidate {row.name + 1}"
+
+    df["label"] = df.apply(label, axis=1)
+    return df, score
+
+
+def closure_section(data: RunData, out: Path) -> Section | None:
+    """Residual maps before/after and the ranked candidate effects, when ``closure.json`` exists."""
+    c = data.closure
+    if c is None:
+        return None
+    folder = Path(c.get("_folder", data.root))
+    figs, tables, notes = [], [], []
+    effect = c.get("effect")
+    summary = {"effect added": json.dumps(effect) if effect is not None else "none",
+               "error before": c.get("error_before"), "error after": c.get("error_after")}
+    tables.append(("Close-the-loop result", pd.DataFrame([summary])))
+    pb, pa = c.get("parameters_before"), c.get("parameters_after")
+    if isinstance(pb, dict) and isinstance(pa, dict):
+        keys = list(dict.fromkeys([*pb, *pa]))
+        tables.append(("Parameters before and after", pd.DataFrame(
+            {"parameter": keys, "before": [pb.get(k) for k in keys], "after": [pa.get(k) for k in keys]})))
+    freqs = data.frequencies
+    maps = {}
+    for when in ("before", "after"):
+        obj = None
+        for key in (f"residuals_{when}", f"residual_{when}", f"residual_table_{when}"):
+            if key in c:
+                obj = c[key]
+                break
+        if obj is None and isinstance(c.get("residuals"), dict):
+            obj = c["residuals"].get(when)
+        if obj is None:
+            for name in (f"residuals_{when}.parquet", f"residual_{when}.parquet"):
+                if (folder / name).exists():
+                    obj = name
+        df = residual_frame(obj, folder, freqs)
+        if df is not None:
+            maps[when] = df
+    if maps:
+        figs.append((figures.plot_residual_maps(maps, out / "closure_residuals.png",
+                                                "Residual before and after adding the effect, percent (one scale)",
+                                                shared_scale=True),
+                     "Residual map before and after"))
+    else:
+        notes.append("closure.json has no residual table this report can read.")
+    ranked = _candidate_table(c.get("candidates"))
+    if ranked is not None:
+        df, score = ranked
+        chosen = None
+        if isinstance(effect, dict):
+            match = df[df["label"].str.startswith(str(effect.get("type", effect.get("name", "")))) &
+                       (df["label"] != "")]
+            chosen = match["label"].iloc[0] if len(match) else None
+        figs.append((figures.plot_candidates(df, out / "closure_candidates.png", score, chosen),
+                     f"Candidate effects ranked by {score}"))
+        tables.append(("Candidates (top 15)", df.drop(columns="label").head(15)))
+    return Section(title="Close the loop: residual and missing effect", notes=notes, tables=tables, figures=figs)
+
+
+# -- Figures 10-13 ---------------------------------------------------------------------------------
+def repeats_section(rep: RepeatsData, out: Path) -> list[Section]:
+    """Statistics of repeated runs (Figures 10-11, or 12-13 for the conventional strategy)."""
+    runs = rep.runs
+    first = rep.first
+    strategy = first.config.get("strategy", "adaptive")
+    conventional = strategy == "conventional"
+    fig_err, fig_par = ("12", "13") if conventional else ("10", "11")
+    names = first.names
+    rows = []
+    trends = {}
+    for i, r in sorted(runs.items()):
+        sid, alpha, err = r.best()
+        label = f"seed {r.config.get('seed', i)}"
+        rows.append({"label": label, "repeat": i, "overall_error": err, **dict(zip(names, alpha)),
+                     "fe_evaluations": int((r.summary or {}).get("fe_evaluations", len(r.samples))),
+                     "iterations": int(r.errors["iteration"].max()),
+                     "converged": bool(r.summary.get("converged")) if r.summary else None})
+        trends[label] = best_so_far(r)
+    table = pd.DataFrame(rows)
+    threshold = first.config.get("threshold")
+    truth = first.true_parameters
+    bounds = _bounds(first)
+    what = "conventional approach" if conventional else "adaptive MRGP"
+    f1 = figures.plot_repeats_error(table, out / "repeats_error.png", threshold,
+                                    f"Final overall error of each run, {what} (Figure {fig_err})")
+    f2 = figures.plot_repeats_parameters(table, names, out / "repeats_parameters.png", truth,
+                                         f"Identified parameters of each run, {what} (Figure {fig_par})", bounds)
+    f3 = figures.plot_error_trends(trends, out / "repeats_error_trend.png", threshold)
+    figs = [(f1, f"Overall error per run (Figure {fig_err})"), (f2, f"Identified parameters (Figure {fig_par})"),
+            (f3, "Best error so far against FE runs, per run")]
+    training = [r.training.assign(run=f"seed {r.config.get('seed', i)}") for i, r in sorted(runs.items())
+                if not r.training.empty]
+    if training:
+        t = pd.concat(training, ignore_index=True)
+        t = t[t["stage"] == "train"]
+        figs.append((figures.plot_training_time(t, out / "training_time.png", "run"),
+                     "MRGP training time per iteration and run (Figure 9)"))
+    shown = table.copy()
+    shown["overall_error"] = shown["overall_error"].map(lambda v: f"{v:.3%}")
+    tables = [("Runs", shown)]
+    stats = (rep.summary or {}).get("repeats")
+    if stats:
+        srows = [{"quantity": "overall error", **stats["overall_error"]}]
+        srows += [{"quantity": k, **v} for k, v in stats.get("parameters", {}).items()]
+        srows += [{"quantity": f"|{k} - true|", **v} for k, v in stats.get("parameter_errors", {}).items()]
+        srows += [{"quantity": k, **stats[k]} for k in ("fe_evaluations", "iterations") if k in stats]
+        tables.append((f"Statistics over {stats.get('n', len(runs))} runs (summary.json); success rate "
+                       f"{stats.get('success_rate', float('nan')):.0%}", pd.DataFrame(srows)))
+    notes = list(rep.errors)
+    if rep.summary is None:
+        notes.append("No summary.json at the top: the repeats are not all finished; statistics are of the "
+                      "readable runs.")
+    return [Section(title=f"Repeated runs (Figures {fig_err}-{fig_par})", notes=notes, tables=tables, figures=figs)]
+

@@ -1,0 +1,196 @@
+"""The run report: built from small stored runs (single, repeats, conventional, with polish and closure).
+
+The runs are made once per module with the REDUCED configuration of
+``tests/flows/conftest.py`` under Prefect's test harness.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+import shutil
+import struct
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from matplotlib import image as mpimg
+
+from flows import report
+from flows.config import REPO, UpdateConfig
+from tasks.io.measured import read_measured
+from tasks.report.data import ReportError, best_so_far, load_run
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+SINGLE_FIGURES = {"frf_overview.png", "frf_zoom.png", "residual_map.png", "error_overall.png", "error_per_sensor.png",
+                  "samples.png", "parameters.png", "distributions.png", "training_time.png"}
+REPEATS_FIGURES = {"repeats_error.png", "repeats_parameters.png", "repeats_error_trend.png", "training_time.png",
+                   "frf_overview.png", "frf_zoom.png", "residual_map.png"}
+
+
+@pytest.fixture(scope="module")
+def harness():
+    from prefect.testing.utilities import prefect_test_harness
+
+    with prefect_test_harness():
+        yield
+
+
+def _reduced() -> dict:
+    # The REDUCED settings of tests/flows/conftest.py (imported by path: test dirs are not packages).
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("flows_conftest", Path(__file__).with_name("conftest.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return dict(mod.REDUCED)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory, harness) -> Path:
+    from fe_core.benchmark import ALPHA_ACTUAL
+    from flows import update
+
+    runs_dir = tmp_path_factory.mktemp("report") / "runs"
+    base = dict(_reduced(), runs_dir=str(runs_dir), true_parameters=ALPHA_ACTUAL.tolist())
+    update.update_flow(UpdateConfig(run_id="single", **base))
+    update.update_flow(UpdateConfig(run_id="repeats", **{**base, "repeats": 2}))
+    update.update_flow(UpdateConfig(run_id="conventional", **{**base, "repeats": 2, "strategy": "conventional",
+                                                                "conventional_samples": 12}))
+    return runs_dir
+
+
+@pytest.fixture(scope="module")
+def single_report(runs) -> Path:
+    return Path(report.report_flow(str(runs / "single")))
+
+
+def check_report(page: Path, expected: set[str]) -> str:
+    """Every expected PNG exists, is a decodable non-empty PNG, and the page embeds and names each PNG."""
+    folder = page.parent
+    assert page.exists() and page.name == "report.html"
+    pngs = {p.name for p in folder.glob("*.png")}
+    assert expected <= pngs, expected - pngs
+    text = page.read_text()
+    embedded = dict(re.findall(r'<img src="data:image/png;base64,([^"]+)" alt="([^"]+)"', text))
+    embedded = {name: data for data, name in embedded.items()}
+    for name in pngs:
+        raw = (folder / name).read_bytes()
+        assert raw[:8] == PNG_SIGNATURE and len(raw) > 5000, name
+        width, height = struct.unpack(">II", raw[16:24])
+        assert width >= 400 and height >= 300, (name, width, height)
+        pixels = mpimg.imread(folder / name)
+        assert pixels.shape[:2] == (height, width) and pixels.std() > 0.01, name  # not a blank image
+        assert f'href="{name}"' in text, name
+        assert base64.b64decode(embedded[name]) == raw, name
+    assert "http://" not in text and "https://" not in text  # self-contained
+    return text
+
+
+def test_report_of_a_single_run_has_every_figure_and_the_page_embeds_them(single_report):
+    page = single_report
+    text = check_report(page, SINGLE_FIGURES)
+    for figure in ("Figure 3", "Figures 4 and 5", "Figures 6-8", "Figure 9"):
+        assert figure in text
+    assert (page.parent / "cache" / "frf_dense.parquet").exists()
+
+
+def test_measured_amplitudes_recovered_from_the_run_equal_the_measurement_file(runs):
+    data = load_run(runs / "single")
+    measured = read_measured(REPO / "data" / "benchmark" / "measured.csv")
+    wide = data.measured.pivot(index="frequency_hz", columns="sensor", values="amplitude")
+    np.testing.assert_allclose(wide.index.to_numpy(), measured.frequencies_hz)
+    np.testing.assert_allclose(wide.to_numpy(), measured.amplitude, rtol=1e-12)
+
+
+def test_dense_updated_curve_at_the_measured_points_gives_the_runs_reported_error(runs, single_report):
+    """The cached dense FE curve of the updated parameters, read at the measured frequencies,
+    reproduces the overall error the updating run computed from its own FE stage."""
+    data = load_run(runs / "single")
+    dense = pd.read_parquet(runs / "single" / "report" / "cache" / "frf_dense.parquet")
+    measured = read_measured(REPO / "data" / "benchmark" / "measured.csv")
+    updated = dense[dense["curve"] == "updated"]
+    np.testing.assert_allclose(updated[data.names].iloc[0].to_numpy(), list(data.summary["parameters"].values()))
+    amp = np.hypot(updated["real"], updated["imag"]).to_numpy()
+    at = {(round(f, 6), s): a for f, s, a in zip(updated["frequency_hz"], updated["sensor"], amp)}
+    model = np.array([[at[(round(f, 6), s)] for s in range(1, 7)] for f in measured.frequencies_hz])
+    error = np.mean(np.abs(model - measured.amplitude) / measured.amplitude)
+    assert error == pytest.approx(data.summary["overall_error"], rel=1e-6)
+
+
+def test_best_so_far_never_increases_and_with_the_polish_ends_at_the_summary(runs):
+    data = load_run(runs / "single")
+    best = best_so_far(data)
+    assert list(best["iteration"]) == sorted(data.errors["iteration"].unique())
+    assert np.all(np.diff(best["overall_error"]) <= 0)
+    # The run's polish stage (tasks.polish) is picked up: its points and their errors.
+    assert data.polish is not None and len(data.polish) == data.summary["polish"]["n"]
+    final = min(best["overall_error"].iloc[-1], data.polish["overall_error"].min())
+    assert final == pytest.approx(data.summary["overall_error"], rel=1e-12)
+    assert best["fe_evaluations"].iloc[-1] + len(data.polish) == data.summary["fe_evaluations"]
+
+
+@pytest.mark.parametrize("run_id, figures", [("repeats", ("10", "11")), ("conventional", ("12", "13"))])
+def test_report_of_repeated_runs_draws_the_statistics_figures(runs, run_id, figures):
+    page = Path(report.report_flow(str(runs / run_id)))
+    text = check_report(page, REPEATS_FIGURES)
+    summary = json.loads((runs / run_id / "summary.json").read_text())
+    for n in figures:
+        assert f"Figure {n}" in text
+    assert f"{summary['repeats']['overall_error']['mean']:.4g}" in text  # the summary's statistics table
+    assert "seed 11" in text and "seed 12" in text
+
+
+def _add_closure_and_a_new_stage(root: Path) -> None:
+    """What issue 5's close-the-loop step may leave in a run folder, and a stage added later."""
+    summary = json.loads((root / "summary.json").read_text())
+    (root / "iteration=1" / "stage=future-stage").mkdir()
+    freqs = [106.0, 108.0, 110.0, 112.0, 114.0, 116.0, 285.0, 287.0, 289.0, 291.0, 293.0, 295.0]
+    before = [{"frequency_hz": f, "sensor": s, "residual": 0.05 * np.sin(f + s)} for f in freqs for s in range(1, 7)]
+    after = pd.DataFrame([{**r, "residual": 0.1 * r["residual"]} for r in before])
+    store_after = root / "closure"
+    store_after.mkdir()
+    after.to_parquet(store_after / "residuals_after.parquet")
+    closure = {
+        "effect": {"type": "point_mass", "location": {"node": 412}, "value": 0.05},
+        "error_before": 0.05, "error_after": 0.006,
+        "parameters_before": summary["parameters"], "parameters_after": summary["parameters"],
+        "candidates": [{"type": "point_mass", "location": {"node": 412}, "score": 41.0},
+                       {"type": "grounded_spring", "location": {"node": 300}, "score": 12.5},
+                       {"type": "damping", "location": None, "score": 1.2}],
+        "residuals_before": before,
+        "residuals_after": "residuals_after.parquet",
+    }
+    (store_after / "closure.json").write_text(json.dumps(closure))
+
+
+def test_closure_results_and_unknown_stages_are_reported_and_the_frf_cache_is_reused(runs, single_report, tmp_path,
+                                                                                      monkeypatch):
+    root = tmp_path / "extras"
+    shutil.copytree(runs / "single", root)  # with its report/ folder and the cached dense FRF
+    for png in (root / "report").glob("*.png"):
+        png.unlink()
+    _add_closure_and_a_new_stage(root)
+    data = load_run(root)
+    assert data.polish is not None
+    assert "future-stage" in " ".join(data.notes) and "polish" not in " ".join(data.notes)
+
+    def no_fe(name):
+        raise AssertionError("the FE model was called although the cached curves are valid")
+
+    monkeypatch.setattr("tasks.stages.load_model", no_fe)
+    page = Path(report.report_flow(str(root)))
+    text = check_report(page, SINGLE_FIGURES | {"closure_residuals.png", "closure_candidates.png"})
+    assert "Close the loop" in text and "point_mass" in text and "Polish-stage points" in text
+    assert "future-stage" in text
+
+
+def test_report_cli_refuses_a_missing_run_and_a_folder_without_manifest(tmp_path, capsys):
+    assert report.main(["--run-id", "nope", "--runs-dir", str(tmp_path)]) == 2
+    assert "no such run folder" in capsys.readouterr().err
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ReportError, match="manifest.json"):
+        load_run(tmp_path / "empty")
