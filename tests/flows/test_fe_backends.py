@@ -26,7 +26,7 @@ from tasks.fe_backends import FEBackendError, run_unordered
 from tasks.runstore import RunStore
 
 TIMING_KEYS = {"wall_seconds", "run_folder"}
-FE_DELAY = "0.5"  # seconds per FE run where a worker is killed: the stage must still be running
+FE_DELAY = "0.3"  # seconds per FE run where a worker is killed: the stage must still be running
 
 
 def _write_config(path: Path, runs_dir: Path, settings) -> Path:
