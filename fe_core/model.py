@@ -83,6 +83,11 @@ class ParametricModel:
         0, 1 or 2 for u_x, u_y, u_z.
     segment_masses : list of float, kg
         Mass of each segment (clamped nodes included).
+    material : Material or None
+        The material the element matrices were built with (None if unknown);
+        model extensions that add element matrices (:mod:`fe_core.effects`) need it.
+    formulation : str or None
+        hex8 stiffness formulation, ``"incompatible"`` or ``"plain"``.
     sensor_dofs : ndarray, shape (n_sensors,), int
         Free-DOF indices of the sensors.
     """
@@ -96,6 +101,8 @@ class ParametricModel:
     sensor_nodes: np.ndarray
     sensor_component: int = 2
     segment_masses: list[float] = field(default_factory=list)
+    material: Material | None = None
+    formulation: str | None = None
     sensor_dofs: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
@@ -313,6 +320,8 @@ def build_model(
         sensor_nodes=np.asarray(sensor_nodes, dtype=int),
         sensor_component=sensor_component,
         segment_masses=seg_masses,
+        material=material,
+        formulation=formulation,
     )
     log.info(
         "assembled %d cells, %d nodes, %d free DOFs, %d segments (%s hex8)",

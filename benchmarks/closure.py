@@ -1,0 +1,108 @@
+"""Closing the loop on the data sets of ``data/effects``: found effect against the truth, and time.
+
+    OMP_NUM_THREADS=1 python -m benchmarks.closure                  # every data set
+    OMP_NUM_THREADS=1 python -m benchmarks.closure point_mass.csv    # one
+
+Each closure starts from the nominal model (alpha = 0) with the cheap
+multi-start least-squares update of :func:`fe_core.closure.multistart_update`
+(the start plus two Sobol points) in place of an MRGP run, with the noise level
+configured at 0.5 %. The truth (``data/effects/truth.json``) is read here,
+for the comparison only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fe_core.benchmark import three_plate
+from fe_core.closure import close_loop
+from fe_core.residual import overall_error
+from tasks.io.measured import read_measured
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "effects"
+#: Settings shared with the tests (tests/fe_core/test_closure.py).
+SETTINGS = dict(noise=0.005, restarts=2, per_type=1)
+
+
+def location_error(model, truth: dict, found: str | None) -> dict:
+    """Distance of the found location from the truth: in elements (nodes) or same/different label."""
+    if found is None:
+        return {"same": False}
+    if "node" in truth:
+        if not found.startswith("node "):
+            return {"same": False}
+        a = model.mesh.nodes[truth["node"]]
+        b = model.mesh.nodes[int(found.split()[1])]
+        # Element size near the truth: the spacing of the mesh's node lines there.
+        xs = np.unique(np.round(model.mesh.nodes[:, 0], 9))
+        ys = np.unique(np.round(model.mesh.nodes[:, 1], 9))
+        dx = np.min(np.abs(np.diff(xs)[np.searchsorted(xs, a[0]) - 1: np.searchsorted(xs, a[0]) + 1]))
+        dy = np.min(np.diff(ys))
+        elements = max(abs(b[0] - a[0]) / dx, abs(b[1] - a[1]) / dy)
+        return {"same": int(found.split()[1]) == truth["node"], "elements": float(elements),
+                "dx_mm": float(1e3 * (b[0] - a[0])), "dy_mm": float(1e3 * (b[1] - a[1]))}
+    return {"same": found == truth["location"]}
+
+
+def run_one(path: Path, truth: dict, settings: dict | None = None) -> dict:
+    model = three_plate()
+    measured = read_measured(path)
+    t0 = time.perf_counter()
+    result = close_loop(model, measured.frequencies_hz, measured.amplitude, np.zeros(model.n_segments),
+                        **(settings or SETTINGS))
+    seconds = time.perf_counter() - t0
+    u = measured.amplitude
+    row = {
+        "data": path.name,
+        "true_effect": truth.get("effect"),
+        "true_location": truth.get("location"),
+        "true_value": truth.get("value"),
+        "first": result.candidates[0].effect if result.candidates else None,
+        "first_location": result.candidates[0].location if result.candidates else None,
+        "added": None if result.chosen is None else result.chosen.effect,
+        "location": None if result.chosen is None else result.chosen.location,
+        "value": None if result.chosen is None else float(result.chosen.fit.values[0]),
+        "error_before": overall_error(result.baseline.relative(u)),
+        "error_after": overall_error(result.final.relative(u)),
+        "noise_floor": result.before.noise_floor,
+        "p_before": result.before.p_chi2,
+        "p_after": result.after.p_chi2,
+        "seconds": seconds,
+        "fe_solves": result.baseline.evaluations + sum(c.fit.evaluations for c in result.candidates if c.fit),
+    }
+    if truth.get("effect"):
+        row["location_error"] = location_error(model, truth, row["location"])
+        row["value_error"] = None if row["value"] is None else abs(row["value"] / truth["value"] - 1.0)
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.closure", description=__doc__.splitlines()[0])
+    p.add_argument("files", nargs="*", help="data file names in data/effects (default: all)")
+    args = p.parse_args(argv)
+    truth = json.loads((DATA / "truth.json").read_text())["data"]
+    names = args.files or list(truth)
+    rows = []
+    for name in names:
+        row = run_one(DATA / name, truth[name])
+        rows.append(row)
+        loc = row.get("location_error", {})
+        value = "-" if row["value"] is None else f"{row['value']:.4g}"
+        verr = "-" if row.get("value_error") is None else f"{row['value_error']:.1%}"
+        print(f"{row['data']:22s} first {row['first']}/{row['first_location']}  added {row['added']} "
+              f"at {row['location']} = {value} (true {row['true_value']} at {row['true_location']}; "
+              f"value error {verr}, location {loc})  error {row['error_before']:.3%} -> {row['error_after']:.3%} "
+              f"(noise floor {row['noise_floor']:.3%})  {row['seconds']:.1f} s, {row['fe_solves']} FE solves",
+              flush=True)
+    print(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

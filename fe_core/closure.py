@@ -1,0 +1,515 @@
+"""Closing the loop: trace a structured residual to a missing effect, add it, update again.
+
+Steps (each a plain function, so a flow can store and resume them one by one):
+
+1. :func:`fit_update` without an effect: the best stiffness factors alpha
+   alone (least squares on the FE model from the earlier updated point), and
+   :func:`fe_core.residual.analyse_residual` of what remains.
+2. :func:`screen`: every candidate (effect type x location) linearised at
+   that point. With ``r`` the log residual and ``J_alpha`` its Jacobian, a
+   candidate with sensitivity ``j`` (from :class:`fe_core.effects.LinearisedResponse`,
+   one field solve for all candidates) explains
+   ``||P r||^2 - min_d ||P (r + j d)||^2`` of the residual sum of squares,
+   where ``P`` projects out ``J_alpha`` (alpha is re-fitted with the effect)
+   and ``d`` respects the effect's bounds (a mass cannot be negative).
+3. :func:`check`: full FE least squares on ``[alpha, effect]`` for the best
+   few candidates of each type, started from the updated alpha and the
+   linear estimate; a searched location (a node) is then moved to a
+   neighbour while the linearised prediction at the fitted point says that
+   helps and the full fit confirms it.
+4. :func:`decide`: scores charge for parameters. ``BIC = N ln(RSS/N) +
+   k ln N`` and the extended BIC of Chen & Chen (2008) adds ``2 ln L`` for an
+   effect searched over ``L`` locations (choosing the best of 585 nodes is a
+   fit too). An effect is added only if the residual before it is
+   structure (chi-square test) and its extended BIC beats the model without it.
+
+The candidates' ranking is by extended BIC for checked candidates, then by
+the linear explained share.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares, lsq_linear
+
+from .effects import Applied, Effect, LinearisedResponse, build_library, extended_frf
+from .model import ParametricModel, check_parameters
+from .residual import (
+    ResidualAnalysis,
+    analyse_residual,
+    log_residual,
+    overall_error,
+    per_sensor_error,
+    relative_residual,
+)
+
+__all__ = [
+    "Fit",
+    "Candidate",
+    "ClosureResult",
+    "fit_update",
+    "multistart_update",
+    "screen",
+    "pick_for_check",
+    "check",
+    "decide",
+    "close_loop",
+    "scores",
+    "rank",
+    "dedupe",
+    "merge",
+    "error_summary",
+]
+
+log = logging.getLogger(__name__)
+
+#: Scale of the stiffness factors in fits.
+ALPHA_SCALE = 0.1
+#: Default fit bounds of alpha: the updating flow's default box [-1, 1], kept 0.05 off -1, where
+#: a segment's stiffness vanishes and the least-squares landscape turns steep and ill-conditioned.
+ALPHA_BOUNDS = (-0.95, 1.0)
+
+
+@dataclass
+class Fit:
+    """A least-squares fit of alpha, with or without one effect.
+
+    Attributes
+    ----------
+    alpha : ndarray, shape (m,)
+    effect : str or None
+        Effect kind.
+    location : str or None
+    values : ndarray, shape (k,)
+        Effect parameters (empty without an effect).
+    model_amplitude : ndarray, shape (p, n), m/N
+    residual : ndarray, shape (p, n)
+        ``ln(|Z_model| / u)``.
+    evaluations : int
+        FE FRF evaluations made by the fit.
+    seconds : float
+    message : str
+    """
+
+    alpha: np.ndarray
+    effect: str | None
+    location: str | None
+    values: np.ndarray
+    model_amplitude: np.ndarray
+    residual: np.ndarray
+    evaluations: int
+    seconds: float = 0.0
+    message: str = ""
+
+    @property
+    def rss(self) -> float:
+        return float(np.sum(self.residual**2))
+
+    @property
+    def n_parameters(self) -> int:
+        return self.alpha.size + self.values.size
+
+    def relative(self, amplitude: np.ndarray) -> np.ndarray:
+        return relative_residual(self.model_amplitude, amplitude)
+
+
+@dataclass
+class Candidate:
+    """One effect at one location, as screened and (maybe) checked."""
+
+    effect: str
+    location: str
+    n_locations: int
+    linear_values: np.ndarray
+    linear_rss: float
+    linear_explained: float
+    linear_delta_bic: float = 0.0
+    linear_delta_ebic: float = 0.0
+    fit: Fit | None = None
+    bic: float | None = None
+    ebic: float | None = None
+    delta_bic: float | None = None
+    delta_ebic: float | None = None
+    explained: float | None = None
+    moved_from: list[str] = field(default_factory=list)
+
+
+@dataclass
+class ClosureResult:
+    """Everything :func:`close_loop` found."""
+
+    baseline: Fit
+    before: ResidualAnalysis
+    candidates: list[Candidate]
+    chosen: Candidate | None
+    final: Fit
+    after: ResidualAnalysis
+    seconds: dict
+
+
+# -- fitting ------------------------------------------------------------------------------------------
+def _amplitudes(model, alpha, freqs, effect, location, values) -> np.ndarray:
+    applied = [] if effect is None else [Applied(effect, location, np.asarray(values, float))]
+    return np.abs(extended_frf(model, alpha, freqs, applied))
+
+
+def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effect | None = None,
+               location: str | None = None, value0=None, *, max_evaluations: int = 600, tol: float = 1e-8,
+               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS) -> Fit:
+    """Least squares on the FE model over alpha (and one effect's parameters) from a start point.
+
+    Minimises ``sum ln(|Z_model| / u)^2`` with scipy's trust-region
+    reflective method (``least_squares``, ``trf``) in parameters scaled by
+    their typical size, with forward differences of step 1e-6 of that size
+    (the Krylov FRF is accurate to 1e-10, so the derivatives are to ~1e-4);
+    the parameters stay inside their valid domains. (The exact Jacobian of
+    :class:`fe_core.effects.LinearisedResponse` costs more than the seven
+    extra FRFs of a difference Jacobian, so it is kept for screening.)
+
+    Parameters
+    ----------
+    model : ParametricModel
+    freqs_hz : ndarray, shape (p,)
+    amplitude : ndarray, shape (p, n)
+        Measured amplitudes, m/N.
+    alpha0 : array_like, shape (m,)
+    effect, location : Effect and one of its locations, optional
+    value0 : array_like, shape (k,), optional
+        Start of the effect's parameters (zero by default).
+    max_evaluations : int
+        Budget of FE evaluations, difference columns included.
+    tol : float
+        ``ftol``, ``xtol`` and ``gtol`` of the optimiser.
+    alpha_bounds : (float, float)
+        Box of every alpha_i; the lower edge must be above -1.
+    """
+    t0 = time.perf_counter()
+    if not alpha_bounds[0] > -1.0:
+        raise ValueError(f"the lower bound of alpha must be above -1, got {alpha_bounds[0]}")
+    freqs = np.asarray(freqs_hz, float)
+    u = np.asarray(amplitude, float)
+    m = model.n_segments
+    alpha0 = check_parameters(alpha0, m, "alpha")
+    if effect is None:
+        scale, lo, hi, theta0 = (np.full(m, ALPHA_SCALE), np.full(m, alpha_bounds[0]), np.full(m, alpha_bounds[1]),
+                                 alpha0.copy())
+    else:
+        elo, ehi = effect.bounds_at(location)
+        v0 = np.zeros(effect.n_parameters) if value0 is None else np.atleast_1d(np.asarray(value0, float))
+        scale = np.r_[np.full(m, ALPHA_SCALE), effect.scale_at(location)]
+        lo = np.r_[np.full(m, alpha_bounds[0]), elo]
+        hi = np.r_[np.full(m, alpha_bounds[1]), ehi]
+        theta0 = np.r_[alpha0, v0]
+    # Strictly inside the box (least_squares' requirement), by a hair of each scale.
+    theta0 = np.clip(theta0, lo + 1e-6 * scale, hi - 1e-6 * scale)
+    count = [0]
+
+    def fun(x):
+        theta = np.clip(theta0 + scale * x, lo, hi)
+        count[0] += 1
+        return log_residual(_amplitudes(model, theta[:m], freqs, effect, location, theta[m:]), u).ravel()
+
+    with np.errstate(invalid="ignore"):
+        lb, ub = (lo - theta0) / scale, (hi - theta0) / scale
+    result = least_squares(fun, np.zeros(theta0.size), bounds=(lb, ub), method="trf", diff_step=1e-6,
+                           ftol=tol, xtol=tol, gtol=tol, max_nfev=max(1, max_evaluations // (theta0.size + 1)))
+    theta = np.clip(theta0 + scale * result.x, lo, hi)
+    r = result.fun.reshape(u.shape)
+    return Fit(alpha=theta[:m], effect=None if effect is None else effect.kind, location=location,
+               values=theta[m:], model_amplitude=np.exp(r) * u, residual=r, evaluations=count[0],
+               seconds=time.perf_counter() - t0, message=str(result.message))
+
+
+def multistart_update(model: ParametricModel, freqs_hz, amplitude, alpha_start=None, n_starts: int = 4,
+                      seed: int = 0, alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, **kwargs) -> Fit:
+    """Alpha-only least squares from ``alpha_start`` (if given) and ``n_starts`` scrambled-Sobol points.
+
+    The stiffness factors' least-squares landscape has more than one basin
+    (a fit from the nominal model can end with factors on the box's edge), so
+    a cheap update tries several starts in the box and keeps the best fit.
+    """
+    from scipy.stats import qmc
+
+    m = model.n_segments
+    starts = [] if alpha_start is None else [np.asarray(alpha_start, float)]
+    if n_starts > 0:
+        lo, hi = max(alpha_bounds[0], -0.9), min(alpha_bounds[1], 0.9)
+        pts = qmc.Sobol(m, scramble=True, seed=seed).random(max(2, n_starts))[:n_starts]
+        starts += list(lo + (hi - lo) * pts)
+    if not starts:
+        raise ValueError("no start point: give alpha_start or n_starts > 0")
+    best = None
+    total = 0
+    for x0 in starts:
+        fit = fit_update(model, freqs_hz, amplitude, x0, alpha_bounds=alpha_bounds, **kwargs)
+        total += fit.evaluations
+        if best is None or fit.rss < best.rss:
+            best = fit
+    best.evaluations = total
+    return best
+
+
+# -- screening ----------------------------------------------------------------------------------------
+def _projector(J: np.ndarray) -> np.ndarray:
+    q, _ = np.linalg.qr(J)
+    return q
+
+
+def _best_linear(r_perp: np.ndarray, q: np.ndarray, cols: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """min over d in [lo, hi] of ||r_perp + P cols d||^2; returns (d, rss)."""
+    jp = cols - q @ (q.T @ cols)
+    if cols.shape[1] == 1:
+        j = jp[:, 0]
+        jj = float(j @ j)
+        if jj <= 0:
+            return np.zeros(1), float(r_perp @ r_perp)
+        d = np.clip(-(j @ r_perp) / jj, lo[0], hi[0])
+        res = r_perp + d * j
+        return np.array([d]), float(res @ res)
+    sol = lsq_linear(jp, -r_perp, bounds=(lo, hi))
+    res = r_perp + jp @ sol.x
+    return sol.x, float(res @ res)
+
+
+def screen(model: ParametricModel, freqs_hz, base: Fit, library: Sequence[Effect],
+           linearised: LinearisedResponse | None = None) -> list[Candidate]:
+    """Linearised explained share of every candidate at the updated point ``base`` (no effect in it).
+
+    Returns
+    -------
+    list of Candidate
+        All candidates, sorted by ``linear_explained`` (largest first).
+    """
+    lin = linearised or LinearisedResponse(model, base.alpha, freqs_hz)
+    r = base.residual.ravel()
+    q = _projector(lin.alpha_derivatives())
+    r_perp = r - q @ (q.T @ r)
+    rss0 = float(r_perp @ r_perp)
+    n = r.size
+    bic0, _ = scores(base.rss, n, base.n_parameters)
+    out = []
+    for effect in library:
+        locations = effect.locations()
+        for loc in locations:
+            s = effect.scale_at(loc)
+            cols = np.column_stack([lin.derivative(effect.derivative(base.alpha, loc, i)).ravel() * s[i]
+                                    for i in range(effect.n_parameters)])
+            lo, hi = effect.bounds_at(loc)
+            d, rss = _best_linear(r_perp, q, cols, lo / s, hi / s)
+            bic, ebic = scores(max(rss, 1e-300), n, base.n_parameters + effect.n_parameters,
+                               len(locations))
+            out.append(Candidate(effect=effect.kind, location=loc, n_locations=len(locations),
+                                 linear_values=d * s, linear_rss=rss,
+                                 linear_explained=1.0 - rss / rss0 if rss0 > 0 else 0.0,
+                                 linear_delta_bic=bic - bic0, linear_delta_ebic=ebic - bic0))
+    out.sort(key=lambda c: -c.linear_explained)
+    return out
+
+
+def pick_for_check(candidates: Sequence[Candidate], per_type: int = 2, factor: float = 10.0) -> list[Candidate]:
+    """Candidates worth a full FE check: the ``per_type`` best-screened of each effect type, of those
+    whose linearised unexplained share is within ``factor`` of the best candidate's."""
+    if not candidates:
+        return []
+    best_left = min(1.0 - c.linear_explained for c in candidates)
+    seen: dict[str, int] = {}
+    picked = []
+    for c in sorted(candidates, key=lambda c: -c.linear_explained):
+        left = 1.0 - c.linear_explained
+        if seen.get(c.effect, 0) < per_type and c.linear_explained > 0 and left <= factor * max(best_left, 1e-6):
+            seen[c.effect] = seen.get(c.effect, 0) + 1
+            picked.append(c)
+    return picked
+
+
+def _start_value(effect: Effect, location: str, linear: np.ndarray) -> np.ndarray:
+    """A start for the full fit from the linear estimate, kept halfway from a finite bound:
+    the linearisation at zero overshoots for factors that act like ``beta / (1 + beta)``."""
+    lo, hi = effect.bounds_at(location)
+    v = np.asarray(linear, float).copy()
+    lo_half = np.where(np.isfinite(lo) & (lo < 0), 0.5 * lo, -np.inf)
+    hi_half = np.where(np.isfinite(hi) & (hi > 0), 0.5 * hi, np.inf)
+    return np.clip(v, lo_half, hi_half)
+
+
+# -- full checks --------------------------------------------------------------------------------------
+def scores(rss: float, n_values: int, n_parameters: int, n_locations: int = 1) -> tuple[float, float]:
+    """``(BIC, extended BIC)`` with unknown noise variance: ``N ln(RSS/N) + k ln N (+ 2 ln L)``."""
+    bic = n_values * np.log(rss / n_values) + n_parameters * np.log(n_values)
+    return float(bic), float(bic + 2.0 * np.log(n_locations))
+
+
+def _relocation_target(model, freqs, fit: Fit, effect: Effect, candidates: list[str]):
+    """Linearised best move of the fitted effect to one of ``candidates``: (location, values, predicted RSS)."""
+    here = Applied(effect, fit.location, fit.values)
+    lin = LinearisedResponse(model, fit.alpha, freqs, [here])
+    r = fit.residual.ravel()
+    q = _projector(lin.alpha_derivatives())
+    # Take the effect away where it is (linear in its values), then add it at the candidate.
+    r_moved = r - lin.effect_derivatives(effect, fit.location) @ fit.values
+    r_perp = r_moved - q @ (q.T @ r_moved)
+    best = None
+    for loc in candidates:
+        s = effect.scale_at(loc)
+        cols = lin.effect_derivatives(effect, loc) * s
+        lo, hi = effect.bounds_at(loc)
+        d, rss = _best_linear(r_perp, q, cols, lo / s, hi / s)
+        if best is None or rss < best[2]:
+            best = (loc, d * s, rss)
+    return best
+
+
+def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect, candidate: Candidate,
+          max_moves: int = 6, alpha_bounds: tuple[float, float] = ALPHA_BOUNDS,
+          max_evaluations: int = 300) -> Candidate:
+    """Full FE fit of one candidate from the updated point; a node-type location may move to a neighbour.
+
+    After the fit at the screened location, the neighbours of that location
+    (nodes sharing a cell) are screened at the fitted point with the effect
+    moved there; the best is fitted in full and kept if it lowers the
+    residual, up to ``max_moves`` times. Fills ``candidate.fit`` (and
+    ``moved_from``) and returns the candidate.
+    """
+    kw = dict(alpha_bounds=alpha_bounds, max_evaluations=max_evaluations)
+    fit = fit_update(model, freqs_hz, amplitude, base.alpha, effect, candidate.location,
+                     _start_value(effect, candidate.location, candidate.linear_values), **kw)
+    if fit.rss > base.rss:  # the linear start led astray: start from the effect's absence
+        again = fit_update(model, freqs_hz, amplitude, base.alpha, effect, candidate.location, None, **kw)
+        again.evaluations += fit.evaluations
+        fit = again
+    moved = []
+    visited = {fit.location}
+    for _ in range(max_moves):
+        near = [loc for loc in effect.neighbours(fit.location) if loc not in visited]
+        if not near:
+            break
+        loc, values, predicted = _relocation_target(model, freqs_hz, fit, effect, near)
+        fit.evaluations += 1
+        if predicted >= fit.rss:
+            break
+        visited.add(loc)
+        trial = fit_update(model, freqs_hz, amplitude, fit.alpha, effect, loc, _start_value(effect, loc, values), **kw)
+        trial.evaluations += fit.evaluations
+        trial.seconds += fit.seconds
+        if trial.rss >= fit.rss:
+            fit.evaluations, fit.seconds = trial.evaluations, trial.seconds
+            break
+        moved.append(fit.location)
+        fit = trial
+    candidate.fit = fit
+    candidate.location = fit.location
+    candidate.moved_from = moved
+    return candidate
+
+
+def decide(base: Fit, before: ResidualAnalysis, checked: Sequence[Candidate]) -> Candidate | None:
+    """Score the checked candidates against the model without effect; the chosen one, or None.
+
+    Sets ``bic``, ``ebic``, their differences to the base model and the
+    explained share on each candidate.
+    """
+    n = base.residual.size
+    bic0, _ = scores(base.rss, n, base.n_parameters)
+    for c in checked:
+        c.bic, c.ebic = scores(c.fit.rss, n, c.fit.n_parameters, c.n_locations)
+        c.delta_bic, c.delta_ebic = c.bic - bic0, c.ebic - bic0
+        c.explained = 1.0 - c.fit.rss / base.rss if base.rss > 0 else 0.0
+    if not checked or not before.structured:
+        return None
+    best = min(checked, key=lambda c: c.ebic)
+    return best if best.delta_ebic < 0 else None
+
+
+def rank(candidates: Sequence[Candidate]) -> list[Candidate]:
+    """Checked candidates by extended BIC, then the rest by linear explained share."""
+    checked = sorted((c for c in candidates if c.fit is not None), key=lambda c: c.ebic)
+    rest = sorted((c for c in candidates if c.fit is None), key=lambda c: -c.linear_explained)
+    return checked + rest
+
+
+# -- the whole loop -----------------------------------------------------------------------------------
+def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library: Sequence[Effect] | None = None,
+               noise: float | None = None, significance: float = 0.01, per_type: int = 2,
+               max_moves: int = 6, restarts: int = 0, seed: int = 0, check_noise: bool = False,
+               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS) -> ClosureResult:
+    """Baseline fit, residual analysis, screening, checks, decision and the updated model.
+
+    Parameters
+    ----------
+    model : ParametricModel
+    freqs_hz : ndarray, shape (p,)
+    amplitude : ndarray, shape (p, n)
+        Measured amplitudes, m/N.
+    alpha_start : array_like, shape (m,)
+        The earlier updated parameters (from an MRGP run, say).
+    library : sequence of Effect, optional
+        Candidates; all registered effects by default.
+    noise : float, optional
+        Relative noise level of the amplitudes; estimated when None.
+    significance : float
+        Of the chi-square test "noise or structure".
+    per_type : int
+        Candidates per effect type given a full FE check.
+    max_moves : int
+        Moves of a searched location to a neighbour after its fit.
+    restarts : int
+        Extra starts of the alpha-only baseline fit (:func:`multistart_update`).
+    seed : int
+        Of the restarts' Sobol points.
+    check_noise : bool
+        Make the full checks even when the residual is noise (no effect can
+        be added then; the checks only refine the candidates' scores).
+    alpha_bounds : (float, float)
+        Box of the stiffness factors.
+    """
+    times = {}
+    t = time.perf_counter()
+    library = build_library(model) if library is None else list(library)
+    freqs = np.asarray(freqs_hz, float)
+    u = np.asarray(amplitude, float)
+    base = multistart_update(model, freqs, u, alpha_start, restarts, seed, alpha_bounds)
+    before = analyse_residual(base.residual, freqs, base.n_parameters, noise, significance, base.relative(u))
+    times["baseline"] = time.perf_counter() - t
+    log.info("baseline: %s", before.summary())
+    t = time.perf_counter()
+    screened = screen(model, freqs, base, library)
+    times["screen"] = time.perf_counter() - t
+    t = time.perf_counter()
+    by_kind = {e.kind: e for e in library}
+    checked = []
+    if before.structured or check_noise:
+        for c in pick_for_check(screened, per_type):
+            checked.append(check(model, freqs, u, base, by_kind[c.effect], c, max_moves, alpha_bounds))
+    times["check"] = time.perf_counter() - t
+    checked = dedupe(checked)
+    chosen = decide(base, before, checked)
+    final = chosen.fit if chosen is not None else base
+    after = analyse_residual(final.residual, freqs, final.n_parameters, before.sigma, significance, final.relative(u))
+    return ClosureResult(base, before, rank(merge(checked, screened)), chosen, final, after, times)
+
+
+def dedupe(checked: Sequence[Candidate]) -> list[Candidate]:
+    """Checked candidates that ended at the same (effect, location): keep the best fit."""
+    best: dict[tuple[str, str], Candidate] = {}
+    for c in checked:
+        key = (c.effect, c.location)
+        if key not in best or c.fit.rss < best[key].fit.rss:
+            best[key] = c
+    return list(best.values())
+
+
+def merge(checked: Sequence[Candidate], screened: Sequence[Candidate]) -> list[Candidate]:
+    """Checked candidates plus the screened ones not checked (one entry per effect and location)."""
+    keys = {(c.effect, c.location) for c in checked}
+    return list(checked) + [c for c in screened if c.fit is None and (c.effect, c.location) not in keys]
+
+
+def error_summary(fit: Fit, amplitude: np.ndarray) -> tuple[float, np.ndarray]:
+    """Overall (Eq. 6b) and per-sensor (Eq. 15) errors of a fit."""
+    rel = fit.relative(amplitude)
+    return overall_error(rel), per_sensor_error(rel)

@@ -1,0 +1,643 @@
+"""Candidate effects a model may lack, as small parametric extensions of the FE model.
+
+Measured structures carry effects that no updating parameter represents: an
+added mass (a sensor, a bolt), a flexible support, a weakened joint, other
+damping. Each :class:`Effect` here is one such extension. It has a list of
+candidate *locations* (a node, a segment, a joint, a damping coefficient)
+and, at each location, a few real parameters; at given parameter values it
+returns :class:`Terms`: sparse additions to the stiffness and mass matrices
+on the free DOFs and additions to the Rayleigh coefficients ``(a, b)``.
+
+Terms are **linear in the parameters** (all effects here are, and a user
+effect must be, or override :meth:`Effect.derivative`), so the derivative of
+the dynamic stiffness with respect to a parameter is the terms at a unit
+value. That is what makes the linearised screening of
+:class:`LinearisedResponse` exact to first order and cheap.
+
+Built-in effects (registered under these names, see :func:`build_library`):
+
+==================  =====================================  ===========  ==================
+name                location                               parameter    unit
+==================  =====================================  ===========  ==================
+``segment_mass``    a segment (``segment3``)               ``gamma``    - (M_s (1 + gamma))
+``point_mass``      a node (``node 512``)                  ``mass``     kg, on u_x, u_y, u_z
+``grounded_spring`` a node                                 ``k``        N/m, on u_z to ground
+``joint_band``      a plate joint (``joint x=230 mm``)     ``beta``     - (band K (1 + beta))
+``damping``         ``a`` or ``b``                         ``delta``    1/s or s, added
+==================  =====================================  ===========  ==================
+
+Every extension keeps K symmetric positive definite and M positive definite
+within the parameter bounds (springs and masses are non-negative, factors
+stay above -1), so the Krylov FRF of :mod:`fe_core.frf` (banded Cholesky of
+K) applies unchanged and an extended model costs what the base model costs.
+
+Users add their own effect with :func:`register_effect`::
+
+    from fe_core.effects import Effect, Terms, register_effect
+
+    class TipSpring(Effect):
+        kind = "tip_spring"
+        parameters = ("k",); units = ("N/m",); lower = (0.0,); upper = (np.inf,); scale = (1e5,)
+        def __init__(self, model): self.model = model
+        def locations(self): return ["tip"]
+        def terms(self, alpha, location, values): ...   # a Terms, linear in values
+
+    register_effect("tip_spring", TipSpring)
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from .assembly import DOFS_PER_NODE, SegmentedMatrix, assemble, cell_dofs
+from .frf import direct_frf, hz_to_rad, krylov_frf
+from .hex8 import element_stiffness
+from .model import ParametricModel, check_parameters
+
+__all__ = [
+    "Terms",
+    "Effect",
+    "Applied",
+    "SegmentMass",
+    "PointMass",
+    "GroundedSpring",
+    "ElementBand",
+    "RayleighDamping",
+    "register_effect",
+    "unregister_effect",
+    "registered_effects",
+    "build_library",
+    "extended_matrices",
+    "extended_frf",
+    "LinearisedResponse",
+    "joint_bands",
+    "candidate_nodes",
+]
+
+
+@dataclass(frozen=True)
+class Terms:
+    """Additions to a model at given effect parameter values.
+
+    Attributes
+    ----------
+    stiffness : sparse (n_free, n_free) or None, N/m
+    mass : sparse (n_free, n_free) or None, kg
+    damping_a : float, 1/s
+        Added to the mass-proportional Rayleigh coefficient.
+    damping_b : float, s
+        Added to the stiffness-proportional Rayleigh coefficient.
+    """
+
+    stiffness: sp.spmatrix | None = None
+    mass: sp.spmatrix | None = None
+    damping_a: float = 0.0
+    damping_b: float = 0.0
+
+
+class Effect(abc.ABC):
+    """One kind of effect with its candidate locations.
+
+    Subclasses set the class attributes and implement :meth:`locations` and
+    :meth:`terms`. Instances are built for one model.
+
+    Attributes
+    ----------
+    kind : str
+        Registry name, e.g. ``"point_mass"``.
+    parameters : tuple of str
+        Parameter names at one location.
+    units : tuple of str
+    lower, upper : tuple of float
+        Bounds of each parameter; a bound that the physics excludes (a factor
+        of exactly -1) is kept off by :attr:`margin` in fits.
+    scale : tuple of float
+        Typical magnitude of each parameter (scales fits and reports).
+    """
+
+    kind: str = ""
+    parameters: tuple[str, ...] = ()
+    units: tuple[str, ...] = ()
+    lower: tuple[float, ...] = ()
+    upper: tuple[float, ...] = ()
+    scale: tuple[float, ...] = ()
+    #: Bounds that must be strictly avoided (factor > -1) are moved inward by this much.
+    margin: tuple[float, ...] = ()
+
+    def __init__(self, model: ParametricModel):
+        self.model = model
+
+    @property
+    def n_parameters(self) -> int:
+        return len(self.parameters)
+
+    @abc.abstractmethod
+    def locations(self) -> list[str]:
+        """Candidate location labels, unique within this effect."""
+
+    @abc.abstractmethod
+    def terms(self, alpha: np.ndarray, location: str, values: np.ndarray) -> Terms:
+        """The additions at ``values`` (shape (n_parameters,)), linear in ``values``."""
+
+    def derivative(self, alpha: np.ndarray, location: str, index: int) -> Terms:
+        """Derivative of the terms with respect to parameter ``index`` (terms at a unit value)."""
+        unit = np.zeros(self.n_parameters)
+        unit[index] = 1.0
+        return self.terms(alpha, location, unit)
+
+    def alpha_derivative(self, alpha: np.ndarray, location: str, values: np.ndarray, index: int) -> Terms | None:
+        """Derivative of the terms with respect to ``alpha[index]``; None if they do not depend on alpha."""
+        return None
+
+    def describe(self, location: str) -> dict:
+        """Extra facts about a location for reports (coordinates, cells...)."""
+        return {}
+
+    def neighbours(self, location: str) -> list[str]:
+        """Locations next to ``location`` (used to refine a searched location); none by default."""
+        return []
+
+    def bounds_at(self, location: str) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds for a least-squares fit at a location, with excluded edges moved inward."""
+        lo = np.array(self.lower, float)
+        hi = np.array(self.upper, float)
+        if self.margin:
+            lo = lo + np.array(self.margin, float)
+        return lo, hi
+
+    def scale_at(self, location: str) -> np.ndarray:
+        """Typical magnitude of each parameter at a location (scales fits)."""
+        return np.array(self.scale, float)
+
+    def check(self, location: str, values) -> np.ndarray:
+        """Validate a location and values; returns the values as an array."""
+        if location not in self._location_set():
+            raise ValueError(f"effect {self.kind!r} has no location {location!r}")
+        v = np.atleast_1d(np.asarray(values, dtype=float))
+        if v.shape != (self.n_parameters,):
+            raise ValueError(f"effect {self.kind!r} takes {self.n_parameters} parameter(s) "
+                             f"{self.parameters}, got shape {v.shape}")
+        for name, x, lo, hi, unit in zip(self.parameters, v, self.lower, self.upper, self.units):
+            strict = bool(self.margin)
+            if not np.isfinite(x) or x < lo or x > hi or (strict and x <= lo):
+                raise ValueError(f"effect {self.kind!r} at {location}: {name} = {x} {unit} is outside "
+                                 f"its valid range {'(' if strict else '['}{lo}, {hi}]")
+        return v
+
+    def _location_set(self) -> set:
+        cached = getattr(self, "_locset", None)
+        if cached is None:
+            cached = self._locset = set(self.locations())
+        return cached
+
+
+@dataclass(frozen=True)
+class Applied:
+    """An effect at one location with parameter values."""
+
+    effect: Effect
+    location: str
+    values: np.ndarray = field(default_factory=lambda: np.zeros(1))
+
+    def terms(self, alpha) -> Terms:
+        return self.effect.terms(alpha, self.location, self.effect.check(self.location, self.values))
+
+    def label(self) -> str:
+        return f"{self.effect.kind} at {self.location}"
+
+
+# -- helpers ------------------------------------------------------------------------------------------
+def _free_position(model: ParametricModel) -> np.ndarray:
+    pos = getattr(model, "_free_position_cache", None)
+    if pos is None:
+        pos = np.full(model.mesh.n_nodes * DOFS_PER_NODE, -1)
+        pos[model.free_dofs] = np.arange(model.free_dofs.size)
+        model._free_position_cache = pos
+    return pos
+
+
+def candidate_nodes(model: ParametricModel, node_set: str = "top") -> np.ndarray:
+    """Nodes of a named set that have free DOFs (all nodes with free DOFs if the set is absent)."""
+    nodes = model.mesh.node_sets.get(node_set, np.arange(model.mesh.n_nodes))
+    pos = _free_position(model)
+    free = np.all(pos[DOFS_PER_NODE * np.asarray(nodes)[:, None] + np.arange(DOFS_PER_NODE)] >= 0, axis=1)
+    return np.asarray(nodes)[free]
+
+
+def _diag(n: int, rows: np.ndarray, values: np.ndarray) -> sp.csr_matrix:
+    return sp.csr_matrix((values, (rows, rows)), shape=(n, n))
+
+
+def _segment_cells(model: ParametricModel) -> list[np.ndarray]:
+    try:
+        return [model.mesh.cell_sets[name] for name in model.segment_names]
+    except KeyError as exc:
+        raise ValueError(f"segment {exc.args[0]!r} is not a cell set of the mesh; element bands need "
+                         f"the segments' cells") from exc
+
+
+# -- built-in effects ---------------------------------------------------------------------------------
+class SegmentMass(Effect):
+    """Mass factor of one segment: ``M_s -> M_s (1 + gamma)``."""
+
+    kind = "segment_mass"
+    parameters = ("gamma",)
+    units = ("-",)
+    lower = (-1.0,)
+    upper = (10.0,)
+    scale = (0.1,)
+    margin = (1e-3,)
+
+    def locations(self) -> list[str]:
+        return list(self.model.segment_names)
+
+    def terms(self, alpha, location, values) -> Terms:
+        s = self.model.segment_names.index(location)
+        return Terms(mass=float(values[0]) * self.model.mass_segments.segment(s))
+
+    def describe(self, location) -> dict:
+        s = self.model.segment_names.index(location)
+        return {"segment": s + 1, "segment_mass_kg": float(self.model.segment_masses[s])}
+
+
+class _NodalEffect(Effect):
+    """Base of effects placed at one node chosen among candidate nodes."""
+
+    node_set = "top"
+
+    def __init__(self, model: ParametricModel, nodes: Sequence[int] | None = None):
+        super().__init__(model)
+        self.nodes = np.asarray(candidate_nodes(model, self.node_set) if nodes is None else nodes, dtype=int)
+        self._index = {f"node {n}": int(n) for n in self.nodes}
+
+    def locations(self) -> list[str]:
+        return list(self._index)
+
+    def node(self, location: str) -> int:
+        try:
+            return self._index[location]
+        except KeyError:
+            raise ValueError(f"effect {self.kind!r} has no location {location!r}") from None
+
+    def describe(self, location) -> dict:
+        n = self.node(location)
+        x, y, z = self.model.mesh.nodes[n]
+        return {"node": n, "x_m": float(x), "y_m": float(y), "z_m": float(z)}
+
+    def neighbours(self, location) -> list[str]:
+        """Candidate nodes sharing a cell with this node."""
+        n = self.node(location)
+        cells = self.model.mesh.cells
+        near = np.unique(cells[np.any(cells == n, axis=1)])
+        return [f"node {m}" for m in near if m != n and f"node {m}" in self._index]
+
+
+class PointMass(_NodalEffect):
+    """A point mass at a node (translational, on u_x, u_y and u_z)."""
+
+    kind = "point_mass"
+    parameters = ("mass",)
+    units = ("kg",)
+    lower = (0.0,)
+    upper = (np.inf,)
+    scale = (0.1,)
+
+    def terms(self, alpha, location, values) -> Terms:
+        n = self.node(location)
+        rows = _free_position(self.model)[DOFS_PER_NODE * n + np.arange(DOFS_PER_NODE)]
+        return Terms(mass=_diag(self.model.n_dofs, rows, np.full(rows.size, float(values[0]))))
+
+
+class GroundedSpring(_NodalEffect):
+    """A translational spring from a node to ground, along one axis (u_z by default)."""
+
+    kind = "grounded_spring"
+    parameters = ("k",)
+    units = ("N/m",)
+    lower = (0.0,)
+    upper = (np.inf,)
+    scale = (1e5,)
+    component = 2
+
+    def terms(self, alpha, location, values) -> Terms:
+        n = self.node(location)
+        row = _free_position(self.model)[DOFS_PER_NODE * n + self.component]
+        return Terms(stiffness=_diag(self.model.n_dofs, np.array([row]), np.array([float(values[0])])))
+
+
+class ElementBand(Effect):
+    """Stiffness factor of a band of elements: their K_e (1 + alpha_s) -> K_e (1 + alpha_s)(1 + beta).
+
+    ``beta > -1`` keeps K positive definite. ``bands`` maps a location label
+    to the cells of that band; the plate joints of the benchmark are one use
+    (:func:`joint_bands`), any set of cells is another.
+    """
+
+    kind = "element_band"
+    parameters = ("beta",)
+    units = ("-",)
+    lower = (-1.0,)
+    upper = (10.0,)
+    scale = (0.1,)
+    margin = (1e-3,)
+
+    def __init__(self, model: ParametricModel, bands: dict[str, np.ndarray], kind: str | None = None):
+        super().__init__(model)
+        if kind:
+            self.kind = kind
+        if model.material is None or model.formulation is None:
+            raise ValueError("element bands need the model's material and formulation "
+                             "(build the model with fe_core.model.build_model)")
+        self.bands = {label: np.asarray(cells, dtype=int) for label, cells in bands.items()}
+        seg_cells = _segment_cells(model)
+        owner = np.full(model.mesh.n_cells, -1)
+        for s, cells in enumerate(seg_cells):
+            owner[cells] = s
+        n_total = model.mesh.n_nodes * DOFS_PER_NODE
+        free = model.free_dofs
+        self._matrices: dict[str, SegmentedMatrix] = {}
+        for label, cells in self.bands.items():
+            if cells.size == 0:
+                raise ValueError(f"element band {label!r} has no cells")
+            Ke = element_stiffness(model.mesh.cell_coords[cells], model.material.D, model.formulation)
+            dofs = cell_dofs(model.mesh.cells[cells])
+            parts = []
+            for s in range(model.n_segments):
+                mine = owner[cells] == s
+                A = assemble(Ke[mine], dofs[mine], n_total) if mine.any() else sp.csr_matrix((n_total, n_total))
+                parts.append(A[free][:, free])
+            self._matrices[label] = SegmentedMatrix.from_matrices(parts)
+
+    def locations(self) -> list[str]:
+        return list(self.bands)
+
+    def band_stiffness(self, alpha, location) -> sp.csr_matrix:
+        """The band's share of ``K(alpha)``, N/m."""
+        alpha = check_parameters(alpha, self.model.n_segments, "alpha")
+        return self._matrices[location].combine(1.0 + alpha)
+
+    def terms(self, alpha, location, values) -> Terms:
+        return Terms(stiffness=float(values[0]) * self.band_stiffness(alpha, location))
+
+    def alpha_derivative(self, alpha, location, values, index) -> Terms:
+        return Terms(stiffness=float(values[0]) * self._matrices[location].segment(index))
+
+    def describe(self, location) -> dict:
+        cells = self.bands[location]
+        c = self.model.mesh.centroids[cells]
+        return {"cells": int(cells.size), "x_min_m": float(c[:, 0].min()), "x_max_m": float(c[:, 0].max())}
+
+
+class RayleighDamping(Effect):
+    """A change of one Rayleigh coefficient: location ``a`` (1/s) or ``b`` (s)."""
+
+    kind = "damping"
+    parameters = ("delta",)
+    units = ("1/s or s",)
+    lower = (-np.inf,)
+    upper = (np.inf,)
+    scale = (1.0,)
+
+    def __init__(self, model: ParametricModel):
+        super().__init__(model)
+        a, b = model.damping
+        self._base = {"a": a, "b": b}
+
+    def locations(self) -> list[str]:
+        return ["a", "b"]
+
+    def scale_at(self, location: str) -> np.ndarray:
+        # About the change that moves the damping ratio of a ~100 Hz mode by 1 %.
+        return np.array([10.0 if location == "a" else 2e-5])
+
+    def bounds_at(self, location: str) -> tuple[np.ndarray, np.ndarray]:
+        """The coefficient may drop to zero, not below."""
+        return np.array([-self._base[location]]), np.array([np.inf])
+
+    def check(self, location, values):
+        if location not in ("a", "b"):
+            raise ValueError(f"effect 'damping' has no location {location!r}; choose 'a' or 'b'")
+        v = np.atleast_1d(np.asarray(values, dtype=float))
+        if v.shape != (1,) or not np.isfinite(v[0]):
+            raise ValueError(f"effect 'damping' at {location}: one finite value expected, got {values!r}")
+        if self._base[location] + v[0] < 0:
+            raise ValueError(f"effect 'damping' at {location}: {location} = {self._base[location] + v[0]} "
+                             f"would be negative")
+        return v
+
+    def terms(self, alpha, location, values) -> Terms:
+        if location == "a":
+            return Terms(damping_a=float(values[0]))
+        return Terms(damping_b=float(values[0]))
+
+    def describe(self, location) -> dict:
+        return {"coefficient": location, "base_value": self._base[location],
+                "unit": "1/s" if location == "a" else "s"}
+
+
+def joint_bands(model: ParametricModel, joints_x: Sequence[float], atol: float = 1e-9) -> dict[str, np.ndarray]:
+    """Cells touching each joint plane ``x = x_j``: one band per joint, labelled ``joint x=<mm> mm``."""
+    nodes_x = model.mesh.nodes[:, 0]
+    bands = {}
+    for xj in joints_x:
+        on_plane = np.abs(nodes_x - xj) <= atol
+        cells = np.flatnonzero(np.any(on_plane[model.mesh.cells], axis=1))
+        if cells.size == 0:
+            raise ValueError(f"no cells touch the plane x = {xj} m")
+        bands[f"joint x={1e3 * xj:g} mm"] = cells
+    return bands
+
+
+def _block_joints(model: ParametricModel) -> list[float]:
+    """x of the planes where consecutive ``plate<k>`` cell sets meet (the benchmark's joints)."""
+    names = sorted((n for n in model.mesh.cell_sets if n.startswith("plate") and n[5:].isdigit()),
+                   key=lambda n: int(n[5:]))
+    joints = []
+    for left, right in zip(names, names[1:]):
+        a = np.unique(model.mesh.cells[model.mesh.cell_sets[left]])
+        b = np.unique(model.mesh.cells[model.mesh.cell_sets[right]])
+        shared = np.intersect1d(a, b)
+        xs = np.unique(np.round(model.mesh.nodes[shared, 0], 9))
+        if xs.size == 1:
+            joints.append(float(xs[0]))
+    return joints
+
+
+# -- registry -----------------------------------------------------------------------------------------
+EffectFactory = Callable[[ParametricModel], "Effect | None"]
+_REGISTRY: dict[str, EffectFactory] = {}
+
+
+def register_effect(name: str, factory: EffectFactory | None = None, *, replace: bool = False):
+    """Register an effect factory ``factory(model) -> Effect or None`` under ``name``.
+
+    A factory returns None when the effect does not apply to a model (no
+    joints, say). Usable as a decorator: ``@register_effect("mine")``.
+    """
+    def add(f: EffectFactory) -> EffectFactory:
+        if name in _REGISTRY and not replace:
+            raise ValueError(f"an effect named {name!r} is already registered (pass replace=True)")
+        _REGISTRY[name] = f
+        return f
+
+    return add if factory is None else add(factory)
+
+
+def unregister_effect(name: str) -> None:
+    if name not in _REGISTRY:
+        raise KeyError(f"no effect named {name!r} is registered")
+    del _REGISTRY[name]
+
+
+def registered_effects() -> list[str]:
+    return list(_REGISTRY)
+
+
+def build_library(model: ParametricModel, names: Sequence[str] | None = None) -> list[Effect]:
+    """Instantiate the registered effects (all, or ``names`` in that order) for a model."""
+    names = registered_effects() if names is None else list(names)
+    out = []
+    for name in names:
+        if name not in _REGISTRY:
+            raise ValueError(f"unknown effect {name!r}; registered: {', '.join(registered_effects())}")
+        effect = _REGISTRY[name](model)
+        if effect is not None:
+            if effect.kind != name:
+                effect.kind = name
+            out.append(effect)
+    return out
+
+
+def _joint_factory(model: ParametricModel) -> Effect | None:
+    joints = _block_joints(model)
+    if not joints or model.material is None:
+        return None
+    return ElementBand(model, joint_bands(model, joints), kind="joint_band")
+
+
+register_effect("segment_mass", SegmentMass)
+register_effect("point_mass", PointMass)
+register_effect("grounded_spring", GroundedSpring)
+register_effect("joint_band", _joint_factory)
+register_effect("damping", RayleighDamping)
+
+
+# -- the extended model -------------------------------------------------------------------------------
+def extended_matrices(model: ParametricModel, alpha, applied: Sequence[Applied] = ()):
+    """``K, M, a, b`` of the model at ``alpha`` with the applied effects added."""
+    alpha = check_parameters(alpha, model.n_segments, "alpha")
+    K = model.stiffness(alpha)
+    M = model.mass()
+    a, b = model.damping
+    for item in applied:
+        t = item.terms(alpha)
+        if t.stiffness is not None:
+            K = K + t.stiffness
+        if t.mass is not None:
+            M = M + t.mass
+        a += t.damping_a
+        b += t.damping_b
+    return sp.csr_matrix(K), sp.csr_matrix(M), a, b
+
+
+def extended_frf(model: ParametricModel, alpha, freqs_hz, applied: Sequence[Applied] = (),
+                 method: str = "krylov") -> np.ndarray:
+    """Receptance at the sensors under the combined load, with effects; shape (p, n_sensors), m/N."""
+    freqs = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
+    if freqs.ndim != 1 or freqs.size == 0 or np.any(~(freqs > 0)):
+        raise ValueError(f"frequencies must be a non-empty 1-D array of positive values in Hz, got {freqs_hz!r}")
+    K, M, a, b = extended_matrices(model, alpha, applied)
+    F = model.combined_load()
+    omegas = hz_to_rad(freqs)
+    if method == "direct":
+        return direct_frf(K, M, a * M + b * K, F, omegas, model.sensor_dofs)[:, :, 0]
+    if method != "krylov":
+        raise ValueError(f"unknown FRF method {method!r}; choose 'krylov' or 'direct'")
+    return krylov_frf(K, M, a, b, F, omegas, model.sensor_dofs)[:, :, 0]
+
+
+class LinearisedResponse:
+    """First-order change of ln|Z| at the sensors for any change of (K, M, a, b).
+
+    With ``D(w) = K - w^2 M + j w (a M + b K)`` and the combined load F,
+    ``Z = D^-1 F`` and ``dZ = -D^-1 dD Z``. D is complex symmetric, so the
+    sensor rows of ``D^-1`` are the responses ``X_s`` to a unit load at each
+    sensor (reciprocity), and ``dZ_s = -X_s^T (dD Z)``: one solve with the six
+    sensor loads gives the sensitivity to *every* candidate, e.g. a point mass
+    at each of hundreds of nodes, without a solve per candidate.
+
+    Parameters
+    ----------
+    model : ParametricModel
+    alpha : array_like
+    freqs_hz : array_like, shape (p,)
+    applied : sequence of Applied
+        Effects already in the model (the point of linearisation).
+    """
+
+    def __init__(self, model: ParametricModel, alpha, freqs_hz, applied: Sequence[Applied] = ()):
+        self.model = model
+        self.alpha = check_parameters(alpha, model.n_segments, "alpha")
+        self.freqs_hz = np.asarray(freqs_hz, float)
+        self.omegas = hz_to_rad(self.freqs_hz)
+        self.applied = list(applied)
+        self.K, self.M, self.a, self.b = extended_matrices(model, alpha, applied)
+        everything = np.arange(model.n_dofs)
+        # X[f, :, s]: field response to a unit load at sensor s.
+        self.X = krylov_frf(self.K, self.M, self.a, self.b, model.sensor_loads(), self.omegas, everything)
+        self.field = self.X.sum(axis=2)  # (p, n): the combined-load response everywhere
+        self.Z = self.field[:, model.sensor_dofs]  # (p, n_s)
+
+    def derivative(self, terms: Terms) -> np.ndarray:
+        """``d ln|Z_s(f)|`` per unit of the change described by ``terms``, shape (p, n_sensors)."""
+        w = self.omegas
+        p, n = self.field.shape
+        dK, dM = terms.stiffness, terms.mass
+        rows = []
+        for A in (dK, dM):
+            if A is not None:
+                A = sp.csr_matrix(A)
+                rows.append(np.flatnonzero(np.diff(A.indptr)))
+        if terms.damping_a or terms.damping_b:
+            rows.append(np.arange(n))
+        if not rows:
+            return np.zeros((p, self.model.n_sensors))
+        rows = np.unique(np.concatenate(rows))
+        v = np.zeros((rows.size, p), dtype=complex)  # (dD Z)[rows], per frequency
+        Zt = self.field.T  # (n, p)
+        if dK is not None:
+            v += (sp.csr_matrix(dK)[rows] @ Zt) * (1.0 + 1j * w * self.b)[None, :]
+        if dM is not None:
+            v += (sp.csr_matrix(dM)[rows] @ Zt) * (-(w**2) + 1j * w * self.a)[None, :]
+        if terms.damping_a:
+            v += terms.damping_a * (self.M[rows] @ Zt) * (1j * w)[None, :]
+        if terms.damping_b:
+            v += terms.damping_b * (self.K[rows] @ Zt) * (1j * w)[None, :]
+        dZ = -np.einsum("prs,rp->ps", self.X[:, rows, :], v)
+        return np.real(dZ / self.Z)
+
+    def alpha_derivatives(self) -> np.ndarray:
+        """``d ln|Z| / d alpha_i``, shape (p * n_sensors, n_segments), frequency-major rows.
+
+        Includes the alpha-dependence of the applied effects (an element band
+        scales with its segments' factors).
+        """
+        cols = []
+        for i in range(self.model.n_segments):
+            dK = self.model.stiffness_segments.segment(i)
+            for item in self.applied:
+                extra = item.effect.alpha_derivative(self.alpha, item.location, item.values, i)
+                if extra is not None and extra.stiffness is not None:
+                    dK = dK + extra.stiffness
+            cols.append(self.derivative(Terms(stiffness=dK)).ravel())
+        return np.column_stack(cols)
+
+    def effect_derivatives(self, effect: Effect, location: str) -> np.ndarray:
+        """``d ln|Z| / d values`` of an effect at a location, shape (p * n_sensors, k)."""
+        return np.column_stack([self.derivative(effect.derivative(self.alpha, location, i)).ravel()
+                                for i in range(effect.n_parameters)])

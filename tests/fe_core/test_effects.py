@@ -1,0 +1,185 @@
+"""The effect library: matrices against independent constructions, validation, registry, sensitivities."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from fe_core import effects as E
+from fe_core.assembly import DOFS_PER_NODE
+from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ
+
+FREQS = MEASUREMENT_FREQUENCIES_HZ[[0, 3, 9]]  # a resonance-side, the peak and the upper band
+
+
+@pytest.fixture(scope="module")
+def library(benchmark_model):
+    return {e.kind: e for e in E.build_library(benchmark_model)}
+
+
+def rigid(model, component: int) -> np.ndarray:
+    """Unit rigid translation along ``component`` on the free DOFs."""
+    full = np.zeros(model.mesh.n_nodes * DOFS_PER_NODE)
+    full[component::DOFS_PER_NODE] = 1.0
+    return full[model.free_dofs]
+
+
+def test_builtin_effects_are_registered_with_their_candidates(library, benchmark_model):
+    assert list(library) == ["segment_mass", "point_mass", "grounded_spring", "joint_band", "damping"]
+    top_free = benchmark_model.mesh.node_sets["top"]
+    # 615 top nodes, 30 of them on the clamped faces.
+    assert top_free.size == 615 and len(library["point_mass"].locations()) == 585
+    assert library["joint_band"].locations() == ["joint x=230 mm", "joint x=396 mm"]
+    assert library["segment_mass"].locations() == [f"segment{i}" for i in range(1, 7)]
+    assert library["damping"].locations() == ["a", "b"]
+
+
+def test_point_mass_adds_its_mass_to_every_rigid_translation(library, benchmark_model):
+    t = library["point_mass"].terms(ALPHA_ACTUAL, "node 337", np.array([0.25]))
+    for c in range(3):
+        v = rigid(benchmark_model, c)
+        assert v @ (t.mass @ v) == pytest.approx(0.25, rel=1e-14)
+    assert t.mass.nnz == 3 and t.stiffness is None
+
+
+def test_grounded_spring_acts_on_u_z_of_its_node_only(library, benchmark_model):
+    t = library["grounded_spring"].terms(ALPHA_ACTUAL, "node 633", np.array([4e5]))
+    assert t.stiffness.nnz == 1
+    (row,), (col,) = t.stiffness.nonzero()
+    assert row == col and benchmark_model.free_dofs[row] == 3 * 633 + 2
+    assert t.stiffness[row, row] == 4e5
+
+
+def test_segment_mass_matches_the_models_own_mass_factors(library, benchmark_model):
+    t = library["segment_mass"].terms(ALPHA_ACTUAL, "segment5", np.array([0.3]))
+    gamma = np.array([0, 0, 0, 0, 0.3, 0])
+    diff = benchmark_model.mass(gamma) - benchmark_model.mass() - t.mass
+    assert abs(diff).max() <= 1e-15 * abs(benchmark_model.mass()).max()
+
+
+def test_an_element_band_over_a_whole_segment_is_that_segments_stiffness(benchmark_model):
+    cells = benchmark_model.mesh.cell_sets["segment3"]
+    band = E.ElementBand(benchmark_model, {"all of segment 3": cells})
+    t = band.terms(ALPHA_ACTUAL, "all of segment 3", np.array([1.0]))
+    expected = (1 + ALPHA_ACTUAL[2]) * benchmark_model.stiffness_segments.segment(2)
+    assert abs(t.stiffness - expected).max() <= 1e-9 * abs(expected).max()
+
+
+def test_joint_bands_are_the_cells_touching_each_joint_plane(library, benchmark_model):
+    band = library["joint_band"]
+    for label, x in (("joint x=230 mm", 0.230), ("joint x=396 mm", 0.396)):
+        cells = band.bands[label]
+        # One column of the wide plate (14 cells across) and one of the narrow plate (6).
+        assert cells.size == 14 + 6
+        xs = benchmark_model.mesh.cell_coords[cells][:, :, 0]
+        assert np.all(np.any(np.isclose(xs, x, atol=1e-9), axis=1))
+
+
+def test_joint_band_terms_scale_with_the_segment_factors(library):
+    band = library["joint_band"]
+    a0 = band.terms(np.zeros(6), "joint x=230 mm", np.array([-0.5])).stiffness
+    a1 = band.terms(ALPHA_ACTUAL, "joint x=230 mm", np.array([-0.5])).stiffness
+    # The band straddles segments 2 and 3 (alpha -0.1 and -0.3): the ratio lies between 0.7 and 0.9.
+    ratio = abs(a1).sum() / abs(a0).sum()
+    assert 0.7 < ratio < 0.9
+
+
+@pytest.mark.parametrize(
+    ("kind", "location", "value", "message"),
+    [
+        ("joint_band", "joint x=230 mm", -1.0, "beta = -1.0"),
+        ("segment_mass", "segment2", -1.5, "gamma = -1.5"),
+        ("point_mass", "node 337", -0.1, "mass = -0.1"),
+        ("grounded_spring", "node 337", np.nan, "k = nan"),
+        ("damping", "b", -2e-4, "would be negative"),
+        ("point_mass", "node 0", 0.1, "no location 'node 0'"),  # a clamped node is no candidate
+    ],
+)
+def test_invalid_effect_values_are_refused_naming_the_parameter(library, benchmark_model, kind, location, value,
+                                                                message):
+    with pytest.raises(ValueError, match=message):
+        E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, [E.Applied(library[kind], location, np.array([value]))])
+
+
+def test_user_effects_can_be_registered_and_are_built_for_the_model(benchmark_model):
+    class TipMass(E.Effect):
+        kind = "tip_mass"
+        parameters = ("mass",)
+        units = ("kg",)
+        lower = (0.0,)
+        upper = (np.inf,)
+        scale = (0.1,)
+
+        def locations(self):
+            return ["mid-span"]
+
+        def terms(self, alpha, location, values):
+            node = self.model.mesh.nearest_node([0.313, 0.0, 0.010], atol=0.01)
+            rows = self.model.free_dofs.searchsorted(3 * node + np.arange(3))
+            return E.Terms(mass=sp.csr_matrix((np.full(3, values[0]), (rows, rows)),
+                                              shape=(self.model.n_dofs,) * 2))
+
+    E.register_effect("tip_mass", TipMass)
+    try:
+        with pytest.raises(ValueError, match="already registered"):
+            E.register_effect("tip_mass", TipMass)
+        lib = E.build_library(benchmark_model, ["tip_mass", "damping"])
+        assert [e.kind for e in lib] == ["tip_mass", "damping"]
+        Z0 = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS)
+        Z1 = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, [E.Applied(lib[0], "mid-span", np.array([0.2]))])
+        assert not np.allclose(Z0, Z1)
+    finally:
+        E.unregister_effect("tip_mass")
+    assert "tip_mass" not in E.registered_effects()
+    with pytest.raises(ValueError, match="unknown effect 'tip_mass'"):
+        E.build_library(benchmark_model, ["tip_mass"])
+
+
+def test_extended_krylov_frf_matches_the_direct_solver_with_every_effect(library, benchmark_model):
+    applied = [E.Applied(library["point_mass"], "node 337", np.array([0.12])),
+               E.Applied(library["grounded_spring"], "node 633", np.array([4e5])),
+               E.Applied(library["joint_band"], "joint x=230 mm", np.array([-0.75])),
+               E.Applied(library["segment_mass"], "segment5", np.array([0.3])),
+               E.Applied(library["damping"], "b", np.array([3e-5]))]
+    fast = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, applied)
+    ref = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, applied, method="direct")
+    assert np.max(np.abs(fast - ref)) <= 1e-8 * np.max(np.abs(ref))
+    base = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS)
+    assert np.max(np.abs(base - benchmark_model.frf(ALPHA_ACTUAL, FREQS))) == 0.0
+
+
+@pytest.mark.parametrize(
+    ("kind", "location", "step"),
+    [("point_mass", "node 397", 1e-3), ("grounded_spring", "node 633", 1e2), ("joint_band", "joint x=396 mm", 1e-3),
+     ("segment_mass", "segment2", 1e-3), ("damping", "a", 1e-2), ("damping", "b", 1e-7)],
+)
+def test_linearised_sensitivities_match_central_differences_of_the_direct_solver(library, benchmark_model, kind,
+                                                                                location, step):
+    """The reciprocity-based derivative against finite differences of an independent (direct LU) FRF."""
+    effect = library[kind]
+    # Linearise at a point that already carries another effect, so the reference point is not special.
+    carried = [E.Applied(library["point_mass"], "node 337", np.array([0.05]))]
+    lin = E.LinearisedResponse(benchmark_model, ALPHA_ACTUAL, FREQS, carried)
+    analytic = lin.effect_derivatives(effect, location)[:, 0]
+    lo = 0.0 if kind in ("point_mass", "grounded_spring") else -step  # masses and springs are >= 0
+    plus = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, carried + [E.Applied(effect, location, [step])],
+                          method="direct")
+    minus = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, carried + [E.Applied(effect, location, [lo])],
+                           method="direct")
+    fd = (np.log(np.abs(plus)) - np.log(np.abs(minus))).ravel() / (step - lo)
+    tol = 1e-4 if lo < 0 else 5e-3  # central vs one-sided difference
+    assert np.max(np.abs(analytic - fd)) <= tol * np.max(np.abs(fd))
+
+
+def test_alpha_sensitivities_include_the_alpha_dependence_of_a_band(library, benchmark_model):
+    carried = [E.Applied(library["joint_band"], "joint x=230 mm", np.array([-0.6]))]
+    J = E.LinearisedResponse(benchmark_model, ALPHA_ACTUAL, FREQS, carried).alpha_derivatives()
+    h = 1e-5
+    for i in (1, 2, 4):  # segments 2 and 3 hold the band; 5 does not
+        ap, am = ALPHA_ACTUAL.copy(), ALPHA_ACTUAL.copy()
+        ap[i] += h
+        am[i] -= h
+        fd = (np.log(np.abs(E.extended_frf(benchmark_model, ap, FREQS, carried, method="direct")))
+              - np.log(np.abs(E.extended_frf(benchmark_model, am, FREQS, carried, method="direct")))).ravel() / (2 * h)
+        assert np.max(np.abs(J[:, i] - fd)) <= 1e-5 * np.max(np.abs(fd))

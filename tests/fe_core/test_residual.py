@@ -1,0 +1,83 @@
+"""Residual statistics: noise estimate, chi-square and runs tests on synthetic residuals with known truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ
+from fe_core.residual import (
+    analyse_residual,
+    chi_square_test,
+    estimate_noise,
+    frequency_bands,
+    noise_floor_error,
+    runs_test,
+)
+
+FREQS = MEASUREMENT_FREQUENCIES_HZ
+
+
+def test_the_benchmark_frequencies_form_two_bands():
+    bands = frequency_bands(FREQS)
+    assert [b.tolist() for b in bands] == [list(range(6)), list(range(6, 12))]
+    assert [b.tolist() for b in frequency_bands([5.0, 1.0, 2.0])] == [[1, 2], [0]]
+
+
+def test_noise_estimate_is_unbiased_for_white_noise_and_ignores_a_smooth_misfit(rng):
+    freqs = np.arange(100.0, 300.0, 2.0)  # one band of 100 frequencies
+    sigma = 0.005
+    estimates, with_trend = [], []
+    f = (freqs - freqs.mean()) / np.ptp(freqs)
+    trend = 0.03 * np.outer(1 - 4 * f**2, np.linspace(1, 2, 6))  # a 3 % smooth misfit, 6 sensors
+    for _ in range(200):
+        e = sigma * rng.standard_normal((freqs.size, 6))
+        estimates.append(estimate_noise(e, freqs))
+        with_trend.append(estimate_noise(e + trend, freqs))
+    # Mean of 200 estimates, each from ~600 squared differences: within 2 %.
+    assert np.sqrt(np.mean(np.square(estimates))) == pytest.approx(sigma, rel=0.02)
+    assert np.mean(with_trend) == pytest.approx(np.mean(estimates), rel=0.01)
+
+
+def test_chi_square_rejects_pure_noise_at_the_nominal_rate(rng):
+    sigma, n_fitted = 0.005, 6
+    rejected = 0
+    trials = 4000
+    for _ in range(trials):
+        r = sigma * rng.standard_normal(72 - n_fitted)  # 66 independent residuals after the fit
+        r = np.r_[r, np.zeros(n_fitted)]
+        rejected += chi_square_test(r, sigma, n_fitted)[2] < 0.01
+    # Binomial(4000, 0.01): mean 40, sd 6.3.
+    assert 40 - 4 * 6.3 < rejected < 40 + 4 * 6.3
+
+
+def test_chi_square_statistic_and_degrees_of_freedom():
+    r = np.full(72, 0.01)
+    T, dof, p = chi_square_test(r, 0.005, 6)
+    assert T == pytest.approx(72 * 4.0) and dof == 66 and p < 1e-20
+    with pytest.raises(ValueError, match="cannot test"):
+        chi_square_test(np.ones(5), 0.1, 5)
+    with pytest.raises(ValueError, match="positive"):
+        chi_square_test(np.ones(10), 0.0, 1)
+
+
+def test_runs_test_tells_a_smooth_residual_from_alternating_signs():
+    smooth = np.tile(np.r_[np.ones(3), -np.ones(3)], 2)[:, None] * np.ones((1, 6))
+    alternating = np.tile([1.0, -1.0], 6)[:, None] * np.ones((1, 6))
+    runs_s, z_s, p_s = runs_test(smooth, FREQS)
+    runs_a, z_a, p_a = runs_test(alternating, FREQS)
+    assert runs_s == 2 * 2 * 6 and p_s < 0.001  # two runs per band and sensor
+    assert runs_a == 6 * 2 * 6 and p_a > 0.99
+
+
+def test_analysis_calls_noise_noise_and_a_smooth_misfit_structure(rng):
+    sigma = 0.005
+    noise = sigma * rng.standard_normal((12, 6))
+    calm = analyse_residual(noise, FREQS, 6, noise=sigma)
+    assert not calm.structured and calm.sigma_source == "configured"
+    misfit = 0.02 * np.cos(np.linspace(0, np.pi, 12))[:, None] * np.ones((1, 6))
+    busy = analyse_residual(noise + misfit, FREQS, 6, noise=sigma)
+    assert busy.structured and busy.p_chi2 < 1e-10
+    estimated = analyse_residual(noise, FREQS, 6)
+    assert estimated.sigma_source == "estimated" and 0.5 * sigma < estimated.sigma < 2 * sigma
+    assert calm.noise_floor == pytest.approx(noise_floor_error(sigma)) == pytest.approx(0.003989, rel=1e-3)
