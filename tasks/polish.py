@@ -2,7 +2,8 @@
 
 Runs :func:`mrgp_core.polish.polish` from the best FE-evaluated sample of the
 loop, inside the search box, with the FE runs of each finite-difference
-Jacobian in parallel (joblib). Every FE run is written as soon as it finishes
+Jacobian in parallel on the FE stage's backend (loky or Dask, with the same
+re-submission of runs lost with a worker: :mod:`tasks.fe_backends`). Every FE run is written as soon as it finishes
 to ``iteration=<K>/stage=polish/sample=<id>.parquet`` (with its parameters)
 and logged to ``fe_evaluations.jsonl``; the polish is deterministic, so a
 resumed polish replays the same points and reads their results back instead
@@ -18,13 +19,14 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed
+from joblib import delayed
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
 from mrgp_core import adaptive
 from mrgp_core.polish import polish
 from tasks import stages
+from tasks.fe_backends import run_unordered
 from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes
 
 __all__ = ["POLISH_STAGE", "polish_task", "polish_results", "polish_lower_bound"]
@@ -118,9 +120,12 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
                 todo.append((state["next"], x))
                 state["next"] += 1
         if todo:
-            jobs = (delayed(stages.evaluate_sample)(config.model, sid, x, freqs_hz) for sid, x in todo)
+            jobs = {sid: delayed(stages.evaluate_sample)(config.model, sid, x, freqs_hz) for sid, x in todo}
             alpha = dict(todo)
-            for result in Parallel(n_jobs=config.n_jobs, backend="loky", return_as="generator_unordered")(jobs):
+            results = run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=config.fe_backend,
+                                    n_jobs=config.n_jobs, dask_address=config.dask_address,
+                                    label=f"iteration {iteration}, stage polish", logger=logger)
+            for result in results:
                 sid = int(result["sample_id"].iloc[0])
                 for j, c in enumerate(cols):
                     result[c] = alpha[sid][j]
