@@ -354,6 +354,12 @@ def _run_parser() -> argparse.ArgumentParser:
                    help="FE runs reserved for the polish out of --max-fe-evaluations (default 180)")
     p.add_argument("--polish-target", type=float, metavar="E",
                    help="overall error at which the polish stops (default 1e-4 = 0.01 %%)")
+    from flows.diagnose import add_closure_arguments
+
+    p.add_argument("--close-loop", action="store_true",
+                   help="after the update, trace the residual to a missing effect, add it and update again "
+                        "(python -m flows.diagnose on this run; writes <run folder>/closure/)")
+    add_closure_arguments(p)
     return p
 
 
@@ -437,6 +443,16 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         lock.release()
     print_summary(summary)
+    if args.close_loop:
+        from flows.diagnose import DiagnoseError, closure_options, diagnose, print_closure
+
+        try:
+            closure = diagnose(config.run_id, config.runs_dir, args.closure_name or "closure",
+                               **closure_options(args))
+        except (DiagnoseError, MeasuredDataError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print_closure(closure)
     return 0
 
 

@@ -1,0 +1,207 @@
+"""Close the loop on a finished updating run: ``python -m flows.diagnose --run-id ID``.
+
+Reads the run's ``summary.json`` (its updated parameters) and ``manifest.json``
+(model and measured data), then, as a Prefect flow ``diagnose-<run-id>``:
+
+1. ``closure-baseline``: alpha-only least squares from the run's parameters
+   (plus ``--restarts`` Sobol starts), the residual per sensor and frequency,
+   its noise level (configured with ``--noise`` or estimated) and the
+   chi-square decision noise / structure;
+2. ``closure-screen``: every candidate effect of the library
+   (:mod:`fe_core.effects`) linearised at that point;
+3. ``closure-check``: full FE least squares of the best candidates
+   (only when the residual is structure);
+4. ``closure-decide``: extended-BIC decision, the updated model, residual
+   tables, ``closure.json`` and ``residuals.png``.
+
+Everything goes to ``<run folder>/closure/`` (``--name`` for another folder);
+a finished step is read back on a second call, so a killed diagnosis resumes.
+
+Examples::
+
+    python -m flows.diagnose --run-id pso-3
+    python -m flows.diagnose --run-id pso-3 --noise 0.005 --effects point_mass,grounded_spring
+    python -m flows.update --measured data/effects/point_mass.csv --close-loop --noise 0.005
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("DO_NOT_TRACK", "1")
+os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+from prefect import flow  # noqa: E402
+
+from fe_core.closure import ALPHA_BOUNDS  # noqa: E402
+from fe_core.effects import registered_effects  # noqa: E402
+from flows.config import REPO  # noqa: E402
+from tasks import closure as ct  # noqa: E402
+from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
+
+__all__ = ["diagnose_flow", "diagnose", "run_folder", "main", "print_closure"]
+
+
+class DiagnoseError(ValueError):
+    """A run folder or setting the diagnosis cannot use; the message names the file or key."""
+
+
+def run_folder(run_id: str, runs_dir: str | Path = "data/runs") -> tuple[Path, dict, dict]:
+    """The folder of a finished single run, its summary and manifest.
+
+    For a run with repeats, the repeat with the smallest overall error is used.
+    """
+    root = Path(runs_dir)
+    root = (root if root.is_absolute() else REPO / root) / run_id
+    summary_path = root / "summary.json"
+    if not summary_path.exists():
+        raise DiagnoseError(f"{summary_path}: no summary.json; is run {run_id!r} finished?")
+    summary = json.loads(summary_path.read_text())
+    if "runs" in summary:  # repeats: diagnose the best one
+        best = min(summary["runs"], key=lambda r: r["overall_error"])
+        root = Path(best["run_folder"])
+        summary = best
+    manifest_path = root / "manifest.json"
+    if not manifest_path.exists():
+        raise DiagnoseError(f"{manifest_path}: no manifest.json; is {root} a run folder?")
+    manifest = json.loads(manifest_path.read_text())
+    if "parameters" not in summary:
+        raise DiagnoseError(f"{summary_path}: no 'parameters' key")
+    return root, summary, manifest
+
+
+@flow(name="diagnose", flow_run_name="diagnose-{run_id}", log_prints=True)
+def diagnose_flow(run_id: str, closure_root: str, settings: dict, run_info: dict) -> dict:
+    """The closure of one run as four tasks; returns the content of ``closure.json``."""
+    measured = read_measured(Path(settings["measured"]))
+    freqs, sensors, u = measured.frequencies_hz, np.asarray(measured.sensors), measured.amplitude
+    t0 = time.perf_counter()
+    ct.baseline_task(closure_root, settings, freqs, sensors, u)
+    ct.screen_task(closure_root, settings, freqs, u)
+    ct.check_task(closure_root, settings, freqs, u)
+    summary = ct.decide_task(closure_root, settings, freqs, sensors, u, run_info)
+    summary["wall_seconds"] = round(time.perf_counter() - t0, 3)
+    return summary
+
+
+def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closure", measured: str | None = None,
+             **options) -> dict:
+    """Diagnose a finished run (see the module docstring); ``options`` are :class:`tasks.closure.ClosureSettings`."""
+    root, summary, manifest = run_folder(run_id, runs_dir)
+    cfg = manifest.get("config", {})
+    measured_path = Path(measured or cfg.get("measured", "data/benchmark/measured.csv"))
+    measured_path = measured_path if measured_path.is_absolute() else REPO / measured_path
+    read_measured(measured_path)  # refuse bad data before any work
+    names = [f"alpha_{i + 1}" for i in range(len(summary["parameters"]))]
+    try:
+        alpha = [float(summary["parameters"][n]) for n in names]
+    except KeyError as exc:
+        raise DiagnoseError(f"{root / 'summary.json'}: parameters lack {exc.args[0]!r}") from None
+    lower = max(float(cfg.get("lower", -1.0)), ALPHA_BOUNDS[0])
+    upper = float(cfg.get("upper", ALPHA_BOUNDS[1]))
+    effects = options.pop("effects", None)
+    if effects is not None:
+        unknown = [e for e in effects if e not in registered_effects()]
+        if unknown:
+            raise DiagnoseError(f"unknown effect(s) {', '.join(unknown)}; registered: "
+                                f"{', '.join(registered_effects())}")
+    settings = ct.ClosureSettings.make(model=cfg.get("model", "three_plate"), measured=str(measured_path),
+                                       alpha_start=alpha, alpha_bounds=[lower, upper], effects=effects,
+                                       n_jobs=options.pop("n_jobs", None) or cfg.get("n_jobs", 1), **options)
+    if not (settings["noise"] is None or settings["noise"] > 0):
+        raise DiagnoseError(f"--noise must be positive, got {settings['noise']}")
+    if not 0 < settings["significance"] < 1:
+        raise DiagnoseError(f"--significance must lie in (0, 1), got {settings['significance']}")
+    closure_root = root / name
+    ct.ClosureStore(closure_root).write_settings(dict(settings))
+    run_info = {"run_id": run_id, "run_folder": str(root), "parameters": summary["parameters"]}
+    return diagnose_flow(run_id, str(closure_root), dict(settings), run_info)
+
+
+def print_closure(summary: dict, file=sys.stdout) -> None:
+    print(file=file)
+    print(f"closure: {summary['decision']}", file=file)
+    rb, ra = summary["residual_before"], summary["residual_after"]
+    print(f"residual before: rms {rb['rms']:.3%}, noise {rb['sigma']:.3%} ({rb['sigma_source']}), chi2 "
+          f"{rb['chi2']:.1f} on {rb['dof']} dof, p = {rb['p_chi2']:.3g}", file=file)
+    print(f"residual after:  rms {ra['rms']:.3%}, chi2 {ra['chi2']:.1f} on {ra['dof']} dof, p = {ra['p_chi2']:.3g}",
+          file=file)
+    e = summary["effect"]
+    if e is not None:
+        print(f"effect: {e['type']} at {e['location']}, {e['parameter']} = {e['value']:.4g} {e['unit']}"
+              + (f"  {e['details']}" if e["details"] else ""), file=file)
+    print(f"overall error: {summary['error_before']:.3%} -> {summary['error_after']:.3%} "
+          f"(noise floor {summary['noise_floor']:.3%})", file=file)
+    print("per-sensor error: " + ", ".join(
+        f"{k.split('_')[-1]}: {summary['per_sensor_error_before'][k]:.2%} -> {v:.2%}"
+        for k, v in summary["per_sensor_error_after"].items()), file=file)
+    run = summary.get("parameters_run") or {}
+    before, after = summary["parameters_before"], summary["parameters_after"]
+    print(f"{'parameter':<22} {'run':>9} {'before':>9} {'after':>11}", file=file)
+    for k in after:
+        r, b = run.get(k), before.get(k)
+        print(f"{k:<22} {'-' if r is None else f'{r:9.4f}':>9} {'-' if b is None else f'{b:9.4f}':>9} "
+              f"{after[k]:>11.4g}", file=file)
+    print("(run: the updating run's result; before: alpha-only least squares from it; after: with the effect)",
+          file=file)
+    print("candidates (best first):", file=file)
+    for c in summary["candidates"][:6]:
+        score = (f"explains {c['explained']:.1%}, dEBIC {c['delta_ebic']:+.1f}" if c["checked"]
+                 else f"linear {c['linear_explained']:.1%}, dEBIC~{c['linear_delta_ebic']:+.1f}")
+        print(f"  {c['rank']:>2}. {c['type']:<16} {c['location']:<16} {c['value']:>11.4g} {c['unit']:<4} {score}",
+              file=file)
+    if "wall_seconds" in summary:
+        print(f"{summary['fe_solves']} FE solves, {summary['wall_seconds']:.1f} s", file=file)
+
+
+def add_closure_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of the closure, shared with ``flows.update --close-loop``."""
+    p.add_argument("--noise", type=float, metavar="SIGMA",
+                   help="relative noise of the measured amplitudes, e.g. 0.005 (default: estimated from the residual)")
+    p.add_argument("--significance", type=float, help="chi-square level for 'structure' (default 0.01)")
+    p.add_argument("--effects", metavar="A,B", help="effect types to consider (default all registered: "
+                                                    + ", ".join(registered_effects()) + ")")
+    p.add_argument("--per-type", type=int, help="candidates per effect type given a full FE check (default 1)")
+    p.add_argument("--restarts", type=int, help="extra Sobol starts of the alpha-only baseline fit (default 2)")
+    p.add_argument("--closure-name", metavar="NAME", help="sub-folder of the run for the closure (default closure)")
+
+
+def closure_options(args) -> dict:
+    return dict(noise=args.noise, significance=args.significance, per_type=args.per_type, restarts=args.restarts,
+                effects=None if args.effects is None else [e.strip() for e in args.effects.split(",") if e.strip()])
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m flows.diagnose",
+                                description="Trace the residual of a finished updating run to a missing effect, "
+                                            "add it and update again.")
+    p.add_argument("--run-id", required=True, metavar="ID")
+    p.add_argument("--runs-dir", default="data/runs", metavar="PATH")
+    p.add_argument("--measured", metavar="PATH", help="measured data (default: the run's)")
+    p.add_argument("--n-jobs", type=int, help="parallel FE checks (default: the run's n_jobs)")
+    add_closure_arguments(p)
+    args = p.parse_args(argv)
+    try:
+        summary = diagnose(args.run_id, args.runs_dir, args.closure_name or "closure", args.measured,
+                           n_jobs=args.n_jobs, **closure_options(args))
+    except FileNotFoundError as exc:
+        print(f"error: {exc.filename}: no such file", file=sys.stderr)
+        return 2
+    except (DiagnoseError, MeasuredDataError, ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print_closure(summary)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

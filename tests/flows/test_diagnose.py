@@ -1,0 +1,115 @@
+"""flows.diagnose end to end: a reduced updating run on data with an undeclared point mass, then the closure."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from flows import diagnose as dg
+from flows import update
+from flows.config import REPO, UpdateConfig
+
+DATA = REPO / "data" / "effects"
+CLOSURE_KEYS = {"effect", "error_before", "error_after", "parameters_before", "parameters_after", "candidates",
+                "residual_tables", "per_sensor_error_before", "per_sensor_error_after", "decision"}
+
+
+@pytest.fixture(scope="module")
+def diagnosed(tmp_path_factory, reduced_settings_frozen):
+    from prefect.testing.utilities import prefect_test_harness
+
+    runs = tmp_path_factory.mktemp("runs")
+    config = UpdateConfig(run_id="pm", runs_dir=str(runs), measured=str(DATA / "point_mass.csv"),
+                          **dict(reduced_settings_frozen))
+    with prefect_test_harness():
+        update.update_flow(config)
+        summary = dg.diagnose("pm", runs, noise=0.005)
+        again = dg.diagnose("pm", runs, noise=0.005)
+    return runs / "pm", summary, again
+
+
+@pytest.mark.slow
+def test_the_closure_of_a_reduced_run_names_the_point_mass_and_writes_its_tables(diagnosed, benchmark_model):
+    root, summary, _ = diagnosed
+    truth = json.loads((DATA / "truth.json").read_text())["data"]["point_mass.csv"]
+    closure = root / "closure"
+    on_disk = json.loads((closure / "closure.json").read_text())
+    assert CLOSURE_KEYS <= set(on_disk)
+    effect = on_disk["effect"]
+    assert effect["type"] == "point_mass" and on_disk["candidates"][0]["type"] == "point_mass"
+    node = int(effect["location"].split()[1])
+    cells = benchmark_model.mesh.cells
+    assert np.any(np.any(cells == node, axis=1) & np.any(cells == truth["node"], axis=1))
+    assert effect["value"] == pytest.approx(truth["value"], rel=0.2)
+    assert on_disk["error_after"] < on_disk["error_before"] / 5
+    assert on_disk["parameters_run"] == json.loads((root / "summary.json").read_text())["parameters"]
+    assert "point_mass.mass" in on_disk["parameters_after"] and "point_mass.mass" not in on_disk["parameters_before"]
+    for key in ("before", "after"):
+        table = pd.read_parquet(closure / on_disk["residual_tables"][key])
+        assert list(table.columns[:3]) == ["frequency_hz", "sensor", "residual"] and len(table) == 72
+    # The after-table is the final model's relative residual: its mean modulus is the error after.
+    after = pd.read_parquet(closure / "residual_after.parquet")
+    assert after["residual"].abs().mean() == pytest.approx(on_disk["error_after"], rel=1e-9)
+    assert (closure / "residuals.png").stat().st_size > 10_000
+    ranks = pd.read_parquet(closure / on_disk["tables"]["candidates"])
+    assert ranks["rank"].tolist() == list(range(1, len(ranks) + 1)) and ranks["checked"].iloc[0]
+
+
+@pytest.mark.slow
+def test_a_second_diagnosis_reads_every_step_back(diagnosed):
+    root, summary, again = diagnosed
+    strip = {"wall_seconds"}
+    assert {k: v for k, v in again.items() if k not in strip} == {k: v for k, v in summary.items() if k not in strip}
+
+
+@pytest.mark.slow
+def test_a_closure_killed_during_its_checks_redoes_only_the_missing_ones(diagnosed, tmp_path):
+    from prefect.testing.utilities import prefect_test_harness
+
+    root, summary, _ = diagnosed
+    closure = root / "closure"
+    checks = sorted((closure / "step=check").glob("check=*.parquet"))
+    assert len(checks) >= 2
+    # What a kill during the check stage leaves: some per-candidate files, no record, no table.
+    (closure / "step=check" / "_step.json").unlink()
+    (closure / "step=check" / "checks.parquet").unlink()
+    checks[-1].unlink()
+    kept = {p: p.stat().st_mtime_ns for p in checks[:-1]}
+    with prefect_test_harness():
+        resumed = dg.diagnose("pm", root.parent, noise=0.005)
+    assert {p: p.stat().st_mtime_ns for p in checks[:-1]} == kept
+    assert checks[-1].exists()
+    assert resumed["effect"]["location"] == summary["effect"]["location"]
+    assert resumed["error_after"] == pytest.approx(summary["error_after"], rel=1e-6)
+
+
+def test_diagnosis_of_a_missing_or_unfinished_run_exits_2_naming_the_file(tmp_path, capsys):
+    assert dg.main(["--run-id", "nothing", "--runs-dir", str(tmp_path)]) == 2
+    assert "nothing/summary.json: no summary.json" in capsys.readouterr().err
+    (tmp_path / "half").mkdir()
+    (tmp_path / "half" / "summary.json").write_text(json.dumps({"parameters": {"alpha_1": 0.0}}))
+    assert dg.main(["--run-id", "half", "--runs-dir", str(tmp_path)]) == 2
+    assert "half/manifest.json: no manifest.json" in capsys.readouterr().err
+
+
+def test_unknown_effects_and_bad_noise_are_refused(tmp_path, capsys):
+    run = tmp_path / "r"
+    run.mkdir()
+    (run / "summary.json").write_text(json.dumps({"parameters": {f"alpha_{i}": 0.0 for i in range(1, 7)}}))
+    (run / "manifest.json").write_text(json.dumps({"config": {"measured": str(DATA / "clean-seed0.csv")}}))
+    assert dg.main(["--run-id", "r", "--runs-dir", str(tmp_path), "--effects", "point_mass,gremlin"]) == 2
+    assert "unknown effect(s) gremlin" in capsys.readouterr().err
+    assert dg.main(["--run-id", "r", "--runs-dir", str(tmp_path), "--noise", "-0.1"]) == 2
+    assert "--noise must be positive" in capsys.readouterr().err
+
+
+def test_update_help_lists_the_close_loop_options(capsys):
+    with pytest.raises(SystemExit):
+        update.main(["--help"])
+    out = capsys.readouterr().out
+    for flag in ("--close-loop", "--noise", "--effects", "--restarts"):
+        assert flag in out
