@@ -300,34 +300,46 @@ def plot_samples(samples: pd.DataFrame, names: list[str], path: Path, truth=None
 
 
 def plot_parameters(best: pd.DataFrame, distributions: pd.DataFrame, names: list[str], path: Path,
-                    truth=None, bounds: tuple[float, float] = (-1.0, 1.0)) -> Path:
+                    truth=None, bounds: tuple[float, float] = (-1.0, 1.0), final=None,
+                    final_label: str = "polish") -> Path:
     """Figure 7: each parameter of the best sample so far per iteration, with the true value when known.
 
-    The band is the sampling distribution computed at that iteration (mean +/- 1 std).
+    The bars (and band) are the sampling distribution computed at that iteration (mean +/- 1 std).
+    ``final`` (the reported parameters, when a later stage such as the polish improved on the loop's
+    best sample) is drawn one step after the last iteration.
     """
     nrows, ncols = _grid(len(names), 3)
     fig = Figure(figsize=(12, 3.0 * nrows + 0.6), layout="constrained")
     axes = fig.subplots(nrows, ncols, sharex=True, squeeze=False).ravel()
     normal = distributions[distributions["kind"] == "normal"] if len(distributions) else distributions
+    last = int(best["iteration"].max())
     for i, (ax, name) in enumerate(zip(axes, names)):
         d = normal[normal["parameter"] == name].sort_values("iteration") if len(normal) else normal
         if len(d):
-            ax.fill_between(d["iteration"], d["mean"] - d["std"], d["mean"] + d["std"], color="C0", alpha=0.15,
-                            lw=0, label="sampling distribution, mean +/- 1 std")
+            if len(d) > 1:
+                ax.fill_between(d["iteration"], d["mean"] - d["std"], d["mean"] + d["std"], color="C0", alpha=0.12,
+                                lw=0)
+            ax.errorbar(d["iteration"], d["mean"], yerr=d["std"], fmt="_", color="C0", alpha=0.45, capsize=3,
+                        label="sampling distribution, mean +/- 1 std")
         ax.plot(best["iteration"], best[name], "-o", color="C0", ms=4, lw=1.6, label="best sample so far")
+        value = float(best[name].iloc[-1])
+        if final is not None:
+            value = float(final[i])
+            ax.plot([last, last + 1], [best[name].iloc[-1], value], ":", color="C2")
+            ax.plot([last + 1], [value], "D", color="C2", ms=5, label=f"after the {final_label} (reported)")
         if truth is not None:
             ax.axhline(truth[i], **TRUE_STYLE, label="true value")
         ax.set_ylim(bounds[0] - 0.05, bounds[1] + 0.05)
-        ax.set_title(f"{_param_label(name)}: final {best[name].iloc[-1]:+.3f}"
+        ax.set_title(f"{_param_label(name)}: final {value:+.3f}"
                      + (f" (true {truth[i]:+.2f})" if truth is not None else ""), fontsize=10)
         ax.set_ylabel("stiffness factor (-)")
         ax.grid(True, alpha=0.25)
-        _iteration_axis(ax, sorted(best["iteration"]))
+        _iteration_axis(ax, sorted(best["iteration"]), final_label if final is not None else None)
     for ax in axes[len(names):]:
         ax.set_visible(False)
     _bottom_labels_only(axes, len(names), ncols)
     handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside upper center", ncols=3, frameon=False)
+    fig.legend(handles, labels, loc="outside upper center", ncols=len(handles), frameon=False)
     return _save(fig, path)
 
 

@@ -130,9 +130,13 @@ def errors_section(data: RunData, out: Path) -> Section:
 def parameters_section(data: RunData, out: Path) -> Section:
     names, truth, bounds = data.names, data.true_parameters, _bounds(data)
     best = best_so_far(data)
+    _, reported, reported_error = data.best()
+    later = reported_error < best["overall_error"].iloc[-1] and not np.allclose(reported, best[names].iloc[-1])
     figs = [(figures.plot_samples(data.samples, names, out / "samples.png", truth, data.polish, bounds),
              "Sampled parameters per iteration (Figure 6)"),
-            (figures.plot_parameters(best, data.distributions, names, out / "parameters.png", truth, bounds),
+            (figures.plot_parameters(best, data.distributions, names, out / "parameters.png", truth, bounds,
+                                     final=reported if later else None,
+                                     final_label="polish" if data.polish is not None else "last stage"),
              "Parameter trajectories (Figure 7)")]
     if len(data.distributions):
         figs.append((figures.plot_distributions(data.distributions, names, out / "distributions.png", truth, bounds),
