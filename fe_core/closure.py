@@ -227,7 +227,7 @@ def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effe
 
 
 def multistart_update(model: ParametricModel, freqs_hz, amplitude, alpha_start=None, n_starts: int = 4,
-                      seed: int = 0, alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, coarse_tol: float = 1e-5,
+                      seed: int = 0, alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, coarse_tol: float = 1e-4,
                       **kwargs) -> Fit:
     """Alpha-only least squares from ``alpha_start`` (if given) and ``n_starts`` scrambled-Sobol points.
 
@@ -398,7 +398,7 @@ def _relocation_target(model, freqs, fit: Fit, effect: Effect, candidates: list[
 
 def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect, candidate: Candidate,
           max_moves: int = 6, alpha_bounds: tuple[float, float] = ALPHA_BOUNDS,
-          max_evaluations: int = 200) -> Candidate:
+          max_evaluations: int = 200, tol: float = 1e-6, contender: float = 0.5) -> Candidate:
     """Full FE fit of one candidate from the updated point; a searched location may then move.
 
     The screening linearises at zero effect; a sizeable effect is placed
@@ -406,10 +406,13 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
     every other location of the effect is screened again, linearised at the
     fitted point with the effect taken away and put there (one field solve for
     all); the best is fitted in full and kept if it lowers the residual, up to
-    ``max_moves`` times. Fills ``candidate.fit`` (and ``moved_from``) and
-    returns the candidate.
+    ``max_moves`` times, if the candidate explains at least ``contender`` of
+    the residual (moving a loser costs fits and changes nothing). ``tol`` is
+    the optimiser's tolerance (1e-6: the decision compares sums of squares
+    that differ by per cents). Fills ``candidate.fit`` (and ``moved_from``)
+    and returns the candidate.
     """
-    kw = dict(alpha_bounds=alpha_bounds, max_evaluations=max_evaluations)
+    kw = dict(alpha_bounds=alpha_bounds, max_evaluations=max_evaluations, tol=tol)
     fit = fit_update(model, freqs_hz, amplitude, base.alpha, effect, candidate.location,
                      _start_value(effect, candidate.location, candidate.linear_values), **kw)
     if fit.rss > base.rss:  # the linear start led astray: start from the effect's absence
@@ -418,7 +421,8 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
         fit = again
     moved = []
     visited = {fit.location}
-    searched = len(effect.locations()) > 1 and effect.n_parameters == 1
+    # Only a contender is worth moving: one that explains at least ``contender`` of the residual.
+    searched = len(effect.locations()) > 1 and effect.n_parameters == 1 and fit.rss <= (1 - contender) * base.rss
     for _ in range(max_moves if searched else 0):
         # Every other location, linearised at the fitted point with the effect moved there.
         others = [loc for loc in effect.locations() if loc not in visited]

@@ -532,7 +532,9 @@ def extended_matrices(model: ParametricModel, alpha, applied: Sequence[Applied] 
     """``K, M, a, b`` of the model at ``alpha`` with the applied effects added."""
     alpha = check_parameters(alpha, model.n_segments, "alpha")
     K = model.stiffness(alpha)
-    M = model.mass()
+    M = getattr(model, "_effects_mass", None)
+    if M is None:  # M(gamma = 0) never changes: assemble it once per model
+        M = model._effects_mass = model.mass()
     a, b = model.damping
     for item in applied:
         t = item.terms(alpha)
