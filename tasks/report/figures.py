@@ -510,17 +510,21 @@ def plot_candidates(table: pd.DataFrame, path: Path, score: str, chosen: str | N
     chosen : str, optional
         Label of the effect that was added (highlighted).
     """
-    table = table.head(25)
+    table = table.head(15)
     fig = Figure(figsize=(8, max(3.2, 0.34 * len(table) + 1.6)), layout="constrained")
     ax = fig.subplots()
     y = np.arange(len(table))[::-1]
     colors = ["C2" if chosen is not None and str(lbl) == chosen else "C0" for lbl in table["label"]]
+    light = table["_light"].to_numpy(bool) if "_light" in table else np.zeros(len(table), bool)
     bars = ax.barh(y, table[score], color=colors)
+    for bar, is_light in zip(bars, light):
+        if is_light:
+            bar.set_alpha(0.4)
     ax.bar_label(bars, [f"{v:.3g}" for v in table[score]], fontsize=7.5, padding=2)
     ax.set_yticks(y, [str(v) for v in table["label"]], fontsize=8)
     ax.set_xlabel(score.replace("_", " "))
     ax.grid(True, axis="x", alpha=0.25)
-    ax.set_title("Candidate effects, ranked" + (" (green: added)" if chosen else ""), fontsize=11)
+    ax.set_title("Candidate effects, best first" + (" (green: added)" if chosen else ""), fontsize=11)
     return _save(fig, path)
 
 

@@ -184,87 +184,117 @@ def stages_section(data: RunData) -> Section:
 
 
 # -- close the loop ---------------------------------------------------------------------------------
-SCORE_KEYS = ("score", "delta_bic", "bic", "delta_aic", "aic", "explained", "explained_fraction", "error_after",
-              "error")
+#: Candidate scores, in order of preference; the first one every candidate has is drawn.
+SCORE_KEYS = ("explained", "linear_explained", "score", "delta_ebic", "delta_bic", "linear_delta_ebic", "bic",
+              "aic", "explained_fraction", "error_after", "error")
+
+
+def _effect_label(entry: dict) -> str:
+    parts = [str(entry[k]) for k in ("type", "name", "effect", "kind") if entry.get(k) is not None][:1]
+    loc = entry.get("location")
+    if loc is not None and not (isinstance(loc, float) and np.isnan(loc)):
+        parts.append(f"@ {json.dumps(loc) if isinstance(loc, (list, dict)) else loc}")
+    return " ".join(parts)
 
 
 def _candidate_table(candidates) -> tuple[pd.DataFrame, str] | None:
+    """Candidates (a list of dicts, best first) as a table with a ``label`` and the score column to draw."""
     if not isinstance(candidates, list) or not candidates:
         return None
-    rows = []
-    for i, c in enumerate(candidates):
-        if not isinstance(c, dict):
-            c = {"candidate": c}
-        rows.append(c)
+    rows = [c if isinstance(c, dict) else {"candidate": c} for c in candidates]
     df = pd.DataFrame(rows)
-    numeric = [k for k in df.columns if pd.api.types.is_numeric_dtype(df[k])]
-    score = next((k for k in SCORE_KEYS if k in numeric), numeric[0] if numeric else None)
+    numeric = [k for k in df.columns if pd.api.types.is_numeric_dtype(df[k]) and df[k].dtype != bool
+               and k != "rank"]
+    if {"explained", "linear_explained"} <= set(numeric):
+        # tasks.closure: a full FE fit's share of the residual where checked, the linearised screen's elsewhere.
+        df["explained (light: linearised only)"] = df["explained"].fillna(df["linear_explained"])
+        df["_light"] = df["explained"].isna()
+        numeric.insert(0, "explained (light: linearised only)")
+    complete = [k for k in numeric if df[k].notna().all()]
+    score = next((k for k in ("explained (light: linearised only)", *SCORE_KEYS) if k in complete),
+                 complete[0] if complete else None)
     if score is None:
         return None
-
-    def label(row):
-        parts = [str(row[k]) for k in ("type", "name", "effect", "kind") if k in row and pd.notna(row[k])][:1]
-        loc = row.get("location") if "location" in row else None
-        if loc is not None and not (isinstance(loc, float) and np.isnan(loc)):
-            parts.append(f"@ {json.dumps(loc) if isinstance(loc, (list, dict)) else loc}")
-        return " ".join(parts) or f"candidate {row.name + 1}"
-
-    df["label"] = df.apply(label, axis=1)
+    df["label"] = [_effect_label(r) or f"candidate {i + 1}" for i, r in enumerate(rows)]
     return df, score
 
 
+def _pct(v):
+    return f"{100 * v:.3g}%" if isinstance(v, (int, float)) else ("-" if v is None else str(v))
+
+
 def closure_section(data: RunData, out: Path) -> Section | None:
-    """Residual maps before/after and the ranked candidate effects, when ``closure.json`` exists."""
+    """Residual maps before/after and the ranked candidate effects, when ``closure.json`` exists.
+
+    Reads the ``closure.json`` of :mod:`tasks.closure` (``effect``, ``error_before/after``,
+    ``parameters_before/after``, ``candidates``, ``residual_tables``) and tolerates other
+    spellings of the residual tables (records, column lists, file names).
+    """
     c = data.closure
     if c is None:
         return None
     folder = Path(c.get("_folder", data.root))
-    figs, tables, notes = [], [], []
+    figs, tables, paragraphs, notes = [], [], [], []
     effect = c.get("effect")
-    summary = {"effect added": json.dumps(effect) if effect is not None else "none",
-               "error before": c.get("error_before"), "error after": c.get("error_after")}
-    tables.append(("Close-the-loop result", pd.DataFrame([summary])))
-    pb, pa = c.get("parameters_before"), c.get("parameters_after")
-    if isinstance(pb, dict) and isinstance(pa, dict):
-        keys = list(dict.fromkeys([*pb, *pa]))
-        tables.append(("Parameters before and after", pd.DataFrame(
-            {"parameter": keys, "before": [pb.get(k) for k in keys], "after": [pa.get(k) for k in keys]})))
+    if c.get("decision"):
+        paragraphs.append(f"Decision: {c['decision']}.")
+    row = {"effect added": _effect_label(effect) if isinstance(effect, dict) else ("none" if effect is None
+                                                                                     else str(effect))}
+    if isinstance(effect, dict) and "value" in effect:
+        value = effect["value"]
+        row["value"] = (f"{value:.4g} {effect.get('unit', '')}".strip() if isinstance(value, (int, float))
+                        else json.dumps(value))
+    row.update({"overall error before": _pct(c.get("error_before")), "after": _pct(c.get("error_after"))})
+    if "noise_floor" in c:
+        row["noise floor"] = _pct(c["noise_floor"])
+    for key in ("n_candidates", "fe_solves"):
+        if key in c:
+            row[key.replace("_", " ")] = c[key]
+    tables.append(("Close-the-loop result", pd.DataFrame([row])))
+    psb, psa = c.get("per_sensor_error_before"), c.get("per_sensor_error_after")
+    if isinstance(psb, dict) and isinstance(psa, dict):
+        keys = list(dict.fromkeys([*psb, *psa]))
+        tables.append(("Per-sensor error (Eq. 15)", pd.DataFrame(
+            {"sensor": keys, "before": [_pct(psb.get(k)) for k in keys], "after": [_pct(psa.get(k)) for k in keys]})))
+    columns = {name: c.get(key) for name, key in (("updating run", "parameters_run"), ("before", "parameters_before"),
+                                                  ("after", "parameters_after")) if isinstance(c.get(key), dict)}
+    if columns:
+        keys = list(dict.fromkeys(k for d in columns.values() for k in d))
+        tables.append(("Parameters", pd.DataFrame({"parameter": keys, **{
+            name: [d.get(k, "-") for k in keys] for name, d in columns.items()}})))
     freqs = data.frequencies
     maps = {}
     for when in ("before", "after"):
-        obj = None
-        for key in (f"residuals_{when}", f"residual_{when}", f"residual_table_{when}"):
-            if key in c:
-                obj = c[key]
+        options = [c.get(f"residuals_{when}"), c.get(f"residual_{when}"), c.get(f"residual_table_{when}"),
+                   (c.get("residual_tables") or {}).get(when), (c.get("residuals") or {}).get(when)
+                   if isinstance(c.get("residuals"), dict) else None,
+                   f"residual_{when}.parquet", f"residuals_{when}.parquet"]
+        for obj in options:
+            df = residual_frame(obj, folder, freqs)
+            if df is not None:
+                maps[when] = df
                 break
-        if obj is None and isinstance(c.get("residuals"), dict):
-            obj = c["residuals"].get(when)
-        if obj is None:
-            for name in (f"residuals_{when}.parquet", f"residual_{when}.parquet"):
-                if (folder / name).exists():
-                    obj = name
-        df = residual_frame(obj, folder, freqs)
-        if df is not None:
-            maps[when] = df
     if maps:
         figs.append((figures.plot_residual_maps(maps, out / "closure_residuals.png",
                                                 "Residual before and after adding the effect, percent (one scale)",
                                                 shared_scale=True),
                      "Residual map before and after"))
     else:
-        notes.append("closure.json has no residual table this report can read.")
+        notes.append("closure.json names no residual table this report can read.")
     ranked = _candidate_table(c.get("candidates"))
     if ranked is not None:
         df, score = ranked
-        chosen = None
-        if isinstance(effect, dict):
-            match = df[df["label"].str.startswith(str(effect.get("type", effect.get("name", "")))) &
-                       (df["label"] != "")]
-            chosen = match["label"].iloc[0] if len(match) else None
+        chosen = _effect_label(effect) if isinstance(effect, dict) else None
         figs.append((figures.plot_candidates(df, out / "closure_candidates.png", score, chosen),
-                     f"Candidate effects ranked by {score}"))
-        tables.append(("Candidates (top 15)", df.drop(columns="label").head(15)))
-    return Section(title="Close the loop: residual and missing effect", notes=notes, tables=tables, figures=figs)
+                     f"Candidate effects ranked (bars: {score})"))
+        shown = df.drop(columns=[k for k in ("label", "_light", "explained (light: linearised only)")
+                                 if k in df.columns]).head(15)
+        for col in shown.columns:  # nested values (locations as dicts) as text
+            if shown[col].map(lambda v: isinstance(v, (dict, list))).any():
+                shown[col] = shown[col].map(lambda v: json.dumps(v) if isinstance(v, (dict, list)) else v)
+        tables.append((f"Candidates (top {len(shown)} of {c.get('n_candidates', len(df))})", shown))
+    return Section(title="Close the loop: residual and missing effect", paragraphs=paragraphs, notes=notes,
+                   tables=tables, figures=figs)
 
 
 # -- Figures 10-13 ---------------------------------------------------------------------------------

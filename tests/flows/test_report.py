@@ -21,7 +21,7 @@ from matplotlib import image as mpimg
 from flows import report
 from flows.config import REPO, UpdateConfig
 from tasks.io.measured import read_measured
-from tasks.report.data import ReportError, best_so_far, load_run
+from tasks.report.data import ReportError, best_so_far, load_run, residual_frame
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -145,26 +145,51 @@ def test_report_of_repeated_runs_draws_the_statistics_figures(runs, run_id, figu
 
 
 def _add_closure_and_a_new_stage(root: Path) -> None:
-    """What issue 5's close-the-loop step may leave in a run folder, and a stage added later."""
+    """What issue 5's close-the-loop step (tasks.closure) leaves in a run folder, and a stage added later."""
     summary = json.loads((root / "summary.json").read_text())
     (root / "iteration=1" / "stage=future-stage").mkdir()
     freqs = [106.0, 108.0, 110.0, 112.0, 114.0, 116.0, 285.0, 287.0, 289.0, 291.0, 293.0, 295.0]
-    before = [{"frequency_hz": f, "sensor": s, "residual": 0.05 * np.sin(f + s)} for f in freqs for s in range(1, 7)]
-    after = pd.DataFrame([{**r, "residual": 0.1 * r["residual"]} for r in before])
-    store_after = root / "closure"
-    store_after.mkdir()
-    after.to_parquet(store_after / "residuals_after.parquet")
+    before = pd.DataFrame([{"frequency_hz": f, "sensor": s, "residual": 0.05 * np.sin(f + s)}
+                           for f in freqs for s in range(1, 7)])
+    after = before.assign(residual=0.1 * before["residual"])
+    folder = root / "closure"
+    folder.mkdir()
+    before.to_parquet(folder / "residual_before.parquet")
+    after.to_parquet(folder / "residual_after.parquet")
     closure = {
-        "effect": {"type": "point_mass", "location": {"node": 412}, "value": 0.05},
+        "decision": "added point_mass at node 412: residual before is structure",
+        "effect": {"type": "point_mass", "location": "node 412", "value": 0.05, "unit": "kg"},
         "error_before": 0.05, "error_after": 0.006,
-        "parameters_before": summary["parameters"], "parameters_after": summary["parameters"],
-        "candidates": [{"type": "point_mass", "location": {"node": 412}, "score": 41.0},
-                       {"type": "grounded_spring", "location": {"node": 300}, "score": 12.5},
-                       {"type": "damping", "location": None, "score": 1.2}],
-        "residuals_before": before,
-        "residuals_after": "residuals_after.parquet",
+        "per_sensor_error_before": {f"sensor_{i}": 0.05 for i in range(1, 7)},
+        "per_sensor_error_after": {f"sensor_{i}": 0.006 for i in range(1, 7)},
+        "parameters_before": summary["parameters"],
+        "parameters_after": {**summary["parameters"], "point_mass.mass": 0.05},
+        "residual_before": {"rms": 0.035, "chi2": 3000.0, "p_chi2": 0.0},  # statistics, not a table
+        "residual_after": {"rms": 0.0035, "chi2": 60.0, "p_chi2": 0.5},
+        "candidates": [{"rank": 1, "type": "point_mass", "location": "node 412", "checked": True,
+                        "linear_explained": 0.95, "explained": 0.97},
+                       {"rank": 2, "type": "grounded_spring", "location": "node 300", "checked": True,
+                        "linear_explained": 0.7, "explained": 0.72},
+                       {"rank": 3, "type": "point_mass", "location": "node 413", "checked": False,
+                        "linear_explained": 0.9, "explained": None}],
+        "n_candidates": 3,
+        "residual_tables": {"before": "residual_before.parquet", "after": "residual_after.parquet"},
     }
-    (store_after / "closure.json").write_text(json.dumps(closure))
+    (folder / "closure.json").write_text(json.dumps(closure))
+
+
+def test_residual_tables_of_closure_json_are_read_in_every_documented_form(tmp_path):
+    freqs = [106.0, 285.0]
+    records = [{"frequency_hz": f, "sensor": s, "residual": 0.01 * s + f / 1e4} for f in freqs for s in (1, 2, 3)]
+    expected = pd.DataFrame(records)
+    expected.to_parquet(tmp_path / "r.parquet")
+    matrix = [[0.01 * s + f / 1e4 for s in (1, 2, 3)] for f in freqs]
+    columns = {k: [r[k] for r in records] for k in ("frequency_hz", "sensor", "residual")}
+    for obj in (records, "r.parquet", matrix, columns):
+        got = residual_frame(obj, tmp_path, freqs)
+        pd.testing.assert_frame_equal(got.reset_index(drop=True), expected, check_dtype=False)
+    for unusable in (None, {"rms": 0.03}, "missing.parquet", [[1.0, 2.0]]):
+        assert residual_frame(unusable, tmp_path, freqs) is None
 
 
 def test_closure_results_and_unknown_stages_are_reported_and_the_frf_cache_is_reused(runs, single_report, tmp_path,
@@ -184,7 +209,8 @@ def test_closure_results_and_unknown_stages_are_reported_and_the_frf_cache_is_re
     monkeypatch.setattr("tasks.stages.load_model", no_fe)
     page = Path(report.report_flow(str(root)))
     text = check_report(page, SINGLE_FIGURES | {"closure_residuals.png", "closure_candidates.png"})
-    assert "Close the loop" in text and "point_mass" in text and "Polish-stage points" in text
+    assert "Close the loop" in text and "point_mass @ node 412" in text and "Polish-stage points" in text
+    assert "<td>5%</td>" in text and "<td>0.6%</td>" in text  # overall errors before and after
     assert "future-stage" in text
 
 
