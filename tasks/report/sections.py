@@ -43,7 +43,9 @@ def run_intro(data: RunData) -> list[str]:
         f"Run folder {data.root} ({done}).",
         f"Strategy {cfg.get('strategy', '?')}, trainer {cfg.get('trainer', '?')}, seed {cfg.get('seed', '?')}, "
         f"model {cfg.get('model', '?')}, measured data {cfg.get('measured', '?')}.",
-        f"{int(data.errors['iteration'].max())} iterations and {len(data.samples)} FE runs; "
+        f"{int(data.errors['iteration'].max())} iterations and "
+        f"{(data.summary or {}).get('fe_evaluations', len(data.samples))} FE runs"
+        + (f" ({len(data.polish)} of them in the polish stage)" if data.polish is not None else "") + "; "
         f"reported overall error {err:.3%}" + (f" (sample {sid})" if sid >= 0 else "") + ".",
     ]
     if data.summary:
