@@ -24,7 +24,7 @@ Steps (each a plain function, so a flow can store and resume them one by one):
    structure (chi-square test) and its extended BIC beats the model without it.
 
 The candidates' ranking is by extended BIC for checked candidates, then by
-the linear explained share.
+the extended BIC predicted by the linearisation.
 """
 
 from __future__ import annotations
@@ -466,9 +466,9 @@ def decide(base: Fit, before: ResidualAnalysis, checked: Sequence[Candidate]) ->
 
 
 def rank(candidates: Sequence[Candidate]) -> list[Candidate]:
-    """Checked candidates by extended BIC, then the rest by linear explained share."""
+    """Checked candidates by extended BIC, then the rest by their linearised extended BIC."""
     checked = sorted((c for c in candidates if c.fit is not None), key=lambda c: c.ebic)
-    rest = sorted((c for c in candidates if c.fit is None), key=lambda c: -c.linear_explained)
+    rest = sorted((c for c in candidates if c.fit is None), key=lambda c: c.linear_delta_ebic)
     return checked + rest
 
 
