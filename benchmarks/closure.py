@@ -2,6 +2,7 @@
 
     OMP_NUM_THREADS=1 python -m benchmarks.closure                  # every data set
     OMP_NUM_THREADS=1 python -m benchmarks.closure point_mass.csv    # one
+    OMP_NUM_THREADS=1 python -m benchmarks.closure --speed           # FRF with each effect vs base
 
 Each closure starts from the nominal model (alpha = 0) with the cheap
 multi-start least-squares update of :func:`fe_core.closure.multistart_update`
@@ -82,10 +83,43 @@ def run_one(path: Path, truth: dict, settings: dict | None = None) -> dict:
     return row
 
 
+def speed(repeats: int = 21) -> list[dict]:
+    """Median time of the base FRF, the FRF with each effect, and one screening of every candidate."""
+    from benchmarks.timing import median_time
+    from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ as F
+    from fe_core.closure import Fit, screen
+    from fe_core.effects import Applied, build_library, extended_frf
+    from fe_core.residual import log_residual
+
+    model = three_plate()
+    library = build_library(model)
+    examples = {"point_mass": ("node 337", 0.12), "grounded_spring": ("node 633", 4e5),
+                "joint_band": ("joint x=230 mm", -0.75), "segment_mass": ("segment5", 0.3), "damping": ("b", 3e-5)}
+    rows = [{"what": "model.frf (base)", "seconds": median_time(lambda: model.frf(ALPHA_ACTUAL, F), repeats)}]
+    for effect in library:
+        loc, value = examples[effect.kind]
+        applied = [Applied(effect, loc, np.array([value]))]
+        rows.append({"what": f"extended_frf + {effect.kind}",
+                     "seconds": median_time(lambda: extended_frf(model, ALPHA_ACTUAL, F, applied), repeats)})
+    u = np.abs(model.frf(ALPHA_ACTUAL, F)) * 1.01
+    amp = np.abs(model.frf(ALPHA_ACTUAL, F))
+    base = Fit(alpha=ALPHA_ACTUAL.copy(), effect=None, location=None, values=np.zeros(0), model_amplitude=amp,
+               residual=log_residual(amp, u), evaluations=0)
+    n = sum(len(e.locations()) for e in library)
+    rows.append({"what": f"screen: all {n} candidates (one 6-load field solve)",
+                 "seconds": median_time(lambda: screen(model, F, base, library), max(3, repeats // 5))})
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.closure", description=__doc__.splitlines()[0])
     p.add_argument("files", nargs="*", help="data file names in data/effects (default: all)")
+    p.add_argument("--speed", action="store_true", help="time the extended FRF and the screening instead")
     args = p.parse_args(argv)
+    if args.speed:
+        for row in speed():
+            print(f"{row['what']:<50} {1e3 * row['seconds']:8.1f} ms")
+        return 0
     truth = json.loads((DATA / "truth.json").read_text())["data"]
     names = args.files or list(truth)
     rows = []
