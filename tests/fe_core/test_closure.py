@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from fe_core.closure import close_loop
-from fe_core.residual import overall_error
+from fe_core.residual import analyse_residual, overall_error
 from tasks.io.measured import read_measured
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "effects"
@@ -50,6 +50,8 @@ def test_the_missing_effect_is_found_located_sized_and_removes_the_misfit(benchm
     measured, result = closure(benchmark_model, name)
     u = measured.amplitude
     assert result.before.structured
+    # Also with the noise level estimated from the residual instead of configured.
+    assert analyse_residual(result.baseline.residual, measured.frequencies_hz, 6).structured
     first = result.candidates[0]
     assert first is result.chosen, "the added effect is the first-ranked candidate"
     assert first.effect == truth["effect"]
@@ -70,6 +72,7 @@ def test_clean_data_gets_no_effect(benchmark_model, name):
     measured, result = closure(benchmark_model, name)
     assert result.chosen is None
     assert not result.before.structured
+    assert not analyse_residual(result.baseline.residual, measured.frequencies_hz, 6).structured  # sigma estimated
     np.testing.assert_array_equal(result.final.alpha, result.baseline.alpha)
     # The update itself is right: every alpha within 0.02 of the truth.
     assert np.max(np.abs(result.baseline.alpha - np.array(TRUTH["alpha"]))) < 0.02
