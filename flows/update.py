@@ -247,6 +247,8 @@ def _summary(config, store, iterations, last, measured, wall) -> dict:
     if polished is not None:
         info = store.stage_info(iterations, POLISH_STAGE)
         summary["polish"] = {k: info[k] for k in ("status", "n", "error_before", "error_after")}
+        summary["stop_reason"] = (f"MRGP loop: {last['reason']}; polish: {info['status']} after {info['n']} FE runs "
+                                  f"({info['message']})")
     if config.true_parameters is not None:
         truth = np.asarray(config.true_parameters, float)
         summary["parameter_errors"] = dict(zip(names, map(float, np.abs(X[best] - truth))))

@@ -11,8 +11,10 @@ forward-difference Jacobian) on the relative residuals of Eq. (5), started
 from the best FE-evaluated sample, with three additions:
 
 * every point is evaluated through a caller-supplied batch function, so the
-  columns of a finite-difference Jacobian can run in parallel and the caller
-  can store (and on resume replay) each FE run;
+  columns of a finite-difference Jacobian (absolute steps, so that a
+  parameter at 0 gets a proper one; a failed column is retried on the other
+  side) run in parallel and the caller can store (and on resume replay)
+  each FE run;
 * identical points are evaluated once (memoised), including the start,
   whose residual the caller already has;
 * it stops as soon as a point's overall error (Eq. 6b) reaches ``target``, or
@@ -113,7 +115,7 @@ def polish(
     max_evaluations : int
         Budget of new evaluations; a batch that would exceed it is not started.
     diff_step : float
-        Relative finite-difference step (scipy's ``diff_step``); the FE
+        Finite-difference step, ``diff_step * max(1, |x_i|)``; the FE
         responses are accurate to ~1e-9, so 1e-6 gives ~1e-3 relative
         derivative accuracy, plenty for Gauss-Newton.
     tolerance : float
@@ -122,7 +124,10 @@ def polish(
     """
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
     span = upper - lower
-    x0 = np.clip(np.asarray(x0, float), lower + 1e-9 * span, upper - 1e-9 * span)
+    given = np.asarray(x0, float)
+    x0 = np.clip(given, lower + 1e-9 * span, upper - 1e-9 * span)
+    if not np.array_equal(x0, given):
+        residuals0 = None  # they belong to the unclipped point
     memo: dict[bytes, np.ndarray] = {}
     points: list[np.ndarray] = []
     state = {"n": 0, "best": None}
@@ -161,10 +166,40 @@ def polish(
         r = memo[x.tobytes()]
         return np.where(np.isfinite(r), r, FAILED_RESIDUAL)
 
-    def workers(f, iterable):
-        xs = [np.asarray(x, float) for x in iterable]
-        prefetch(xs)
-        return [f(x) for x in xs]
+    def jac(x: np.ndarray) -> np.ndarray:
+        """Forward differences with an absolute step, all columns in one batch.
+
+        The step is ``diff_step * max(1, |x_i|)`` (scipy's own relative step
+        vanishes at x_i = 0, the undamaged segment), backward where the forward
+        point would leave the box. A column whose point fails is tried on the
+        other side once, then set to zero (that parameter rests for a step).
+        """
+        x = np.asarray(x, float)
+        prefetch([x])
+        f0 = memo[x.tobytes()]
+        h = diff_step * np.maximum(1.0, np.abs(x))
+        h = np.where(x + h > upper, -h, h)
+        J = np.zeros((f0.size, x.size))
+        todo = list(range(x.size))
+        for _ in range(2):
+            pts = []
+            for i in todo:
+                xp = x.copy()
+                xp[i] += h[i]
+                pts.append(xp)
+            prefetch(pts)
+            failed = []
+            for i, xp in zip(todo, pts):
+                r = memo[xp.tobytes()]
+                if np.all(np.isfinite(r)):
+                    J[:, i] = (r - f0) / (xp[i] - x[i])
+                else:
+                    failed.append(i)
+            todo = [i for i in failed if lower[i] <= x[i] - h[i] <= upper[i]]
+            h[todo] = -h[todo]
+            if not todo:
+                break
+        return J
 
     if residuals0 is not None:
         record(x0.copy(), residuals0)
@@ -175,9 +210,8 @@ def polish(
         status, message = "target", f"start error {error_start:.3e} already <= target {target:.3e}"
     else:
         try:
-            sol = least_squares(fun, x0, jac="2-point", bounds=(lower, upper), method="trf", x_scale=1.0,
-                                diff_step=diff_step, ftol=tolerance, xtol=tolerance, gtol=tolerance,
-                                workers=workers)
+            sol = least_squares(fun, x0, jac=jac, bounds=(lower, upper), method="trf", x_scale=1.0,
+                                ftol=tolerance, xtol=tolerance, gtol=tolerance)
             status = "converged" if sol.status > 0 else "stalled"
             message = sol.message
         except _Stop as stop:

@@ -26,6 +26,7 @@ from prefect.cache_policies import NO_CACHE
 from mrgp_core import adaptive
 from mrgp_core.polish import polish
 from tasks import stages
+from tasks.faults import kill_point
 from tasks.fe_backends import run_unordered
 from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes
 
@@ -64,6 +65,9 @@ def _sample_files(store: RunStore, iteration: int, cols: list[str], rows: int) -
         if problem:
             aside = path.with_name(f"{path.name}.corrupt-{int(time.time())}")
             path.rename(aside)
+            stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE, "sample_id": sid,
+                                       "event": "discarded", "file": str(path), "reason": problem,
+                                       "unix": time.time()})
             stages._logger().warning("polish FE result %s: %s; set aside as %s, that point runs again",
                                      path, problem, aside.name)
             continue
@@ -86,65 +90,71 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
     lower = np.full(m, polish_lower_bound(config.lower))
     upper = np.full(m, config.upper)
 
-    # FE runs of an earlier, interrupted polish, replayed by their parameters. A resumed
-    # least-squares step can differ from the stored one in the last bits (BLAS results
-    # depend on memory alignment), so points match within REPLAY_TOLERANCE of the box.
-    cache: dict[bytes, tuple[int, np.ndarray]] = {}
-    logged = {e["sample_id"] for e in stages.read_fe_log(store.root) if e.get("stage") == POLISH_STAGE}
-    for sid, path in _sample_files(store, iteration, cols, measured_amplitude.size).items():
-        df = pd.read_parquet(path)
-        x = df[cols].to_numpy()[0].astype(float)
-        cache[x.tobytes()] = (sid, _residuals(df, measured_amplitude))
-        if sid not in logged:  # killed between writing the result and logging it: still one FE run
-            stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE, "sample_id": sid,
-                                       "event": "recovered", "status": df["status"].iloc[0],
-                                       "pid": int(df["pid"].iloc[0]), "unix": time.time()})
+    # The polish asks for its new points in a deterministic sequence; the k-th new point
+    # is sample base + k. On resume, a stored result with that id is reused if it was
+    # computed for (nearly) the same parameters: a resumed least-squares step can differ
+    # from the stored one in the last bits (BLAS results depend on memory alignment).
+    # Anything else stored under that id is set aside and the point runs again.
+    base = stages._next_sample_id(store, iteration)
+    stored = _sample_files(store, iteration, cols, measured_amplitude.size)
+    log = stages.read_fe_log(store.root)
+    logged = {e["sample_id"] for e in log if e.get("stage") == POLISH_STAGE and e["event"] != "discarded"}
     tol = REPLAY_TOLERANCE * float(np.max(upper - lower))
+    if config.polish_max_fe < m + 1:
+        logger.warning("polish_max_fe = %d is less than one Jacobian and a step (%d FE runs): the polish can "
+                       "do nothing", config.polish_max_fe, m + 1)
+    results: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # sample id -> (parameters, residuals)
+    state = {"ran": 0, "next": base}
 
-    def lookup(x: np.ndarray) -> bytes | None:
-        key = x.tobytes()
-        if key in cache:
-            return key
-        for k in cache:
-            if np.max(np.abs(np.frombuffer(k) - x)) <= tol:
-                return k
-        return None
-    next_id = max([stages._next_sample_id(store, iteration), *(sid + 1 for sid, _ in cache.values())])
-    order: list[int] = []
-    state = {"next": next_id, "ran": 0}
+    def set_aside(sid: int, path: Path, reason: str) -> None:
+        aside = path.with_name(f"{path.name}.corrupt-{int(time.time())}")
+        path.rename(aside)
+        stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE, "sample_id": sid,
+                                   "event": "discarded", "file": str(path), "reason": reason, "unix": time.time()})
+        logger.warning("polish FE result %s: %s; set aside as %s, that point runs again", path, reason, aside.name)
 
     def evaluate(points: list[np.ndarray]) -> list[np.ndarray]:
-        todo = []
+        ids, todo = [], []
         for x in points:
-            if lookup(x) is None:
-                todo.append((state["next"], x))
-                state["next"] += 1
+            sid = state["next"]
+            state["next"] += 1
+            ids.append(sid)
+            path = stored.pop(sid, None)
+            if path is not None:
+                df = pd.read_parquet(path)
+                xs = df[cols].to_numpy()[0].astype(float)
+                if np.max(np.abs(xs - x)) <= tol:
+                    results[sid] = (xs, _residuals(df, measured_amplitude))
+                    if sid not in logged:  # killed between writing the result and logging it: one FE run
+                        stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE,
+                                                   "sample_id": sid, "event": "recovered",
+                                                   "status": df["status"].iloc[0], "pid": int(df["pid"].iloc[0]),
+                                                   "unix": time.time()})
+                    continue
+                set_aside(sid, path, f"computed for other parameters ({xs.tolist()}) than requested")
+            todo.append((sid, x))
         if todo:
             jobs = {sid: delayed(stages.evaluate_sample)(config.model, sid, x, freqs_hz) for sid, x in todo}
             alpha = dict(todo)
-            results = run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=config.fe_backend,
-                                    n_jobs=config.n_jobs, dask_address=config.dask_address,
-                                    label=f"iteration {iteration}, stage polish", logger=logger)
-            for result in results:
+            runs = run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=config.fe_backend,
+                                 n_jobs=config.n_jobs, dask_address=config.dask_address,
+                                 label=f"iteration {iteration}, stage polish", logger=logger)
+            for result in runs:
                 sid = int(result["sample_id"].iloc[0])
                 for j, c in enumerate(cols):
                     result[c] = alpha[sid][j]
                 atomic_write_bytes(store.stage_dir(iteration, POLISH_STAGE) / f"sample={sid:06d}.parquet",
                                    _parquet_bytes(result))
+                kill_point(f"polish-result-written/iteration={iteration}/sample={sid}")
                 stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE, "sample_id": sid,
                                            "event": "evaluated", "status": result["status"].iloc[0],
                                            "pid": int(result["pid"].iloc[0]), "unix": time.time()})
-                cache[alpha[sid].tobytes()] = (sid, _residuals(result, measured_amplitude))
+                results[sid] = (alpha[sid], _residuals(result, measured_amplitude))
                 state["ran"] += 1
-        out = []
-        for x in points:
-            sid, r = cache[lookup(x)]
-            order.append(sid)
-            out.append(r)
+        errors = [float(np.mean(np.abs(r))) for _, r in results.values() if np.all(np.isfinite(r))]
         logger.info("iteration %d, stage polish: %d FE runs, best overall error so far %.4g %%", iteration,
-                    len(set(order)), 100 * min([E[best]] + [float(np.mean(np.abs(c[1]))) for c in cache.values()
-                                                            if np.all(np.isfinite(c[1]))]))
-        return out
+                    len(results), 100 * min([E[best], *errors]))
+        return [results[sid][1] for sid in ids]
 
     t0 = time.perf_counter()
     result = polish(evaluate, X[best], lower, upper, residuals0=Y[best], target=config.polish_target,
@@ -152,15 +162,11 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
     seconds = time.perf_counter() - t0
 
     # One row per FE run of the polish, in request order.
-    seen, rows, res_parts = set(), [], []
-    by_id = {sid: (x, r) for x, (sid, r) in ((np.frombuffer(k), v) for k, v in cache.items())}
-    for step, sid in enumerate(order):
-        if sid in seen:
-            continue
-        seen.add(sid)
-        x, r = by_id[sid]
+    rows, res_parts = [], []
+    for sid in sorted(results):
+        x, r = results[sid]
         ok = bool(np.all(np.isfinite(r)))
-        row = {"sample_id": sid, "step": len(rows), **dict(zip(cols, x)),
+        row = {"sample_id": sid, "step": sid - base, **dict(zip(cols, x)),
                "overall_error": float(adaptive.overall_error(r)) if ok else np.nan,
                "status": "ok" if ok else "failed"}
         for j, e in enumerate(adaptive.per_sensor_error(r, n) if ok else np.full(n, np.nan)):
@@ -169,6 +175,8 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
         res_parts.append(pd.DataFrame({"sample_id": np.int64(sid), "frequency_hz": np.repeat(freqs_hz, n),
                                        "sensor": np.tile(np.arange(1, n + 1), p).astype(np.int64),
                                        "residual": r}))
+    for sid, path in stored.items():  # results of points this polish never asked for (not expected)
+        set_aside(sid, path, "not requested by the resumed polish")
     table = pd.DataFrame(rows, columns=["sample_id", "step", *cols, "overall_error", "status",
                                         *(f"error_sensor_{j + 1}" for j in range(n))])
     table = table.astype({"sample_id": np.int64, "step": np.int64})

@@ -52,6 +52,7 @@ KILL_POINTS = [
 #: Inside the polish (a run of its own: see test_kill_inside_the_polish...).
 POLISH_KILL_POINTS = [
     ("before-rename:*/iteration=3/stage=polish/sample=000018.parquet", "inside polish: an FE result's write"),
+    ("polish-result-written/iteration=3/sample=20", "inside polish: an FE result written, not yet logged"),
     ("tables-written/iteration=3/stage=polish", "inside polish: tables written, record not"),
 ]
 
@@ -153,5 +154,5 @@ def test_kill_inside_the_polish_then_resume_gives_the_uninterrupted_run(referenc
     cfg, ref_root = reference_run
     victim = ref_root.parent / "victim-polish"
     _kill_chain(cfg, victim, POLISH_KILL_POINTS, prefect_server)
-    assert 16 + json.loads((victim / "summary.json").read_text())["polish"]["n"] > 18  # 18 was inside the polish
-    _assert_same_run(victim, ref_root, recovered=[])
+    assert 16 + json.loads((victim / "summary.json").read_text())["polish"]["n"] > 20  # 18, 20 inside the polish
+    _assert_same_run(victim, ref_root, recovered=[20])

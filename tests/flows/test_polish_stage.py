@@ -73,16 +73,32 @@ def test_polish_stage_is_counted_stored_and_resumes_from_its_fe_runs(reduced_con
     assert sorted(polish_ids) == sorted(table["sample_id"]) and len(set(polish_ids)) == len(polish_ids)
     assert not set(polish_ids) & {e["sample_id"] for e in log if e.get("stage") != POLISH_STAGE}
 
-    # Resumable: as if killed after all but the last two FE runs of the polish.
+    # Resumable, as after a kill with FE runs finishing out of order (n_jobs > 1): the 2nd
+    # and the last two results never reached the disk (nor the log), a later one did.
     d = store.stage_dir(k, POLISH_STAGE)
     for name in ("_stage.json", "polish.parquet", "residuals.parquet"):
         (d / name).unlink()
-    for f in files[-2:]:
+    lost = {files[1], *files[-2:]}
+    lost_ids = {int(f.stem.split("=")[1]) for f in lost}
+    for f in lost:
         f.unlink()
+    log_path = root / "fe_evaluations.jsonl"
+    kept = [line for line in log_path.read_text().splitlines() if json.loads(line)["sample_id"] not in lost_ids]
+    log_path.write_text("\n".join(kept) + "\n")
+    # ... and one stored result was damaged afterwards.
+    damaged = files[2]
+    damaged.write_bytes(b"not a parquet file")
     again = polish_task.fn(str(root), reduced_config, k, measured.frequencies_hz, measured.amplitude)
-    assert again["ran_now"] == 2  # only the lost runs are made again
-    pd.testing.assert_frame_equal(store.read_table(k, POLISH_STAGE), table)
-    assert again["error_after"] == info["error_after"]
+    assert again["ran_now"] == len(lost) + 1  # only the lost and the damaged runs are made again
+    pd.testing.assert_frame_equal(store.read_table(k, POLISH_STAGE), table)  # same ids, same points
+    assert again["error_after"] == info["error_after"] and again["best_sample_id"] == info["best_sample_id"]
+    events = [json.loads(line) for line in log_path.read_text().splitlines()]
+    runs = [e["sample_id"] for e in events if e.get("stage") == POLISH_STAGE and e["event"] != "discarded"]
+    discarded = [e["sample_id"] for e in events if e.get("stage") == POLISH_STAGE and e["event"] == "discarded"]
+    assert discarded == [int(damaged.stem.split("=")[1])]
+    # Every polish FE run is logged once, except the damaged one, run again after being set aside.
+    assert sorted(runs) == sorted([*table["sample_id"], *discarded])
+    assert list(d.glob(f"{damaged.name}.corrupt-*"))
 
 
 def test_polish_settings_are_checked_and_can_be_switched_off(tmp_path):

@@ -103,12 +103,34 @@ def test_is_deterministic_so_a_resume_replays_the_same_points():
 
 
 def test_failed_evaluations_are_avoided_not_fatal():
-    # Every point with x[0] > 0.9 "fails" (as an FE run with a singular system would);
-    # the truth is elsewhere, so the polish must step around the failures.
-    ev = Recorder(fail=lambda p: p[0] > 0.9)
-    res = polish(ev, np.array([0.85, 0.0, 0.0]), LOWER, UPPER, target=1e-8, max_evaluations=300)
+    # Every point with x[0] > 0.85 "fails" (as an FE run with a singular system would). The
+    # start sits on that edge, so the first forward-difference point fails; the column is
+    # taken backward instead, and the polish steps away from the failures to the truth.
+    # (Where the descent direction itself leads into failures, the trust region shrinks
+    # onto their edge and the polish stops there: it cannot know what lies behind.)
+    ev = Recorder(fail=lambda p: p[0] > 0.85)
+    res = polish(ev, np.array([0.85, -0.4, 0.25]), LOWER, UPPER, target=1e-8, max_evaluations=300)
+    assert any(p[0] > 0.85 for p in ev.points), "the test must make at least one evaluation fail"
     assert np.all(np.isfinite(res.residuals))
     np.testing.assert_allclose(res.x, TRUE, atol=1e-6)
+
+
+def test_difference_steps_are_absolute_so_a_parameter_at_zero_gets_a_proper_one():
+    ev = Recorder()
+    polish(ev, np.zeros(3), LOWER, UPPER, target=1e-8, max_evaluations=4, diff_step=1e-6)
+    start, jacobian = ev.batches[0][0], ev.batches[1]
+    steps = np.array([p - start for p in jacobian])
+    np.testing.assert_allclose(np.abs(steps), 1e-6 * np.eye(3), rtol=1e-9, atol=1e-18)
+
+
+def test_a_start_outside_the_bounds_is_clipped_and_evaluated_there():
+    ev = Recorder()
+    x0 = np.array([-0.95, 0.0, 0.0])  # below the lower bound -0.9
+    wrong = (model(x0) - MEASURED) / 2.0  # residuals of the unclipped point must not be reused
+    polish(ev, x0, LOWER, UPPER, residuals0=wrong, target=1e-8, max_evaluations=10)
+    first = ev.batches[0]
+    assert len(first) == 1 and LOWER[0] < first[0][0] < -0.8999
+    assert np.all(np.array(ev.points) >= LOWER)
 
 
 def test_start_already_at_target_costs_nothing():
