@@ -47,6 +47,16 @@ def polish_lower_bound(lower: float) -> float:
     return max(lower, -1.0 + DOMAIN_MARGIN)
 
 
+def _set_aside(store: RunStore, iteration: int, sid: int, path: Path, reason: str) -> None:
+    """Rename a polish FE result that cannot be used and log it as discarded; its point runs again."""
+    aside = path.with_name(f"{path.name}.corrupt-{int(time.time())}")
+    path.rename(aside)
+    stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE, "sample_id": sid,
+                               "event": "discarded", "file": str(path), "reason": reason, "unix": time.time()})
+    stages._logger().warning("polish FE result %s: %s; set aside as %s, that point runs again",
+                             path, reason, aside.name)
+
+
 def _sample_files(store: RunStore, iteration: int, cols: list[str], rows: int) -> dict[int, Path]:
     """Valid per-sample FE results of an earlier polish; a damaged one is set aside and run again."""
     out = {}
@@ -63,13 +73,7 @@ def _sample_files(store: RunStore, iteration: int, cols: list[str], rows: int) -
         except Exception as exc:  # noqa: BLE001 - any unreadable file is set aside
             problem = f"unreadable ({type(exc).__name__})"
         if problem:
-            aside = path.with_name(f"{path.name}.corrupt-{int(time.time())}")
-            path.rename(aside)
-            stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE, "sample_id": sid,
-                                       "event": "discarded", "file": str(path), "reason": problem,
-                                       "unix": time.time()})
-            stages._logger().warning("polish FE result %s: %s; set aside as %s, that point runs again",
-                                     path, problem, aside.name)
+            _set_aside(store, iteration, sid, path, problem)
             continue
         out[sid] = path
     return out
@@ -106,13 +110,6 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
     results: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # sample id -> (parameters, residuals)
     state = {"ran": 0, "next": base}
 
-    def set_aside(sid: int, path: Path, reason: str) -> None:
-        aside = path.with_name(f"{path.name}.corrupt-{int(time.time())}")
-        path.rename(aside)
-        stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE, "sample_id": sid,
-                                   "event": "discarded", "file": str(path), "reason": reason, "unix": time.time()})
-        logger.warning("polish FE result %s: %s; set aside as %s, that point runs again", path, reason, aside.name)
-
     def evaluate(points: list[np.ndarray]) -> list[np.ndarray]:
         ids, todo = [], []
         for x in points:
@@ -131,7 +128,7 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
                                                    "status": df["status"].iloc[0], "pid": int(df["pid"].iloc[0]),
                                                    "unix": time.time()})
                     continue
-                set_aside(sid, path, f"computed for other parameters ({xs.tolist()}) than requested")
+                _set_aside(store, iteration, sid, path, f"computed for other parameters ({xs.tolist()}) than requested")
             todo.append((sid, x))
         if todo:
             jobs = {sid: delayed(stages.evaluate_sample)(config.model, sid, x, freqs_hz) for sid, x in todo}
@@ -176,7 +173,7 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
                                        "sensor": np.tile(np.arange(1, n + 1), p).astype(np.int64),
                                        "residual": r}))
     for sid, path in stored.items():  # results of points this polish never asked for (not expected)
-        set_aside(sid, path, "not requested by the resumed polish")
+        _set_aside(store, iteration, sid, path, "not requested by the resumed polish")
     table = pd.DataFrame(rows, columns=["sample_id", "step", *cols, "overall_error", "status",
                                         *(f"error_sensor_{j + 1}" for j in range(n))])
     table = table.astype({"sample_id": np.int64, "step": np.int64})
