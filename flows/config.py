@@ -89,6 +89,11 @@ class UpdateConfig:
         Overall error at which the polish stops, e.g. 1e-4 = 0.01 %
         (the noise floor of noise-free data; set it near the measurement's
         noise level for real data).
+    polish_stall_rtol : float
+        The polish also stops when its best overall error improved by less
+        than this (relative) over its last three Jacobians and steps
+        (``3 * (m + 1)`` FE runs): on noisy data the error levels off at the
+        noise and cannot reach ``polish_target``. 0 turns this stop off.
     true_parameters : list of float or None
         Known true values (synthetic data), only for reporting errors;
         each must be > -1.
@@ -124,6 +129,7 @@ class UpdateConfig:
     polish: bool = True
     polish_max_fe: int = 180
     polish_target: float = 1e-4
+    polish_stall_rtol: float = 0.01
     true_parameters: list[float] | None = field(default=None)
     min_free_mb: float = 0.0
 
@@ -177,6 +183,8 @@ class UpdateConfig:
                                            "MRGP loop")
         if not self.polish_target > 0:
             raise bad("polish_target", f"must be positive, got {self.polish_target}")
+        if not 0 <= self.polish_stall_rtol < 1:
+            raise bad("polish_stall_rtol", f"must be in [0, 1) (0 = no stagnation stop), got {self.polish_stall_rtol}")
         if self.run_id is not None and (not self.run_id or "/" in self.run_id or self.run_id.startswith(".")):
             raise bad("run_id", f"must be a plain folder name, got {self.run_id!r}")
 

@@ -356,6 +356,9 @@ def _run_parser() -> argparse.ArgumentParser:
                    help="FE runs reserved for the polish out of --max-fe-evaluations (default 180)")
     p.add_argument("--polish-target", type=float, metavar="E",
                    help="overall error at which the polish stops (default 1e-4 = 0.01 %%)")
+    p.add_argument("--polish-stall-rtol", type=float, metavar="R",
+                   help="the polish also stops when its error improved by less than R (relative) over its last "
+                        "3 Jacobians, e.g. at the noise of real data (default 0.01; 0 = off)")
     from flows.diagnose import add_closure_arguments
 
     p.add_argument("--close-loop", action="store_true",
@@ -411,6 +414,7 @@ def main(argv: list[str] | None = None) -> int:
             threshold=args.threshold, max_iterations=args.max_iterations,
             max_fe_evaluations=args.max_fe_evaluations, q=args.q, w=args.w, s=args.s, z=args.z,
             polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target,
+            polish_stall_rtol=args.polish_stall_rtol,
         )
         if config.run_id is None:
             stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")

@@ -155,7 +155,8 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
 
     t0 = time.perf_counter()
     result = polish(evaluate, X[best], lower, upper, residuals0=Y[best], target=config.polish_target,
-                    max_evaluations=config.polish_max_fe)
+                    max_evaluations=config.polish_max_fe, stall_window=None if config.polish_stall_rtol > 0 else 0,
+                    stall_rtol=config.polish_stall_rtol)
     seconds = time.perf_counter() - t0
 
     # One row per FE run of the polish, in request order.

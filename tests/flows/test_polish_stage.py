@@ -42,6 +42,29 @@ def test_from_about_one_percent_the_polish_reaches_the_noise_floor_of_noise_free
     assert res.evaluations <= 40
 
 
+def test_on_noisy_data_the_polish_stops_where_the_error_levels_off_at_the_noise(benchmark_model):
+    """1 % noise: the error cannot reach 1e-4; the polish stops on stagnation at the
+    noise floor (the error at the true parameters) instead of spending its budget."""
+    from benchmarks.compare import ALPHA_FAR
+
+    noisy = read_measured(REPO / "data" / "compare" / "far_noisy.csv")
+    freqs, amp = noisy.frequencies_hz, noisy.amplitude
+
+    def evaluate(points):
+        return [adaptive.relative_residuals(np.abs(benchmark_model.frf(x, freqs))[None], amp)[0] for x in points]
+
+    floor = float(np.mean(np.abs(evaluate([ALPHA_FAR])[0])))
+    assert 0.006 < floor < 0.01  # 1 % noise: mean |r| about 0.8 %
+    start = ALPHA_FAR + np.array([0.03, -0.02, 0.02, 0.03, -0.03, 0.02])
+    res = polish(evaluate, start, np.full(6, -0.999), np.full(6, 1.0), target=1e-4, max_evaluations=180)
+    assert res.status == "stagnated"
+    assert res.error <= floor + 1e-4
+    assert res.evaluations <= 90
+    off = polish(evaluate, start, np.full(6, -0.999), np.full(6, 1.0), target=1e-4, max_evaluations=180,
+                 stall_window=0)
+    assert off.evaluations > res.evaluations and off.status != "stagnated"
+
+
 def test_polish_stage_is_counted_stored_and_resumes_from_its_fe_runs(reduced_config, measured):
     from prefect.testing.utilities import prefect_test_harness
 
@@ -106,6 +129,8 @@ def test_polish_settings_are_checked_and_can_be_switched_off(tmp_path):
         UpdateConfig(max_fe_evaluations=40, polish_max_fe=30, q=20)
     with pytest.raises(ConfigError, match="polish_target"):
         UpdateConfig(polish_target=0.0)
+    with pytest.raises(ConfigError, match="polish_stall_rtol"):
+        UpdateConfig(polish_stall_rtol=-0.1)
     # Off, or for the conventional baseline, the loop keeps the whole budget.
     assert update.loop_budget(UpdateConfig(polish=False)) == 240
     assert update.loop_budget(UpdateConfig(strategy="conventional")) == 240
