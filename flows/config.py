@@ -81,10 +81,12 @@ class UpdateConfig:
     polish_max_fe : int
         FE runs reserved for the polish out of ``max_fe_evaluations``: the
         MRGP loop stops at ``max_fe_evaluations - polish_max_fe``. The
-        default, 180 of 240, hands over after 3 iterations (60 FE runs):
-        on the benchmark the loop's best sample after 3 iterations led the
-        polish to the noise floor in 5 of 5 seeds, after 5 iterations in 3,
-        after 8 in 1 (later iterations narrow in on wrong basins).
+        default, 200 of 240, hands over after 2 iterations (40 FE runs):
+        ``python -m benchmarks.handover`` (docs/handover.md) polished from
+        the loop's best sample after k = 1, 2, 3 iterations; k = 2 reached
+        the noise floor in every seed with the fewest FE runs in total, k = 1
+        missed it in some seeds (and in session 2's trials, k = 5 and k = 8
+        in most: later iterations narrow in on wrong basins).
     polish_target : float
         Overall error at which the polish stops, e.g. 1e-4 = 0.01 %
         (the noise floor of noise-free data; set it near the measurement's
@@ -127,7 +129,7 @@ class UpdateConfig:
     std_floor: float = 1e-4
     conventional_samples: int = 300
     polish: bool = True
-    polish_max_fe: int = 180
+    polish_max_fe: int = 200
     polish_target: float = 1e-4
     polish_stall_rtol: float = 0.01
     true_parameters: list[float] | None = field(default=None)

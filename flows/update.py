@@ -353,7 +353,8 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--polish", action=argparse.BooleanOptionalAction, default=None,
                    help="after the MRGP loop, least squares on the FE model from the best sample (default on)")
     p.add_argument("--polish-max-fe", type=int, metavar="N",
-                   help="FE runs reserved for the polish out of --max-fe-evaluations (default 180)")
+                   help="FE runs reserved for the polish out of --max-fe-evaluations "
+                        "(default 200: the loop hands over after 2 iterations)")
     p.add_argument("--polish-target", type=float, metavar="E",
                    help="overall error at which the polish stops (default 1e-4 = 0.01 %%)")
     p.add_argument("--polish-stall-rtol", type=float, metavar="R",

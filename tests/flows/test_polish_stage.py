@@ -134,4 +134,4 @@ def test_polish_settings_are_checked_and_can_be_switched_off(tmp_path):
     # Off, or for the conventional baseline, the loop keeps the whole budget.
     assert update.loop_budget(UpdateConfig(polish=False)) == 240
     assert update.loop_budget(UpdateConfig(strategy="conventional")) == 240
-    assert update.loop_budget(UpdateConfig()) == 240 - 180
+    assert update.loop_budget(UpdateConfig()) == 240 - 200
