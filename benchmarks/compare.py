@@ -1,6 +1,6 @@
 """Side by side: adaptive MRGP (+ polish) against the peers a user could run instead (issue 9).
 
-    python -m benchmarks.compare                       # seeds 0 1 2, both data sets, ~40 min on 2 cores
+    python -m benchmarks.compare                       # seeds 0 1 2, both data sets, 5-15 min on 2 cores
     python -m benchmarks.compare --seeds 0 --datasets benchmark --methods adaptive-gradient least-squares-nominal
 
 Runs, in one process, on the same measured data and the same FE model:
