@@ -56,7 +56,7 @@ import scipy.sparse as sp
 
 from .assembly import DOFS_PER_NODE, SegmentedMatrix, assemble, cell_dofs
 from .frf import direct_frf, hz_to_rad, krylov_frf
-from .hex8 import element_stiffness
+from .elements.hex8 import element_stiffness
 from .model import ParametricModel, check_parameters
 
 __all__ = [

@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .hex8 import NODE_SIGNS
+from .elements.hex8 import NODE_SIGNS
 
 __all__ = ["Block", "Mesh", "mesh_blocks"]
 

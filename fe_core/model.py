@@ -17,7 +17,7 @@ import scipy.sparse as sp
 
 from .assembly import DOFS_PER_NODE, SegmentedMatrix, assemble, cell_dofs, free_dof_map
 from .frf import direct_frf, hz_to_rad, krylov_frf
-from .hex8 import element_mass, element_stiffness
+from .elements.hex8 import element_mass, element_stiffness
 from .material import Material
 from .mesh import Mesh
 from .modal import classify_mode, eigenmodes

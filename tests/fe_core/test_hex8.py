@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fe_core.assembly import assemble, cell_dofs
-from fe_core.hex8 import FORMULATIONS, NODE_SIGNS, element_mass, element_stiffness
+from fe_core.elements.hex8 import FORMULATIONS, NODE_SIGNS, element_mass, element_stiffness
 from fe_core.material import isotropic_elasticity
 from fe_core.mesh import Block, mesh_blocks
 
@@ -65,7 +65,7 @@ def test_consistent_mass_is_symmetric_positive_definite_and_sums_to_rho_v(shape,
 
 
 def mesh_volume_by_quadrature(coords):
-    from fe_core.hex8 import _jacobians, gauss_points
+    from fe_core.elements.hex8 import _jacobians, gauss_points
 
     xi, w = gauss_points()
     return float((np.linalg.det(_jacobians(coords, xi)) * w).sum())

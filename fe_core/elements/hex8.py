@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "NODES",
     "NODE_SIGNS",
     "FORMULATIONS",
     "gauss_points",
@@ -59,6 +60,9 @@ NODE_SIGNS = np.array(
 )
 
 FORMULATIONS = ("incompatible", "plain")
+
+#: Nodes per cell (meshio "hexahedron", VTK order).
+NODES = 8
 
 
 def gauss_points() -> tuple[np.ndarray, np.ndarray]:
