@@ -1,0 +1,76 @@
+"""The FRF solvers on an unstructured numbering: the sparse Cholesky path of krylov_frf."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from fe_core import frf
+from fe_core.assembly import assemble, free_dof_map
+from fe_core.elements import tet10
+from fe_core.material import isotropic_elasticity
+from fe_core.tet_mesh import box_tets
+
+E, NU, RHO = 7.0e10, 0.33, 2700.0
+DAMPING = (5.0, 2e-6)
+
+
+@pytest.fixture(scope="module")
+def scrambled_plate():
+    """A clamped tet10 plate whose nodes are numbered at random (bandwidth far above
+    frf.MAX_BANDWIDTH, as gmsh meshes are), K and M on the free DOFs, a load and outputs."""
+    rng = np.random.default_rng(5)
+    nodes, cells = box_tets((0.3, 0.2, 0.04), (6, 4, 2), order=2)
+    order = rng.permutation(len(nodes))
+    nodes, cells = nodes[np.argsort(order)], order[cells]
+    n = 3 * len(nodes)
+    dofs = (3 * cells[:, :, None] + np.arange(3)).reshape(len(cells), -1)
+    coords = nodes[cells]
+    K = assemble(tet10.element_stiffness(coords, isotropic_elasticity(E, NU)), dofs, n)
+    M = assemble(tet10.element_mass(coords, RHO), dofs, n)
+    free = free_dof_map(n, np.flatnonzero(np.repeat(nodes[:, 0] < 1e-12, 3)))
+    K, M = K[free][:, free].tocsr(), M[free][:, free].tocsr()
+    F = np.zeros((free.size, 2))
+    F[rng.choice(free.size, 2, replace=False), [0, 1]] = 1.0
+    out = rng.choice(free.size, 5, replace=False)
+    return K, M, F, out
+
+
+def test_scrambled_numbering_defeats_the_banded_path(scrambled_plate):
+    K = sp.coo_matrix(scrambled_plate[0])
+    assert np.max(K.col - K.row) > frf.MAX_BANDWIDTH
+
+
+def test_krylov_on_the_sparse_cholesky_equals_the_direct_solve(scrambled_plate, monkeypatch):
+    K, M, F, out = scrambled_plate
+    calls = []
+    real = frf.spd_solver
+    monkeypatch.setattr(frf, "spd_solver", lambda A: calls.append(A.shape) or real(A))
+    omegas = frf.hz_to_rad(np.linspace(20.0, 900.0, 12))
+    fast, info = frf.krylov_frf(K, M, *DAMPING, F, omegas, out, return_info=True)
+    ref = frf.direct_frf(K, M, DAMPING[0] * M + DAMPING[1] * K, F, omegas, out)
+    assert calls == [K.shape]
+    assert info.converged and info.sigma == 0.0, info
+    # Both are exact to round-off times the conditioning; 1e-8 is the Krylov stopping test's.
+    np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-8 * np.abs(ref).max())
+
+
+def test_spd_solver_solves_and_refuses_an_indefinite_matrix(scrambled_plate, rng):
+    K, M, _, _ = scrambled_plate
+    solve = frf.spd_solver(K)
+    rhs = rng.normal(size=(K.shape[0], 3))
+    x = solve(rhs)
+    assert x.shape == rhs.shape and solve(rhs[:, 0]).shape == (K.shape[0],)
+    assert np.linalg.norm(K @ x - rhs) < 1e-10 * np.linalg.norm(rhs)
+    assert frf.spd_solver(K - 1e8 * M) is None  # past the first three eigenvalues (5.6e6 ... 8.2e7)
+
+
+def test_an_explicit_shift_factors_the_indefinite_pencil_with_superlu(scrambled_plate):
+    K, M, F, out = scrambled_plate
+    omegas = frf.hz_to_rad([300.0, 500.0])
+    # K - 1e7 M is indefinite: the first eigenvalue of (K, M) is 5.6e6 rad^2/s^2 (377 Hz).
+    fast, info = frf.krylov_frf(K, M, *DAMPING, F, omegas, out, sigma=1e7, return_info=True)
+    ref = frf.direct_frf(K, M, DAMPING[0] * M + DAMPING[1] * K, F, omegas, out)
+    assert info.sigma == 1e7
+    np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-8 * np.abs(ref).max())
