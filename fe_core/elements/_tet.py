@@ -16,6 +16,7 @@ from .hex8 import strain_matrix
 
 __all__ = [
     "VERTICES",
+    "BARYCENTRIC_GRADIENTS",
     "DEGENERATE_RTOL",
     "quadrature",
     "barycentric",
@@ -24,10 +25,14 @@ __all__ = [
     "check_jacobians",
     "jacobians_at",
     "volumes",
+    "family_functions",
 ]
 
 #: Reference vertex coordinates, shape (4, 3).
 VERTICES = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+
+#: Reference gradients of the barycentric coordinates ``L``, shape (4, 3).
+BARYCENTRIC_GRADIENTS = np.array([[-1.0, -1.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 
 #: A cell whose smallest Jacobian determinant is at most this fraction of the cube of
 #: its longest corner edge counts as degenerate (a flat cell computed in floating point
@@ -167,3 +172,50 @@ def volumes(coords, shape_gradients, degree) -> np.ndarray:
     """Signed cell volumes ``sum_p w_p det J_p``, shape (n_elements,), m^3."""
     xi, w = quadrature(degree)
     return np.linalg.det(_jacobians(shape_gradients(xi), np.asarray(coords, dtype=float))) @ w
+
+
+def family_functions(nodes, shape_functions, shape_gradients, stiffness_degree, mass_degree, check_points):
+    """The registry interface of one tetrahedral family.
+
+    Returns
+    -------
+    element_stiffness, element_mass, element_volumes, check_cells : callables
+        With the signatures of :mod:`fe_core.elements` for cells of ``nodes`` nodes.
+    """
+    d = 3 * nodes
+
+    def element_stiffness(coords: np.ndarray, D: np.ndarray) -> np.ndarray:
+        return isoparametric_stiffness(coords, D, shape_gradients, stiffness_degree, check_points)
+
+    def element_mass(coords: np.ndarray, rho: float) -> np.ndarray:
+        return isoparametric_mass(coords, rho, shape_functions, shape_gradients, mass_degree)
+
+    def element_volumes(coords: np.ndarray) -> np.ndarray:
+        return volumes(coords, shape_gradients, mass_degree)
+
+    def check_cells(coords: np.ndarray) -> None:
+        coords = np.asarray(coords, dtype=float)
+        check_jacobians(jacobians_at(coords, shape_gradients, stiffness_degree, check_points), coords)
+
+    element_stiffness.__doc__ = f"""Element stiffness matrices.
+
+    Parameters
+    ----------
+    coords : ndarray, shape (n_elements, {nodes}, 3), m
+    D : ndarray, shape (6, 6), Pa
+        For strains ``[exx, eyy, ezz, gxy, gyz, gzx]``.
+
+    Returns
+    -------
+    ndarray, shape (n_elements, {d}, {d}), N/m
+
+    Raises
+    ------
+    ValueError
+        Naming the first inverted or degenerate element.
+    """
+    element_mass.__doc__ = f"""Consistent element mass, shape (n_elements, {d}, {d}), kg (``rho`` in kg/m^3)."""
+    element_volumes.__doc__ = """Signed volumes, shape (n_elements,), m^3 (negative for an inverted cell)."""
+    check_cells.__doc__ = """Raise ``ValueError`` naming the first inverted or degenerate cell, as
+    ``element_stiffness`` does, without computing matrices."""
+    return element_stiffness, element_mass, element_volumes, check_cells

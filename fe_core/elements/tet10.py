@@ -39,8 +39,6 @@ NODES = 10
 #: Corner pairs of the mid-edge nodes 4..9.
 EDGES = np.array([[0, 1], [1, 2], [2, 0], [0, 3], [1, 3], [2, 3]])
 
-_L_GRAD = np.array([[-1.0, -1.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-
 STIFFNESS_DEGREE = 2
 MASS_DEGREE = 4
 
@@ -54,43 +52,13 @@ def shape_functions(xi: np.ndarray) -> np.ndarray:
 def shape_gradients(xi: np.ndarray) -> np.ndarray:
     """``dN_a / dxi_i``, shape (p, 10, 3)."""
     L = _tet.barycentric(np.asarray(xi, dtype=float))  # (p, 4)
-    corners = (4.0 * L - 1.0)[:, :, None] * _L_GRAD[None]
+    dL = _tet.BARYCENTRIC_GRADIENTS
+    corners = (4.0 * L - 1.0)[:, :, None] * dL[None]
     i, j = EDGES[:, 0], EDGES[:, 1]
-    edges = 4.0 * (L[:, j, None] * _L_GRAD[None, i] + L[:, i, None] * _L_GRAD[None, j])
+    edges = 4.0 * (L[:, j, None] * dL[None, i] + L[:, i, None] * dL[None, j])
     return np.concatenate([corners, edges], axis=1)
 
 
-def element_stiffness(coords: np.ndarray, D: np.ndarray) -> np.ndarray:
-    """Element stiffness matrices.
-
-    Parameters
-    ----------
-    coords : ndarray, shape (n_elements, 10, 3), m
-    D : ndarray, shape (6, 6), Pa
-        For strains ``[exx, eyy, ezz, gxy, gyz, gzx]``.
-
-    Returns
-    -------
-    ndarray, shape (n_elements, 30, 30), N/m
-
-    Raises
-    ------
-    ValueError
-        Naming the first inverted or degenerate element.
-    """
-    return _tet.isoparametric_stiffness(coords, D, shape_gradients, STIFFNESS_DEGREE, _tet.VERTICES)
-
-
-def element_mass(coords: np.ndarray, rho: float) -> np.ndarray:
-    """Consistent element mass, shape (n_elements, 30, 30), kg (``rho`` in kg/m^3)."""
-    return _tet.isoparametric_mass(coords, rho, shape_functions, shape_gradients, MASS_DEGREE)
-
-
-def element_volumes(coords: np.ndarray) -> np.ndarray:
-    """Signed volumes, shape (n_elements,), m^3 (exact for straight-sided cells)."""
-    return _tet.volumes(coords, shape_gradients, MASS_DEGREE)
-
-
-def check_cells(coords: np.ndarray) -> None:
-    """Raise ``ValueError`` naming the first inverted or degenerate cell (as :func:`element_stiffness`)."""
-    _tet.check_jacobians(_tet.jacobians_at(coords, shape_gradients, STIFFNESS_DEGREE, _tet.VERTICES), np.asarray(coords, dtype=float))
+element_stiffness, element_mass, element_volumes, check_cells = _tet.family_functions(
+    NODES, shape_functions, shape_gradients, STIFFNESS_DEGREE, MASS_DEGREE, check_points=_tet.VERTICES
+)

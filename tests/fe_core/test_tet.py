@@ -39,7 +39,8 @@ def distorted_box(order: int, rng, cells=(2, 2, 2), size=(2.0, 1.0, 1.5)):
     nodes, cells = box_tets(size, cells, order)
     corner_ids = np.unique(cells[:, :4])
     lo, hi = nodes.min(axis=0), nodes.max(axis=0)
-    inner = corner_ids[np.all((nodes[corner_ids] > lo + 1e-9) & (nodes[corner_ids] < hi - 1e-9), axis=1)]
+    strictly_inside = np.all((nodes[corner_ids] > lo + 1e-9) & (nodes[corner_ids] < hi - 1e-9), axis=1)
+    inner = corner_ids[strictly_inside]
     nodes = nodes.copy()
     nodes[inner] += rng.uniform(-0.12, 0.12, size=(inner.size, 3))
     if order == 2:

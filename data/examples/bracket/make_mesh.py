@@ -62,7 +62,8 @@ def build(size: float, out: Path, per_circle: int = 12) -> Path:
         foot_b_cut, _ = occ.cut([(3, foot_b)], [(3, h) for h in holes])
         ribs = []
         for y0 in (0.0, WIDTH - RIB_T):
-            p = [occ.addPoint(T, y0, T), occ.addPoint(T + RIB_LEG, y0, T), occ.addPoint(T, y0, T + RIB_LEG)]
+            corners = [(T, y0, T), (T + RIB_LEG, y0, T), (T, y0, T + RIB_LEG)]
+            p = [occ.addPoint(*c) for c in corners]
             lines = [occ.addLine(p[i], p[(i + 1) % 3]) for i in range(3)]
             face = occ.addPlaneSurface([occ.addCurveLoop(lines)])
             extruded = occ.extrude([(2, face)], 0.0, RIB_T, 0.0)
@@ -114,7 +115,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     variant = parser.add_mutually_exclusive_group()
     variant.add_argument("--coarse", action="store_true", help="small mesh for tests")
-    variant.add_argument("--fine", action="store_true", help="finer mesh for independent measured data")
+    variant.add_argument("--fine", action="store_true", help="finer mesh for independent 'measured' data")
     variant.add_argument("--size", type=float, help="target element size, m")
     parser.add_argument("--out", type=Path, help="output .msh path")
     args = parser.parse_args(argv)
