@@ -14,8 +14,9 @@ Every element module exposes the same small interface, vectorised over elements:
     Signed cell volumes, m^3 (``rho * V`` is the cell's mass).
 ``check_cells(coords) -> None``
     Raises the same ``ValueError`` as ``element_stiffness`` for inverted or
-    degenerate cells, without computing matrices: a model reader calls it to
-    refuse a mesh before any work.
+    degenerate cells (det J at most 1e-10 of the cell's diameter cubed, see
+    ``_common.check_jacobians``), without computing matrices: a model reader
+    calls it to refuse a mesh before any work.
 
 Element DOFs are node-major, ``[u_x0, u_y0, u_z0, u_x1, ...]``. A new family is one
 module plus one line in :data:`ELEMENTS`.

@@ -12,6 +12,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import roots_jacobi
 
+from ._common import DEGENERATE_RTOL, check_jacobians
 from .hex8 import strain_matrix
 
 __all__ = [
@@ -34,10 +35,6 @@ VERTICES = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.
 #: Reference gradients of the barycentric coordinates ``L``, shape (4, 3).
 BARYCENTRIC_GRADIENTS = np.array([[-1.0, -1.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 
-#: A cell whose smallest Jacobian determinant is at most this fraction of the cube of
-#: its longest corner edge counts as degenerate (a flat cell computed in floating point
-#: has det J of order 1e-16 L^3, not exactly 0; a regular tetrahedron has 6 V / L^3 = 0.71).
-DEGENERATE_RTOL = 1e-10
 
 
 @lru_cache(maxsize=None)
@@ -85,28 +82,6 @@ def barycentric(xi: np.ndarray) -> np.ndarray:
 def _jacobians(dN: np.ndarray, coords: np.ndarray) -> np.ndarray:
     """``J[e, p, i, j] = dx_j / dxi_i`` from reference gradients ``dN`` (p, a, 3)."""
     return np.einsum("pai,eaj->epij", dN, coords)
-
-
-def check_jacobians(detJ: np.ndarray, coords: np.ndarray) -> None:
-    """Raise ``ValueError`` naming the first cell with a non-positive (or degenerate) det J.
-
-    Parameters
-    ----------
-    detJ : ndarray, shape (n_elements, n_points)
-    coords : ndarray, shape (n_elements, n_nodes, 3); the first 4 nodes are the corners.
-    """
-    corners = coords[:, :4]
-    edges = corners[:, :, None, :] - corners[:, None, :, :]
-    scale = np.sqrt((edges**2).sum(axis=-1)).max(axis=(1, 2)) ** 3
-    bad = np.any(detJ <= DEGENERATE_RTOL * scale[:, None], axis=1)
-    if np.any(bad):
-        first = int(np.flatnonzero(bad)[0])
-        kind = "inverted" if np.any(detJ[first] < 0.0) else "degenerate"
-        raise ValueError(
-            f"element {first} has a non-positive Jacobian ({kind} cell; {int(bad.sum())} such "
-            f"of {len(bad)}): min det J = {detJ[first].min():.3e} at corner edge "
-            f"{scale[first] ** (1 / 3):.3e}"
-        )
 
 
 def jacobians_at(coords, shape_gradients, degree, check_points) -> np.ndarray:

@@ -41,3 +41,13 @@ def test_mirrored_cell_is_refused_by_index(cell_type):
     with pytest.raises(ValueError, match=rf"element {len(coords) - 1} has a non-positive Jacobian"):
         family.check_cells(bad)
 
+
+
+@pytest.mark.parametrize("cell_type", sorted(ELEMENTS))
+def test_flattened_cells_are_refused_as_degenerate(cell_type):
+    family = ELEMENTS[cell_type]
+    coords = box_cells(cell_type) * np.array([1.0, 1.0, 1e-12])  # 0.2 pm thick
+    with pytest.raises(ValueError, match=r"element 0 has a non-positive Jacobian \(degenerate cell"):
+        family.check_cells(coords)
+    with pytest.raises(ValueError, match=r"degenerate"):
+        family.element_stiffness(coords, np.eye(6))
