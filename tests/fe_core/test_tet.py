@@ -189,19 +189,27 @@ def test_matrices_equal_scikit_fem(family, rng):
     np.testing.assert_allclose(P @ M @ P.T, M_sk, rtol=0, atol=EXACT_RTOL * np.abs(M_sk).max())
 
 
-# --- Convergence of a cantilever's first bending frequency --------------------------------
-# A steel cantilever 1 m long, 0.1 m wide, 0.05 m thick (slenderness L/h = 20 in the bending
-# plane), clamped at x = 0, meshed with (8m, m, m) boxes of 6 tetrahedra each.
+# --- Convergence of a beam's first bending frequency ---------------------------------------
+# A steel beam 1 m long, 0.1 m wide, 0.05 m thick (slenderness L/h = 20 in the bending plane),
+# meshed with (8m, m, m) boxes of 6 tetrahedra each; clamped at x = 0 or free-free.
 BEAM = (1.0, 0.1, 0.05)
-BETA1_L = 1.8751040687119611  # first root of cos(bL) cosh(bL) = -1
+BETA1_L = {"clamped": 1.8751040687119611, "free": 4.730040744862704}  # first bending roots
 
 
-def euler_bernoulli_first_frequency() -> float:
+def euler_bernoulli_first_frequency(support: str) -> float:
     L, b, h = BEAM
-    return BETA1_L**2 / (2.0 * np.pi * L**2) * np.sqrt(E * (b * h**3 / 12.0) / (RHO * b * h))
+    return BETA1_L[support] ** 2 / (2.0 * np.pi * L**2) * np.sqrt(E * (b * h**3 / 12.0) / (RHO * b * h))
 
 
-def cantilever_first_frequency(family: str, m: int) -> float:
+def timoshenko_correction(support: str) -> float:
+    """First-order relative frequency change by shear and rotary inertia,
+    ``-(1 + E / (k G)) (r / L)^2 (beta L)^2 / 2`` with k = 5/6 (rectangle)."""
+    L, _, h = BEAM
+    E_over_kG = 2.0 * (1.0 + NU) / (5.0 / 6.0)
+    return -(1.0 + E_over_kG) * (h**2 / 12.0 / L**2) * BETA1_L[support] ** 2 / 2.0
+
+
+def beam_first_frequency(family: str, m: int, support: str) -> float:
     from fe_core.frf import spd_solver
 
     cell_type, order = FAMILIES[family]
@@ -210,12 +218,14 @@ def cantilever_first_frequency(family: str, m: int) -> float:
     n = 3 * len(nodes)
     K = assemble(module.element_stiffness(nodes[cells], D), dofs_of(cells), n)
     M = assemble(module.element_mass(nodes[cells], RHO), dofs_of(cells), n)
-    free = free_dof_map(n, np.flatnonzero(np.repeat(nodes[:, 0] < 1e-12, 3)))
-    K, M = K[free][:, free], M[free][:, free]
-    solve = spd_solver(K)
-    inverse = spla.LinearOperator(K.shape, matvec=solve, dtype=float)
-    lam = spla.eigsh(K, k=1, M=M, sigma=0.0, OPinv=inverse, return_eigenvectors=False)
-    return float(np.sqrt(lam[0]) / (2.0 * np.pi))
+    if support == "clamped":
+        free = free_dof_map(n, np.flatnonzero(np.repeat(nodes[:, 0] < 1e-12, 3)))
+        K, M = K[free][:, free], M[free][:, free]
+    # A negative shift keeps K - shift M positive-definite with or without rigid-body modes.
+    shift, skip = (0.0, 0) if support == "clamped" else (-1e3, 6)
+    inverse = spla.LinearOperator(K.shape, matvec=spd_solver((K - shift * M).tocsr()), dtype=float)
+    lam = spla.eigsh(K, k=skip + 1, M=M, sigma=shift, OPinv=inverse, return_eigenvectors=False)
+    return float(np.sqrt(np.sort(lam)[skip]) / (2.0 * np.pi))
 
 
 def observed_order(f: np.ndarray) -> float:
@@ -223,28 +233,50 @@ def observed_order(f: np.ndarray) -> float:
     return float(np.log2((f[0] - f[1]) / (f[1] - f[2])))
 
 
+def richardson(f: np.ndarray, order: float) -> float:
+    return float(f[2] - (f[1] - f[2]) / (2.0**order - 1.0))
+
+
 @pytest.mark.slow
 def test_cantilever_frequency_converges_toward_beam_theory_faster_with_tet10():
-    f_eb = euler_bernoulli_first_frequency()
-    f4 = np.array([cantilever_first_frequency("tet4", m) for m in (2, 4, 8)])
-    f10 = np.array([cantilever_first_frequency("tet10", m) for m in (1, 2, 4)])
+    f_eb = euler_bernoulli_first_frequency("clamped")
+    f4 = np.array([beam_first_frequency("tet4", m, "clamped") for m in (2, 4, 8)])
+    f10 = np.array([beam_first_frequency("tet10", m, "clamped") for m in (1, 2, 4)])
     # Conforming elements with consistent mass bound the frequency from above: refinement
     # lowers it monotonically.
     assert np.all(np.diff(f4) < 0) and np.all(np.diff(f10) < 0)
     p4, p10 = observed_order(f4), observed_order(f10)
     # Smooth solutions give frequency errors of order h^2 (tet4) and h^4 (tet10); the stress
     # singularity along the clamped edges caps both, and the coarse tet4 meshes are still
-    # locking, so tet4 converges at about 1.5 and tet10 at about 2 here.
+    # locking, so tet4 converges at about 1.5 and tet10 at about 2 here (the free-free test
+    # below shows tet10's rate without the singularity).
     assert 1.0 < p4 < 2.5
     assert p10 > p4 + 0.3
     # tet10 on 2,400 DOFs is more accurate than tet4 on 15,500.
     assert f10[1] - f_eb < 0.2 * (f4[2] - f_eb)
     # Richardson's limit of the tet10 sequence against Euler-Bernoulli. Beam theory misses
-    # shear and rotary inertia (Timoshenko: -(1 + E / (k G)) (r / L)^2 (b1 L)^2 / 2, about
-    # -0.15 % at L/h = 20) and the clamp's restraint of the Poisson contraction (stiffening,
-    # at most the E / (1 - nu^2) of a plate, +4.9 % in stiffness, over about one depth h of
-    # the 20: under 1 %). The limit must lie within 1 % of beam theory.
-    f_limit = f10[2] - (f10[1] - f10[2]) / (2.0**p10 - 1.0)
+    # shear and rotary inertia (Timoshenko, about -0.15 % here) and the clamp's restraint of
+    # the Poisson contraction (stiffening, at most the E / (1 - nu^2) of a plate, +4.9 % in
+    # stiffness, over about one depth h of the 20: under 1 %). The limit must lie within 1 %
+    # of beam theory (it is +0.27 %), and the finest tet10 mesh within 0.5 % of the limit.
+    f_limit = richardson(f10, p10)
     assert abs(f_limit / f_eb - 1.0) < 0.01
-    # ... and the finest tet10 mesh within 0.5 % of that limit.
     assert abs(f10[2] / f_limit - 1.0) < 0.005
+
+
+@pytest.mark.slow
+def test_free_free_beam_converges_at_tet10s_higher_order_to_timoshenko():
+    f_eb = euler_bernoulli_first_frequency("free")
+    f4 = np.array([beam_first_frequency("tet4", m, "free") for m in (2, 4, 8)])
+    f10 = np.array([beam_first_frequency("tet10", m, "free") for m in (1, 2, 4)])
+    assert np.all(np.diff(f4) < 0) and np.all(np.diff(f10) < 0)
+    p4, p10 = observed_order(f4), observed_order(f10)
+    # No singularity: tet10 approaches its asymptotic h^4 (observed 3.3 on these meshes),
+    # tet4 is still pre-asymptotic (1.5 of its 2).
+    assert p10 > 3.0
+    assert 1.0 < p4 < 2.5
+    # The limit carries the Timoshenko correction (-0.96 % for this mode); the first-order
+    # formula, the shear coefficient (5/6 against Cowper's 0.85) and the beam's width
+    # (b = 2h) leave 0.3 % of freedom.
+    deviation = richardson(f10, p10) / f_eb - 1.0
+    assert abs(deviation - timoshenko_correction("free")) < 0.003
