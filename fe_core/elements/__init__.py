@@ -14,7 +14,7 @@ Every element module exposes the same small interface, vectorised over elements:
     Signed cell volumes, m^3 (``rho * V`` is the cell's mass).
 ``check_cells(coords) -> None``
     Raises the same ``ValueError`` as ``element_stiffness`` for inverted or
-    degenerate cells (det J at most 1e-10 of the cell's diameter cubed, see
+    degenerate cells (det J at most 1e-10 of the cell's size cubed, see
     ``_common.check_jacobians``), without computing matrices: a model reader
     calls it to refuse a mesh before any work.
 
