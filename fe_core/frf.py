@@ -148,9 +148,11 @@ def krylov_frf(
         smallest entries, about 1e-9 for the benchmark, which is also the
         accuracy of the direct solve.)
     sigma : float, optional, rad^2/s^2
-        Real shift of the factorised pencil. By default 0 with a banded
-        Cholesky when K is positive-definite and narrow-banded, else
-        ``w_min * w_max`` (the geometric centre of the band) with SuperLU.
+        Real shift of the factorised pencil. By default 0 when K is
+        positive-definite (a banded Cholesky when K is narrow-banded, else
+        PARDISO's sparse Cholesky), else ``w_min * w_max`` (the geometric
+        centre of the band) with SuperLU; an explicit non-zero shift also
+        uses SuperLU.
     max_dimension : int
         Upper bound on the space's size; if reached unconverged, the direct
         solver is used instead (logged as a warning).

@@ -74,3 +74,24 @@ def test_an_explicit_shift_factors_the_indefinite_pencil_with_superlu(scrambled_
     ref = frf.direct_frf(K, M, DAMPING[0] * M + DAMPING[1] * K, F, omegas, out)
     assert info.sigma == 1e7
     np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-8 * np.abs(ref).max())
+
+
+def test_unsupported_structure_falls_back_to_the_shifted_superlu():
+    # Free-free: K has six rigid-body modes, PARDISO's Cholesky refuses it, and the Krylov
+    # FRF factors K - sigma M at the centre of the band instead.
+    rng = np.random.default_rng(6)
+    nodes, cells = box_tets((0.3, 0.2, 0.04), (4, 3, 1), order=2)
+    order = rng.permutation(len(nodes))
+    nodes, cells = nodes[np.argsort(order)], order[cells]
+    n = 3 * len(nodes)
+    dofs = (3 * cells[:, :, None] + np.arange(3)).reshape(len(cells), -1)
+    K = assemble(tet10.element_stiffness(nodes[cells], isotropic_elasticity(E, NU)), dofs, n)
+    M = assemble(tet10.element_mass(nodes[cells], RHO), dofs, n)
+    assert frf.spd_solver(K) is None
+    F = np.zeros((n, 1))
+    F[5, 0] = 1.0
+    omegas = frf.hz_to_rad(np.linspace(200.0, 2000.0, 6))
+    fast, info = frf.krylov_frf(K, M, *DAMPING, F, omegas, np.array([5, 100]), return_info=True)
+    ref = frf.direct_frf(K, M, DAMPING[0] * M + DAMPING[1] * K, F, omegas, np.array([5, 100]))
+    assert info.sigma == pytest.approx(omegas.min() * omegas.max())
+    np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-8 * np.abs(ref).max())
