@@ -16,20 +16,25 @@ E, NU, RHO = 7.0e10, 0.33, 2700.0
 DAMPING = (5.0, 2e-6)
 
 
-@pytest.fixture(scope="module")
-def scrambled_plate():
-    """A clamped tet10 plate whose nodes are numbered at random (bandwidth far above
-    frf.MAX_BANDWIDTH, as gmsh meshes are), K and M on the free DOFs, a load and outputs."""
-    rng = np.random.default_rng(5)
-    nodes, cells = box_tets((0.3, 0.2, 0.04), (6, 4, 2), order=2)
+def scrambled_block(cells_per_side, rng):
+    """A 0.3 x 0.2 x 0.04 m tet10 block whose nodes are numbered at random (bandwidth far
+    above frf.MAX_BANDWIDTH, as gmsh meshes are): nodes and unconstrained K and M."""
+    nodes, cells = box_tets((0.3, 0.2, 0.04), cells_per_side, order=2)
     order = rng.permutation(len(nodes))
     nodes, cells = nodes[np.argsort(order)], order[cells]
     n = 3 * len(nodes)
     dofs = (3 * cells[:, :, None] + np.arange(3)).reshape(len(cells), -1)
-    coords = nodes[cells]
-    K = assemble(tet10.element_stiffness(coords, isotropic_elasticity(E, NU)), dofs, n)
-    M = assemble(tet10.element_mass(coords, RHO), dofs, n)
-    free = free_dof_map(n, np.flatnonzero(np.repeat(nodes[:, 0] < 1e-12, 3)))
+    K = assemble(tet10.element_stiffness(nodes[cells], isotropic_elasticity(E, NU)), dofs, n)
+    M = assemble(tet10.element_mass(nodes[cells], RHO), dofs, n)
+    return nodes, K, M
+
+
+@pytest.fixture(scope="module")
+def scrambled_plate():
+    """The block clamped at x = 0: K and M on the free DOFs, two loads and five outputs."""
+    rng = np.random.default_rng(5)
+    nodes, K, M = scrambled_block((6, 4, 2), rng)
+    free = free_dof_map(K.shape[0], np.flatnonzero(np.repeat(nodes[:, 0] < 1e-12, 3)))
     K, M = K[free][:, free].tocsr(), M[free][:, free].tocsr()
     F = np.zeros((free.size, 2))
     F[rng.choice(free.size, 2, replace=False), [0, 1]] = 1.0
@@ -79,16 +84,9 @@ def test_an_explicit_shift_factors_the_indefinite_pencil_with_superlu(scrambled_
 def test_unsupported_structure_falls_back_to_the_shifted_superlu():
     # Free-free: K has six rigid-body modes, PARDISO's Cholesky refuses it, and the Krylov
     # FRF factors K - sigma M at the centre of the band instead.
-    rng = np.random.default_rng(6)
-    nodes, cells = box_tets((0.3, 0.2, 0.04), (4, 3, 1), order=2)
-    order = rng.permutation(len(nodes))
-    nodes, cells = nodes[np.argsort(order)], order[cells]
-    n = 3 * len(nodes)
-    dofs = (3 * cells[:, :, None] + np.arange(3)).reshape(len(cells), -1)
-    K = assemble(tet10.element_stiffness(nodes[cells], isotropic_elasticity(E, NU)), dofs, n)
-    M = assemble(tet10.element_mass(nodes[cells], RHO), dofs, n)
+    _, K, M = scrambled_block((4, 3, 1), np.random.default_rng(6))
     assert frf.spd_solver(K) is None
-    F = np.zeros((n, 1))
+    F = np.zeros((K.shape[0], 1))
     F[5, 0] = 1.0
     omegas = frf.hz_to_rad(np.linspace(200.0, 2000.0, 6))
     fast, info = frf.krylov_frf(K, M, *DAMPING, F, omegas, np.array([5, 100]), return_info=True)

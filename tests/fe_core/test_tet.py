@@ -233,18 +233,23 @@ def observed_order(f: np.ndarray) -> float:
     return float(np.log2((f[0] - f[1]) / (f[1] - f[2])))
 
 
+def beam_sequences(support: str) -> tuple[float, np.ndarray, np.ndarray]:
+    """Euler-Bernoulli's frequency and the tet4 (m = 2, 4, 8) and tet10 (m = 1, 2, 4)
+    sequences, each monotonically decreasing (conforming elements with consistent mass
+    bound the frequency from above)."""
+    f4 = np.array([beam_first_frequency("tet4", m, support) for m in (2, 4, 8)])
+    f10 = np.array([beam_first_frequency("tet10", m, support) for m in (1, 2, 4)])
+    assert np.all(np.diff(f4) < 0) and np.all(np.diff(f10) < 0)
+    return euler_bernoulli_first_frequency(support), f4, f10
+
+
 def richardson(f: np.ndarray, order: float) -> float:
     return float(f[2] - (f[1] - f[2]) / (2.0**order - 1.0))
 
 
 @pytest.mark.slow
 def test_cantilever_frequency_converges_toward_beam_theory_faster_with_tet10():
-    f_eb = euler_bernoulli_first_frequency("clamped")
-    f4 = np.array([beam_first_frequency("tet4", m, "clamped") for m in (2, 4, 8)])
-    f10 = np.array([beam_first_frequency("tet10", m, "clamped") for m in (1, 2, 4)])
-    # Conforming elements with consistent mass bound the frequency from above: refinement
-    # lowers it monotonically.
-    assert np.all(np.diff(f4) < 0) and np.all(np.diff(f10) < 0)
+    f_eb, f4, f10 = beam_sequences("clamped")
     p4, p10 = observed_order(f4), observed_order(f10)
     # Smooth solutions give frequency errors of order h^2 (tet4) and h^4 (tet10); the stress
     # singularity along the clamped edges caps both, and the coarse tet4 meshes are still
@@ -266,10 +271,7 @@ def test_cantilever_frequency_converges_toward_beam_theory_faster_with_tet10():
 
 @pytest.mark.slow
 def test_free_free_beam_converges_at_tet10s_higher_order_to_timoshenko():
-    f_eb = euler_bernoulli_first_frequency("free")
-    f4 = np.array([beam_first_frequency("tet4", m, "free") for m in (2, 4, 8)])
-    f10 = np.array([beam_first_frequency("tet10", m, "free") for m in (1, 2, 4)])
-    assert np.all(np.diff(f4) < 0) and np.all(np.diff(f10) < 0)
+    f_eb, f4, f10 = beam_sequences("free")
     p4, p10 = observed_order(f4), observed_order(f10)
     # No singularity: tet10 approaches its asymptotic h^4 (observed 3.3 on these meshes),
     # tet4 is still pre-asymptotic (1.5 of its 2).
