@@ -1,0 +1,73 @@
+"""``python -m flows.update --model path/to/model.toml``: the flow on model files."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flows import update
+from flows.config import REPO
+from tasks import stages
+from tasks.runstore import RunStore
+
+BENCH_TOML = "data/benchmark/model.toml"
+EXAMPLE = REPO / "data" / "examples" / "cantilever_matrices"
+
+
+def _strip(summary: dict) -> dict:
+    return {k: v for k, v in summary.items() if k not in ("wall_seconds", "run_folder")}
+
+
+@pytest.mark.slow
+def test_the_benchmark_model_file_gives_the_same_update_as_three_plate(reduced_config):
+    from prefect.testing.utilities import prefect_test_harness
+
+    with prefect_test_harness():
+        by_name = update.update_flow(reduced_config)
+        by_file = update.update_flow(reduced_config.replace(model=BENCH_TOML, run_id="by-file"))
+    a, b = _strip(by_name), _strip(by_file)
+    assert a.keys() == b.keys()
+    assert a["fe_evaluations"] == b["fe_evaluations"] and a["iterations"] == b["iterations"]
+    for name in a["parameters"]:  # same FE results to 1e-10 give the same path; the polish's steps agree closely
+        assert b["parameters"][name] == pytest.approx(a["parameters"][name], abs=1e-6)
+    assert b["overall_error"] == pytest.approx(a["overall_error"], rel=1e-6)
+    manifest = RunStore(Path(reduced_config.runs_dir) / "by-file").read_manifest()
+    assert manifest["config"]["model"] == BENCH_TOML
+
+
+def test_a_matrices_model_runs_within_its_bounds_and_resumes(reduced_config, tmp_path):
+    """The example's 4 segments with bounds [-0.5, 0.5] from model.toml: samples stay inside, resume reads back."""
+    from prefect.testing.utilities import prefect_test_harness
+
+    config = reduced_config.replace(model=str(EXAMPLE / "model.toml"), measured=str(EXAMPLE / "measured.csv"),
+                                    max_iterations=2, max_fe_evaluations=19, polish_max_fe=7)
+    with prefect_test_harness():
+        first = update.update_flow(config)
+        again = update.update_flow(config)
+    assert list(first["parameters"]) == ["alpha_1", "alpha_2", "alpha_3", "alpha_4"]
+    assert _strip(again) == _strip(first)
+    store = RunStore(Path(config.runs_dir) / config.run_id)
+    X = np.vstack([store.read_table(k, "samples")[[f"alpha_{i}" for i in range(1, 5)]].to_numpy() for k in (1, 2)])
+    assert X.min() >= -0.5 and X.max() <= 0.5
+    assert X.min() < -0.2 and X.max() > 0.2  # the box is the model's, not a sliver of it
+    values = np.array(list(first["parameters"].values()))
+    assert np.all(np.abs(values) <= 0.5)
+
+
+def test_the_model_is_cached_by_the_checksum_of_its_files(tmp_path):
+    for f in ("model.toml", "three_plate.inp"):
+        shutil.copy(REPO / "data" / "benchmark" / f, tmp_path / f)
+    path = str(tmp_path / "model.toml")
+    first = stages.load_model(path)
+    assert stages.load_model(path) is first
+    assert first.placements[0] == "sensor 1 's1': nearest node 79 at 0 from [0.02875, 0.02, 0.01]"
+    text = (tmp_path / "model.toml").read_text()
+    (tmp_path / "model.toml").write_text(text.replace("a = 0.01", "a = 0.02"))
+    edited = stages.load_model(path)
+    assert edited is not first and edited.damping == (0.02, 1e-4)
+    mesh = (tmp_path / "three_plate.inp").read_text()
+    (tmp_path / "three_plate.inp").write_text(mesh.replace("*NSET, NSET=top", "*NSET, NSET=upper"))
+    assert stages.load_model(path) is not edited  # the mesh file is part of the checksum
