@@ -121,9 +121,11 @@ def check_resume(config: UpdateConfig, root: Path, resumable: set[str]) -> None:
     if not manifest.exists():
         return
     try:
-        old = json.loads(manifest.read_text())["config"]
+        record = json.loads(manifest.read_text())
+        old = record["config"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"{manifest}: unreadable run manifest ({exc}); choose a new --run-id") from None
+    check_model_unchanged(config, manifest, record)
     cfg = config.to_dict()
     changed = sorted(k for k in cfg if k not in resumable and old.get(k, cfg[k]) != cfg[k])
     if changed:
@@ -131,6 +133,19 @@ def check_resume(config: UpdateConfig, root: Path, resumable: set[str]) -> None:
             f"{manifest}: run {root.name!r} was started with other settings ({', '.join(changed)}); "
             "resume with the same settings or choose a new --run-id"
         )
+
+
+def check_model_unchanged(config: UpdateConfig, manifest: Path, record: dict) -> None:
+    """A run on a model file resumes only if the file and its mesh/matrices are unchanged (SHA-256)."""
+    from tasks.stages import model_fingerprint
+
+    stored = record.get("model_checksum")
+    if stored is None or record.get("config", {}).get("model") != config.model:
+        return
+    if model_fingerprint(config.model) != stored:
+        raise ConfigError(f"{manifest}: run {manifest.parent.name!r} was started with another version of the model "
+                          f"file {config.model} or its mesh/matrices (checksum differs); restore them or choose a "
+                          "new --run-id")
 
 
 def expected_output_mb(config: UpdateConfig, n_values: int, m: int) -> float:

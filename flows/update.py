@@ -218,6 +218,7 @@ def _write_manifest(store: RunStore, config: UpdateConfig) -> None:
         "versions": {"python": sys.version.split()[0], **package_versions()},
         "git_commit": git_commit(),
         "stages": list(stages.STAGES),
+        "model_checksum": stages.model_fingerprint(config.model),
     })
 
 

@@ -103,6 +103,14 @@ def model_checksum(path: Path) -> str:
     return digest.hexdigest()
 
 
+def model_fingerprint(name: str) -> str | None:
+    """The checksum of a model file and its mesh/matrices (None for a built-in model name)."""
+    if name == "three_plate":
+        return None
+    path = Path(name) if Path(name).is_absolute() else _REPO / name
+    return model_checksum(path)
+
+
 def _model_from_file(name: str):
     from fe_core.io import read_model
 

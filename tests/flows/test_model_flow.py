@@ -71,3 +71,23 @@ def test_the_model_is_cached_by_the_checksum_of_its_files(tmp_path):
     mesh = (tmp_path / "three_plate.inp").read_text()
     (tmp_path / "three_plate.inp").write_text(mesh.replace("*NSET, NSET=top", "*NSET, NSET=upper"))
     assert stages.load_model(path) is not edited  # the mesh file is part of the checksum
+
+
+def test_resuming_after_the_model_file_changed_is_refused(tmp_path, capsys):
+    """The manifest keeps the model files' checksum; an edited mesh refuses the resume before any work."""
+    from flows.config import load_config
+
+    for f in ("model.toml", "three_plate.inp"):
+        shutil.copy(REPO / "data" / "benchmark" / f, tmp_path / f)
+    runs = tmp_path / "runs"
+    config = load_config(None, model=str(tmp_path / "model.toml"), runs_dir=str(runs), run_id="r")
+    store = RunStore(runs / "r")
+    update._write_manifest(store, config)
+    assert store.read_manifest()["model_checksum"] == stages.model_fingerprint(config.model)
+    inp = tmp_path / "three_plate.inp"
+    inp.write_text(inp.read_text().replace("*NSET, NSET=top", "*NSET, NSET=upper"))
+    before = (runs / "r" / "manifest.json").read_bytes()
+    code = update.main(["--model", str(tmp_path / "model.toml"), "--runs-dir", str(runs), "--run-id", "r"])
+    err = capsys.readouterr().err
+    assert code == 2 and "another version of the model file" in err and "manifest.json" in err
+    assert (runs / "r" / "manifest.json").read_bytes() == before
