@@ -1,8 +1,12 @@
 """A finite element model parametrised by segment stiffness and mass factors.
 
-``K(alpha) = sum_i K_i (1 + alpha_i)`` and ``M(gamma) = sum_i M_i (1 + gamma_i)``
-(Eq. 2 of Zhou & Tang), with Rayleigh damping ``C = a M(gamma) + b K(alpha)``
-from the updated matrices. Every alpha_i and gamma_i must be finite and
+``K(alpha) = K_0 + sum_i K_i (1 + alpha_i)`` and ``M(gamma) = M_0 + sum_i M_i (1 + gamma_i)``
+(Eq. 2 of Zhou & Tang, plus a fixed remainder ``K_0, M_0`` of cells in no segment,
+absent in the benchmark), with Rayleigh damping ``C = a M(gamma) + b K(alpha)``
+from the updated matrices. Sensors are output vectors (a DOF, or a direction
+combining a node's DOFs) and the structure is driven by one load vector (the
+excitation). Models are built by :func:`build_model` (the benchmark's path) or
+read from a model file (:func:`fe_core.io.read_model`). Every alpha_i and gamma_i must be finite and
 greater than -1; the model refuses anything else before doing any work.
 """
 

@@ -75,18 +75,20 @@ def stage_rng(seed: int, iteration: int, stage: str) -> np.random.Generator:
 def load_model(name: str):
     """The FE model by name or model-file path (built once per process, then cached).
 
-    A model file (``.toml``, relative to the repository when not absolute) is cached
-    by the SHA-256 of its own and its mesh/matrix files' contents, so an edited
-    file is read again and an unchanged one never is. Raises
+    ``three_plate`` is a shortcut to the benchmark's model file
+    ``data/benchmark/model.toml`` (the same FRF as :func:`fe_core.benchmark.three_plate`,
+    tested). A model file (``.toml``, relative to the repository when not absolute)
+    is cached by the SHA-256 of its own and its mesh/matrix files' contents, so an
+    edited file is read again and an unchanged one never is. Raises
     :class:`fe_core.io.ModelFileError` for a file that cannot be used.
     """
-    if name == "three_plate":
-        from fe_core.benchmark import three_plate
-
-        return three_plate()
-    return _model_from_file(name)
+    return _model_from_file(MODEL_SHORTCUTS.get(name, name))
 
 
+#: Model names and the model files they stand for.
+MODEL_SHORTCUTS = {"three_plate": "data/benchmark/model.toml"}
+#: Models kept per process (a test process may alternate between a few).
+_CACHE_SIZE = 4
 _MODEL_CACHE: dict[tuple[str, str], object] = {}
 _REPO = Path(__file__).resolve().parents[1]
 
@@ -105,7 +107,7 @@ def model_checksum(path: Path) -> str:
 
 def model_fingerprint(name: str) -> str | None:
     """The checksum of a model file and its mesh/matrices (None for a built-in model name)."""
-    if name == "three_plate":
+    if name in MODEL_SHORTCUTS:
         return None
     path = Path(name) if Path(name).is_absolute() else _REPO / name
     return model_checksum(path)
@@ -117,7 +119,10 @@ def _model_from_file(name: str):
     path = Path(name) if Path(name).is_absolute() else _REPO / name
     key = (str(path), model_checksum(path) if path.exists() else "")
     if key not in _MODEL_CACHE:
-        _MODEL_CACHE.clear()  # one model per process: drop an edited file's old model
+        for old in [k for k in _MODEL_CACHE if k[0] == key[0]]:  # an edited file's old model
+            del _MODEL_CACHE[old]
+        while len(_MODEL_CACHE) >= _CACHE_SIZE:
+            del _MODEL_CACHE[next(iter(_MODEL_CACHE))]
         _MODEL_CACHE[key] = read_model(path)
     return _MODEL_CACHE[key]
 

@@ -248,3 +248,19 @@ def test_imported_scikit_fem_matrices_give_scikit_fems_frf(tmp_path):
     freqs_, shapes, labels = model.modes(alpha, 3)
     assert labels == ["mode 1", "mode 2", "mode 3"] and shapes.shape == (3, fem["basis"].N)
     assert model.total_mass() == pytest.approx(7850.0 * 1.0 * 0.08 * 0.05, rel=1e-12)
+
+
+def test_npz_matrices_read_as_the_mtx_ones(tmp_path):
+    from benchmarks.make_matrix_example import skfem_model, write_files
+
+    write_files(skfem_model(n_x=6, n_y=1, n_z=1), tmp_path)
+    text = (tmp_path / "model.toml").read_text()
+    for f in tmp_path.glob("*.mtx"):
+        import scipy.io
+
+        sp.save_npz(tmp_path / f"{f.stem}.npz", sp.csr_matrix(scipy.io.mmread(str(f))))
+    (tmp_path / "npz.toml").write_text(text.replace(".mtx", ".npz"))
+    alpha, freqs = [0.1, -0.2, 0.3, 0.0], [60.0, 500.0]
+    Z_mtx = read_model(tmp_path / "model.toml").frf(alpha, freqs, method="direct")
+    Z_npz = read_model(tmp_path / "npz.toml").frf(alpha, freqs, method="direct")
+    assert np.array_equal(Z_mtx, Z_npz)

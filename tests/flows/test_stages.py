@@ -31,7 +31,9 @@ def run_first_stages(config, measured):
 
 def test_measured_benchmark_file_is_the_model_at_the_actual_alpha(measured):
     Z = three_plate().frf(ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ, method="direct")
-    np.testing.assert_allclose(measured.amplitude, np.abs(Z), rtol=1e-12)
+    # A stored file against a fresh solve: the sparse LU's round-off differs between machines and
+    # library builds (6e-11 measured on this one), so 1e-9, not 1e-12.
+    np.testing.assert_allclose(measured.amplitude, np.abs(Z), rtol=1e-9)
 
 
 def test_first_samples_are_uniform_in_the_box_and_seeded(reduced_config, tmp_path):
