@@ -264,3 +264,127 @@ def test_npz_matrices_read_as_the_mtx_ones(tmp_path):
     Z_mtx = read_model(tmp_path / "model.toml").frf(alpha, freqs, method="direct")
     Z_npz = read_model(tmp_path / "npz.toml").frf(alpha, freqs, method="direct")
     assert np.array_equal(Z_mtx, Z_npz)
+
+
+# -- a tetrahedral gmsh mesh, through a stand-in element family -----------------------------------
+def _gmsh_tets(path: Path) -> None:
+    """Two boxes meshed in linear tetrahedra by gmsh; physical volumes 'a', 'b', surface 'foot' at x = 0."""
+    import gmsh
+
+    gmsh.initialize(["-noenv"])
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.03)
+        a = gmsh.model.occ.addBox(0, 0, 0, 0.1, 0.04, 0.03)
+        b = gmsh.model.occ.addBox(0.1, 0, 0, 0.1, 0.04, 0.03)
+        gmsh.model.occ.fragment([(3, a)], [(3, b)])
+        gmsh.model.occ.synchronize()
+        vols = sorted(gmsh.model.getEntities(3), key=lambda e: gmsh.model.occ.getCenterOfMass(*e)[0])
+        gmsh.model.addPhysicalGroup(3, [vols[0][1]], name="a")
+        gmsh.model.addPhysicalGroup(3, [vols[1][1]], name="b")
+        foot = [t for d, t in gmsh.model.getEntities(2) if abs(gmsh.model.occ.getCenterOfMass(d, t)[0]) < 1e-12]
+        gmsh.model.addPhysicalGroup(2, foot, name="foot")
+        gmsh.model.mesh.generate(3)
+        gmsh.write(str(path))
+    finally:
+        gmsh.finalize()
+
+
+class _SkfemTet4:
+    """A stand-in 'tetra' family for this test only: scikit-fem's P1 element matrices, cell by cell.
+
+    It shows that the model file handles any family of the registry (tet meshes, gmsh physical
+    surfaces as node sets) without an element formulation of this project.
+    """
+
+    NODES = 4
+
+    @staticmethod
+    def _matrices(coords, form):
+        from skfem import Basis, ElementTetP1, ElementVector, MeshTet, asm
+
+        out = []
+        for c in coords:
+            t = np.arange(4)[:, None]
+            if np.linalg.det(c[1:] - c[0]) < 0:  # scikit-fem wants positive orientation
+                t = np.array([[0], [2], [1], [3]])
+            A = asm(form, Basis(MeshTet(c.T.copy(), t), ElementVector(ElementTetP1()))).toarray()
+            order = (3 * t.ravel()[:, None] + np.arange(3)).ravel()  # back to the cell's node order
+            inv = np.argsort(order)
+            out.append(A[np.ix_(inv, inv)])
+        return np.array(out)
+
+    @classmethod
+    def element_stiffness(cls, coords, D):
+        from skfem.models.elasticity import linear_elasticity
+
+        lam, mu = D[0, 1], D[3, 3]
+        return cls._matrices(coords, linear_elasticity(lam, mu))
+
+    @classmethod
+    def element_mass(cls, coords, rho):
+        from skfem import BilinearForm
+        from skfem.helpers import dot
+
+        @BilinearForm
+        def mass(u, v, w):
+            return rho * dot(u, v)
+
+        return cls._matrices(coords, mass)
+
+
+def test_a_tetrahedral_gmsh_mesh_through_a_registered_family(tmp_path, monkeypatch):
+    from fe_core import elements
+    from skfem import Basis, BilinearForm, ElementTetP1, ElementVector, MeshTet, asm, condense
+    from skfem.helpers import dot
+    from skfem.models.elasticity import lame_parameters, linear_elasticity
+
+    monkeypatch.setitem(elements.ELEMENTS, "tetra", _SkfemTet4)
+    _gmsh_tets(tmp_path / "tets.msh")
+    tip = [0.2, 0.04, 0.03]
+    (tmp_path / "model.toml").write_text("\n".join([
+        'mesh = "tets.msh"', "[damping]", "a = 3.0", "b = 1e-5",
+        "[[materials]]", "E = 7e10", "nu = 0.33", "rho = 2700.0",
+        '[[segments]]', 'set = "a"', '[[segments]]', 'set = "b"',
+        '[[supports]]', 'nodes = "foot"',
+        '[[sensors]]', f"point = {tip}", 'direction = "y"',
+        '[[excitations]]', f"point = {tip}", "direction = [0.0, 1.0, 1.0]", ""]))
+    model = read_model(tmp_path / "model.toml")
+    alpha, freqs = np.array([0.2, -0.3]), np.array([500.0, 2000.0, 5000.0])
+    Z = model.frf(alpha, freqs, method="direct")[:, 0]
+
+    # scikit-fem alone on gmsh's tetrahedra: global assembly per physical volume, its condensation
+    raw = meshio.read(tmp_path / "tets.msh")
+    cells = np.vstack([c.data for c in raw.cells if c.type == "tetra"])
+    used = np.unique(cells)
+    index = np.full(len(raw.points), -1)
+    index[used] = np.arange(used.size)
+    p, t = raw.points[used], index[cells]
+    neg = np.linalg.det(p[t[:, 1:]] - p[t[:, :1]]) < 0
+    t[neg] = t[neg][:, [0, 2, 1, 3]]
+    mesh = MeshTet(p.T.copy(), t.T.copy())
+    e = ElementVector(ElementTetP1())
+    x = p[t].mean(axis=1)[:, 0]
+
+    @BilinearForm
+    def mass(u, v, w):
+        return 2700.0 * dot(u, v)
+
+    stiff = linear_elasticity(*lame_parameters(7e10, 0.33))
+    Ks = [asm(stiff, Basis(mesh, e, elements=np.flatnonzero(sel))) for sel in (x < 0.1, x > 0.1)]
+    M = asm(mass, Basis(mesh, e))
+    K = (1 + alpha[0]) * Ks[0] + (1 + alpha[1]) * Ks[1]
+    basis = Basis(mesh, e)
+    fixed = basis.nodal_dofs[:, np.flatnonzero(np.isclose(p[:, 0], 0.0))].ravel()
+    node = int(np.argmin(np.linalg.norm(p - tip, axis=1)))
+    F = np.zeros(basis.N)
+    F[basis.nodal_dofs[1:, node]] = 1 / np.sqrt(2)
+    ref = []
+    for w in 2 * np.pi * freqs:
+        A, f, _, interior = condense((K - w**2 * M + 1j * w * (3.0 * M + 1e-5 * K)).tocsc(), F.astype(complex),
+                                     D=fixed)
+        u = np.zeros(basis.N, complex)
+        u[interior] = spla.spsolve(sp.csc_matrix(A), f)
+        ref.append(u[basis.nodal_dofs[1, node]])
+    ref = np.array(ref)
+    assert np.max(np.abs(Z - ref) / np.abs(ref)) <= 1e-9
