@@ -3,7 +3,7 @@
     python -m benchmarks.make_matrix_example       # data/examples/cantilever_matrices/
 
 A steel cantilever, 1.0 x 0.08 x 0.05 m, clamped at x = 0, meshed and assembled by
-scikit-fem (trilinear hexahedra, ``ElementVector(ElementHex1)``, 24 x 2 x 2 cells).
+scikit-fem (trilinear hexahedra, ``ElementVector(ElementHex1)``, 25 x 2 x 2 cells: 5 per segment).
 Four segments of 0.2 m (x < 0.8 m) are the subdomains whose stiffness is updated;
 the last 0.2 m is the fixed remainder. Written per segment as Matrix Market files
 (``K_seg<i>.mtx``, ``M_seg<i>.mtx``, the remainder ``K_rest.mtx``, ``M_rest.mtx``,
@@ -41,7 +41,7 @@ NOISE = 0.005
 SEED = 7
 
 
-def skfem_model(n_x: int = 24, n_y: int = 2, n_z: int = 2) -> dict:
+def skfem_model(n_x: int = 25, n_y: int = 2, n_z: int = 2) -> dict:
     """scikit-fem's mesh, basis and matrices of the cantilever (before constraints).
 
     Returns a dict with ``mesh``, ``basis``, ``K`` and ``M`` (lists: segments 1-4 then
