@@ -32,6 +32,22 @@ def test_the_benchmark_model_file_gives_three_plates_frf():
     assert np.array_equal(model.sensor_dofs, ref.sensor_dofs)
 
 
+def test_the_benchmark_model_file_against_expected_json():
+    """The file's sensor points and FRF against shared/benchmark/expected.json (an independent implementation)."""
+    import json
+    import tomllib
+
+    expected = json.loads((REPO.parent / "shared" / "benchmark" / "expected.json").read_text())
+    spec = tomllib.loads((REPO / "data" / "benchmark" / "model.toml").read_text())
+    xyz = np.array(expected["frf"]["sensor_xyz_m"])
+    np.testing.assert_allclose([s["point"] for s in spec["sensors"]], xyz, rtol=0, atol=1e-12)
+    np.testing.assert_allclose([d["point"] for d in spec["excitations"][0]["dofs"]], xyz, rtol=0, atol=1e-12)
+    model = read_model(REPO / "data" / "benchmark" / "model.toml")
+    amp = np.abs(model.frf(expected["actual"]["alpha"], expected["frf"]["frequencies_Hz"]))
+    np.testing.assert_allclose(amp, expected["frf"]["amplitude_m_per_N"], rtol=1e-6)
+    assert model.total_mass() == pytest.approx(expected["total_mass_kg"], rel=1e-9)
+
+
 # -- a small two-block bar, written in each format ------------------------------------------------
 STEEL = Material(E=2.0e11, nu=0.3, rho=7800.0)
 
@@ -388,3 +404,14 @@ def test_a_tetrahedral_gmsh_mesh_through_a_registered_family(tmp_path, monkeypat
         ref.append(u[basis.nodal_dofs[1, node]])
     ref = np.array(ref)
     assert np.max(np.abs(Z - ref) / np.abs(ref)) <= 1e-9
+
+
+def test_the_checker_command_prints_the_model_or_refuses(tmp_path, capsys):
+    from fe_core.io.__main__ import main
+
+    assert main([str(REPO / "data" / "benchmark" / "model.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "3510 free DOFs" in out and "alpha_6: segment 'segment6'" in out and "148.32" in out
+    (tmp_path / "bad.toml").write_text('mesh = "x.inp"\nmatrices = {}\n')
+    assert main([str(tmp_path / "bad.toml")]) == 2
+    assert "exactly one of 'mesh'" in capsys.readouterr().err
