@@ -402,14 +402,13 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
 
     outputs, load, names, placements, exc_name = _sensors_and_excitation(spec, locator, dof_of, free.size)
     mesh.nodes = mesh.nodes * length  # the model's mesh is in m
-    formulation = options.get("formulation") if mf.cell_type == "hexahedron" else None
     model = ParametricModel(
         mesh=mesh, free_dofs=free,
         stiffness_segments=SegmentedMatrix.from_matrices(K_parts, K0),
         mass_segments=SegmentedMatrix.from_matrices(M_parts, M0),
         segment_names=seg_names, damping=damping, segment_masses=list(masses),
         material=materials[0] if len(materials) == 1 else None,
-        formulation=formulation if formulation or mf.cell_type != "hexahedron" else "incompatible",
+        formulation=options.get("formulation") if mf.cell_type == "hexahedron" else None,
         outputs=outputs, load=load, sensor_names=names, excitation_name=exc_name, n_total_dofs=n_total,
         parameter_bounds=bounds, source=str(spec.path), remainder_mass=rest_mass, placements=placements,
     )
