@@ -109,32 +109,36 @@ def test_each_mesh_format_gives_the_same_model(fmt, suffix, tmp_path):
     assert model.n_dofs == ref.n_dofs
 
 
-def _gmsh_bar(path: Path) -> None:
-    """The bar meshed by gmsh itself (transfinite, recombined: hexahedra), physical groups as named sets."""
+def _gmsh_two_boxes(path: Path, size: tuple, names: tuple, support: str, hexahedra: bool) -> None:
+    """Two boxes ``size`` (x, y, z) side by side along x, meshed by gmsh itself: physical volumes
+    ``names``, the physical surface ``support`` at x = 0. Hexahedra (transfinite, recombined: 4 x 2 x 1
+    cells per box) or linear tetrahedra (size 0.03)."""
     import gmsh
 
+    lx, ly, lz = size
     gmsh.initialize(["-noenv"])
     try:
         gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.add("bar")
-        left = gmsh.model.occ.addBox(0, 0, 0, 0.2, 0.04, 0.02)
-        right = gmsh.model.occ.addBox(0.2, 0, 0, 0.2, 0.04, 0.02)
-        gmsh.model.occ.fragment([(3, left)], [(3, right)])
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.03)
+        first = gmsh.model.occ.addBox(0, 0, 0, lx, ly, lz)
+        second = gmsh.model.occ.addBox(lx, 0, 0, lx, ly, lz)
+        gmsh.model.occ.fragment([(3, first)], [(3, second)])
         gmsh.model.occ.synchronize()
-        for dim, tag in gmsh.model.getEntities(1):
-            x0, y0, z0, x1, y1, z1 = gmsh.model.getBoundingBox(dim, tag)
-            n = 5 if x1 - x0 > 0.1 else 3 if y1 - y0 > 0.03 else 2  # 4 x 2 x 1 cells per box (boxes are padded)
-            gmsh.model.mesh.setTransfiniteCurve(tag, n)
-        for dim, tag in gmsh.model.getEntities(2):
-            gmsh.model.mesh.setTransfiniteSurface(tag)
-            gmsh.model.mesh.setRecombine(dim, tag)
-        for dim, tag in gmsh.model.getEntities(3):
-            gmsh.model.mesh.setTransfiniteVolume(tag)
+        if hexahedra:
+            for dim, tag in gmsh.model.getEntities(1):
+                x0, y0, z0, x1, y1, z1 = gmsh.model.getBoundingBox(dim, tag)  # padded boxes: compare halves
+                n = 5 if x1 - x0 > lx / 2 else 3 if y1 - y0 > ly / 2 else 2
+                gmsh.model.mesh.setTransfiniteCurve(tag, n)
+            for dim, tag in gmsh.model.getEntities(2):
+                gmsh.model.mesh.setTransfiniteSurface(tag)
+                gmsh.model.mesh.setRecombine(dim, tag)
+            for dim, tag in gmsh.model.getEntities(3):
+                gmsh.model.mesh.setTransfiniteVolume(tag)
         vols = sorted(gmsh.model.getEntities(3), key=lambda e: gmsh.model.occ.getCenterOfMass(*e)[0])
-        gmsh.model.addPhysicalGroup(3, [vols[0][1]], name="left")
-        gmsh.model.addPhysicalGroup(3, [vols[1][1]], name="right")
+        for (_, tag), name in zip(vols, names):
+            gmsh.model.addPhysicalGroup(3, [tag], name=name)
         end = [t for d, t in gmsh.model.getEntities(2) if abs(gmsh.model.occ.getCenterOfMass(d, t)[0]) < 1e-12]
-        gmsh.model.addPhysicalGroup(2, end, name="clamped")
+        gmsh.model.addPhysicalGroup(2, end, name=support)
         gmsh.model.mesh.generate(3)
         gmsh.write(str(path))
     finally:
@@ -142,7 +146,7 @@ def _gmsh_bar(path: Path) -> None:
 
 
 def test_a_gmsh_msh4_file_with_physical_groups(tmp_path):
-    _gmsh_bar(tmp_path / "bar.msh")
+    _gmsh_two_boxes(tmp_path / "bar.msh", (0.2, 0.04, 0.02), ("left", "right"), "clamped", hexahedra=True)
     assert (tmp_path / "bar.msh").read_text().splitlines()[1].startswith("4.1")
     (tmp_path / "model.toml").write_text(_toml("bar.msh"))
     model = read_model(tmp_path / "model.toml")
@@ -283,29 +287,6 @@ def test_npz_matrices_read_as_the_mtx_ones(tmp_path):
 
 
 # -- a tetrahedral gmsh mesh, through a stand-in element family -----------------------------------
-def _gmsh_tets(path: Path) -> None:
-    """Two boxes meshed in linear tetrahedra by gmsh; physical volumes 'a', 'b', surface 'foot' at x = 0."""
-    import gmsh
-
-    gmsh.initialize(["-noenv"])
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.03)
-        a = gmsh.model.occ.addBox(0, 0, 0, 0.1, 0.04, 0.03)
-        b = gmsh.model.occ.addBox(0.1, 0, 0, 0.1, 0.04, 0.03)
-        gmsh.model.occ.fragment([(3, a)], [(3, b)])
-        gmsh.model.occ.synchronize()
-        vols = sorted(gmsh.model.getEntities(3), key=lambda e: gmsh.model.occ.getCenterOfMass(*e)[0])
-        gmsh.model.addPhysicalGroup(3, [vols[0][1]], name="a")
-        gmsh.model.addPhysicalGroup(3, [vols[1][1]], name="b")
-        foot = [t for d, t in gmsh.model.getEntities(2) if abs(gmsh.model.occ.getCenterOfMass(d, t)[0]) < 1e-12]
-        gmsh.model.addPhysicalGroup(2, foot, name="foot")
-        gmsh.model.mesh.generate(3)
-        gmsh.write(str(path))
-    finally:
-        gmsh.finalize()
-
-
 class _SkfemTet4:
     """A stand-in 'tetra' family for this test only: scikit-fem's P1 element matrices, cell by cell.
 
@@ -356,7 +337,7 @@ def test_a_tetrahedral_gmsh_mesh_through_a_registered_family(tmp_path, monkeypat
     from skfem.models.elasticity import lame_parameters, linear_elasticity
 
     monkeypatch.setitem(elements.ELEMENTS, "tetra", _SkfemTet4)
-    _gmsh_tets(tmp_path / "tets.msh")
+    _gmsh_two_boxes(tmp_path / "tets.msh", (0.1, 0.04, 0.03), ("a", "b"), "foot", hexahedra=False)
     tip = [0.2, 0.04, 0.03]
     (tmp_path / "model.toml").write_text("\n".join([
         'mesh = "tets.msh"', "[damping]", "a = 3.0", "b = 1e-5",
