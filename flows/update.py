@@ -423,13 +423,13 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         args = _run_parser().parse_args(argv)
         config = load_config(
-            args.config, model=args.model, measured=args.measured, run_id=args.run_id, runs_dir=args.runs_dir, trainer=args.trainer,
+            args.config, measured=args.measured, run_id=args.run_id, runs_dir=args.runs_dir, trainer=args.trainer,
             strategy=args.strategy, seed=args.seed, n_jobs=args.n_jobs, fe_backend=args.fe_backend,
             dask_address=args.dask_address, repeats=args.repeats,
             threshold=args.threshold, max_iterations=args.max_iterations,
             max_fe_evaluations=args.max_fe_evaluations, q=args.q, w=args.w, s=args.s, z=args.z,
             polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target,
-            polish_stall_rtol=args.polish_stall_rtol,
+            polish_stall_rtol=args.polish_stall_rtol, model=args.model,
         )
         if config.run_id is None:
             stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
@@ -459,9 +459,9 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
         return 2
-    for line in stages.load_model(config.model).placements:  # where the sensor and excitation points landed
-        print(f"model: {line}")
     try:
+        for line in stages.load_model(config.model).placements:  # where the sensor and excitation points landed
+            print(f"model: {line}")
         summary = update_flow(config)
     finally:
         lock.release()
