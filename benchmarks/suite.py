@@ -160,6 +160,7 @@ def main(argv=None) -> int:
     p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     p.add_argument("--out", default=str(REPO / "docs" / "suite"))
     args = p.parse_args(argv)
+    from benchmarks.compare import markdown_table
     from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ, three_plate
 
     model = three_plate()
@@ -184,8 +185,7 @@ def main(argv=None) -> int:
     runs = pd.DataFrame(records)
     table = aggregate(runs)
     table.to_csv(out.with_suffix(".csv"), index=False)
-    md = ["| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
-    md += ["| " + " | ".join(str(v) for v in row) + " |" for row in table.itertuples(index=False)]
+    md = markdown_table(table)
     text = (f"Command: `python -m benchmarks.suite --truths {args.truths} --seed {args.seed} --budget {args.budget}`"
             f"\n\n" + "\n".join(md) + "\n\n" + "\n".join(paired(runs)) + "\n")
     out.with_suffix(".md").write_text(text)
