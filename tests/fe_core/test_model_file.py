@@ -286,57 +286,13 @@ def test_npz_matrices_read_as_the_mtx_ones(tmp_path):
     assert np.array_equal(Z_mtx, Z_npz)
 
 
-# -- a tetrahedral gmsh mesh, through a stand-in element family -----------------------------------
-class _SkfemTet4:
-    """A stand-in 'tetra' family for this test only: scikit-fem's P1 element matrices, cell by cell.
-
-    It shows that the model file handles any family of the registry (tet meshes, gmsh physical
-    surfaces as node sets) without an element formulation of this project.
-    """
-
-    NODES = 4
-
-    @staticmethod
-    def _matrices(coords, form):
-        from skfem import Basis, ElementTetP1, ElementVector, MeshTet, asm
-
-        out = []
-        for c in coords:
-            t = np.arange(4)[:, None]
-            if np.linalg.det(c[1:] - c[0]) < 0:  # scikit-fem wants positive orientation
-                t = np.array([[0], [2], [1], [3]])
-            A = asm(form, Basis(MeshTet(c.T.copy(), t), ElementVector(ElementTetP1()))).toarray()
-            order = (3 * t.ravel()[:, None] + np.arange(3)).ravel()  # back to the cell's node order
-            inv = np.argsort(order)
-            out.append(A[np.ix_(inv, inv)])
-        return np.array(out)
-
-    @classmethod
-    def element_stiffness(cls, coords, D):
-        from skfem.models.elasticity import linear_elasticity
-
-        lam, mu = D[0, 1], D[3, 3]
-        return cls._matrices(coords, linear_elasticity(lam, mu))
-
-    @classmethod
-    def element_mass(cls, coords, rho):
-        from skfem import BilinearForm
-        from skfem.helpers import dot
-
-        @BilinearForm
-        def mass(u, v, w):
-            return rho * dot(u, v)
-
-        return cls._matrices(coords, mass)
-
-
-def test_a_tetrahedral_gmsh_mesh_through_a_registered_family(tmp_path, monkeypatch):
-    from fe_core import elements
+# -- a tetrahedral gmsh mesh through the registry's tet4 (fe_core/elements/tet4.py) -----------------
+def test_a_tetrahedral_gmsh_mesh_through_the_tet4_family(tmp_path):
+    """Gmsh tetrahedra, a physical surface as support: the model file's FRF is scikit-fem's on the same mesh."""
     from skfem import Basis, BilinearForm, ElementTetP1, ElementVector, MeshTet, asm, condense
     from skfem.helpers import dot
     from skfem.models.elasticity import lame_parameters, linear_elasticity
 
-    monkeypatch.setitem(elements.ELEMENTS, "tetra", _SkfemTet4)
     _gmsh_two_boxes(tmp_path / "tets.msh", (0.1, 0.04, 0.03), ("a", "b"), "foot", hexahedra=False)
     tip = [0.2, 0.04, 0.03]
     (tmp_path / "model.toml").write_text("\n".join([
