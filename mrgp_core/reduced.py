@@ -35,7 +35,8 @@ zero). The folds reuse the Gram matrix, so they cost ``O(n r k)``.
 
 Selection criterion. :meth:`ReducedMRGP.predicted_overall_error` predicts the
 coefficients of all candidates (``w x r``) and maps them back in chunks of
-about 131,000 numbers (1 MB per array), taking each chunk's ``mean_j |mu_j|`` (or the
+about 524,000 numbers (4 MB; 1 MB per array for the expected absolute
+error, whose formula makes several temporaries), taking each chunk's ``mean_j |mu_j|`` (or the
 expected absolute error) before the next: the ``w x k`` mean (800 MB for
 10,000 x 10,000) is never held. ``mean |.|`` is not linear, so it cannot be
 taken in the reduced space itself.
@@ -73,8 +74,9 @@ VARIANCE_CAPTURED = 0.999
 N_FOLDS = 5
 #: Squared singular values below this fraction of the largest are not used.
 _RANK_RTOL = 1e-10
-#: Numbers per chunk when mapping candidates back to the k responses (1 MB per array; the
-#: expected-absolute criterion makes about eight such temporaries).
+#: Numbers per chunk when mapping candidates back to the k responses for the expected-absolute
+#: criterion (1 MB per array; its formula makes about eight such temporaries); the mean-absolute
+#: criterion holds one array and takes chunks four times larger.
 _CHUNK_ELEMENTS = 1 << 17
 
 
@@ -84,11 +86,11 @@ def _eig_desc(G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum(evals[::-1], 0.0), U[:, ::-1]
 
 
-def _directions(Yc: np.ndarray, evals: np.ndarray, U: np.ndarray, r: int) -> np.ndarray:
-    """``V_r = Yc^T U_r / s_r``, shape (k, r'), from the eigen-pairs of ``Yc Yc^T``; ``r' <= r`` keeps
-    only directions above the numerical rank."""
+def _weights(evals: np.ndarray, U: np.ndarray, r: int) -> np.ndarray:
+    """``A = U_r / s_r``, shape (n, r'), so that ``V_r = Yc^T A`` for the data ``Yc`` whose Gram matrix
+    has the eigen-pairs ``(evals, U)``; ``r' <= r`` keeps only directions above the numerical rank."""
     r = min(r, np.count_nonzero(evals > _RANK_RTOL * evals[0])) if evals.size and evals[0] > 0 else 0
-    return (Yc.T @ U[:, :r]) / np.sqrt(evals[:r])
+    return U[:, :r] / np.sqrt(evals[:r])
 
 
 def _centred_gram(G: np.ndarray) -> np.ndarray:
@@ -206,20 +208,34 @@ def output_basis(
     evals, U = _eig_desc(G)
     if not evals[0] > 0:
         raise ValueError("every response is constant over the training rows: nothing to emulate")
-    V = _directions(Ys, evals, U, _rank(evals, variance, cap))
-    W = Ys @ V
-    captured = float(np.sum(evals[: V.shape[1]]) / np.sum(evals))
+    A = _weights(evals, U, _rank(evals, variance, cap))
+    r = A.shape[1]
+    captured = float(np.sum(evals[:r]) / np.sum(evals))
 
+    # Cross-validation without copying rows of Ys: fold f's centred training rows are C_T Y_T,
+    # their Gram matrix is C_T G_TT C_T, and its directions are V_f = Y_T^T C_T A_f = Ys^T Z_f with
+    # Z_f zero off the training rows. The held-out rows' coefficients on V_f come from G too.
     n_folds = min(int(n_folds), n)
     fold = np.arange(n) % n_folds
-    sq = np.zeros(k)
+    Z = np.zeros((n, r + n_folds * (r + 1)))
+    Z[:, :r] = A
+    held = []
     for f in range(n_folds):
         test, train = fold == f, fold != f
-        m = Ys[train].mean(axis=0)
-        Yc = Ys[train] - m
-        Vf = _directions(Yc, *_eig_desc(_centred_gram(G[np.ix_(train, train)])), min(V.shape[1], int(train.sum()) - 1))
-        E = Ys[test] - m
-        E -= (E @ Vf) @ Vf.T
+        G_tt = G[np.ix_(train, train)]
+        A_f = _weights(*_eig_desc(_centred_gram(G_tt)), min(r, int(train.sum()) - 1))
+        A_f -= A_f.mean(axis=0)  # C_T A_f
+        a = r + f * (r + 1)
+        Z[train, a] = 1.0 / train.sum()  # the fold's mean row: Ys^T Z[:, a]
+        Z[train, a + 1: a + 1 + A_f.shape[1]] = A_f
+        held.append((test, (G[np.ix_(test, train)] - G_tt.mean(axis=0)) @ A_f, a))
+    P = Ys.T @ Z  # (k, r + n_folds (r + 1)): the basis, and each fold's mean and directions
+    V = np.ascontiguousarray(P[:, :r])
+    W = Ys @ V
+    sq = np.zeros(k)
+    for test, coef, a in held:
+        E = Ys[test] - P[:, a]
+        E -= coef @ P[:, a + 1: a + 1 + coef.shape[1]].T
         sq += np.einsum("ij,ij->j", E, E)
     tau = sq / n
     return OutputBasis(centre=centre, scale=scale, basis=V, singular_values=np.sqrt(evals), coefficients=W,
@@ -245,6 +261,7 @@ class ReducedMRGP:
     coefficients: MRGP
     seconds_basis: float = 0.0
     _coef_var: np.ndarray | None = field(default=None, repr=False)
+    _back: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def n_responses(self) -> int:
@@ -322,21 +339,27 @@ class ReducedMRGP:
         """Predicted Eq. (6b) error of each candidate, shape (w,), in chunks of candidates.
 
         Same values as :func:`mrgp_core.model.predicted_overall_error` applied to
-        :meth:`predict`'s output; at most about 131,000 predicted responses
-        (1 MB) are held at a time.
+        :meth:`predict`'s output; at most about 524,000 predicted responses
+        (4 MB) are held at a time.
         """
         if criterion not in CRITERIA:
             raise ValueError(f"unknown criterion {criterion!r}; valid criteria are {', '.join(CRITERIA)}")
         need_var = criterion == "expected_abs"
         C, s = self._factors(Xstar, need_var, False, True)
+        if self._back is None:
+            # one product per chunk gives centre + scale * (C V_r^T): [C, 1] @ [[V_r^T * scale], [centre]]
+            self._back = np.ascontiguousarray(np.vstack([self.outputs.basis.T * self.outputs.scale,
+                                                         self.outputs.centre]))
+        C = np.hstack([C, np.ones((C.shape[0], 1))])
         out = np.empty(C.shape[0])
-        step = max(1, _CHUNK_ELEMENTS // self.n_responses)
-        B = self.outputs.basis.T * self.outputs.scale  # (r, k)
+        step = max(1, (_CHUNK_ELEMENTS if need_var else 4 * _CHUNK_ELEMENTS) // self.n_responses)
         for a in range(0, C.shape[0], step):
             sl = slice(a, min(a + step, C.shape[0]))
-            M = C[sl] @ B
-            M += self.outputs.centre
-            out[sl] = predicted_overall_error(M, self._variance(s[sl], True) if need_var else None, criterion)
+            M = C[sl] @ self._back
+            if need_var:
+                out[sl] = predicted_overall_error(M, self._variance(s[sl], True), criterion)
+            else:
+                out[sl] = np.abs(M, out=M).mean(axis=1)
         return out
 
 

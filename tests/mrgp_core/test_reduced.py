@@ -96,6 +96,25 @@ def test_exact_subspace_gives_the_full_mrgp(make_rng, mean):
                                    full.predicted_overall_error(Xs, criterion), rtol=SUBSPACE_VAR_RTOL)
 
 
+def test_cross_validated_truncation_variance_matches_explicit_folds(make_rng):
+    """The Gram-matrix shortcut against fold-by-fold numpy SVDs of the copied rows."""
+    rng = make_rng(169)
+    X = rng.uniform(-1, 1, (37, 3))  # folds of unequal size
+    Y = frf_like(X, 90)
+    for n_folds in (2, 5):
+        ob = output_basis(Y, 0.99, n_folds=n_folds)
+        Ys = (Y - Y.mean(axis=0)) / Y.std(axis=0)
+        fold = np.arange(Y.shape[0]) % n_folds
+        sq = np.zeros(Y.shape[1])
+        for f in range(n_folds):
+            m = Ys[fold != f].mean(axis=0)
+            _, _, Vt = np.linalg.svd(Ys[fold != f] - m, full_matrices=False)
+            E = Ys[fold == f] - m
+            E -= (E @ Vt[: ob.n_components].T) @ Vt[: ob.n_components]
+            sq += np.sum(E**2, axis=0)
+        np.testing.assert_allclose(ob.truncation_variance, sq / Y.shape[0], rtol=1e-8, atol=1e-12)
+
+
 def test_truncation_variance_is_the_held_out_residual(make_rng):
     """The cross-validated discrepancy of the discarded directions matches fresh data's, per response."""
     rng = make_rng(162)
@@ -138,7 +157,7 @@ def test_chunked_criterion_equals_the_unchunked_one(make_rng, monkeypatch):
     rng = make_rng(165)
     X, Xs = rng.uniform(-1, 1, (50, 3)), rng.uniform(-1, 1, (103, 3))
     model = condition_reduced(X, frf_like(X, 64), HYPER, variance=0.99)
-    monkeypatch.setattr(reduced_module, "_CHUNK_ELEMENTS", 64 * 10)  # 11 chunks, the last one of 3 rows
+    monkeypatch.setattr(reduced_module, "_CHUNK_ELEMENTS", 64 * 10)  # chunks of 10 (expected) and 40 (mean) rows
     mean, var = model.predict(Xs)
     for criterion in ("mean_abs", "expected_abs"):
         np.testing.assert_allclose(model.predicted_overall_error(Xs, criterion),
