@@ -92,7 +92,7 @@ def test_exact_subspace_gives_the_full_mrgp(make_rng, mean):
     np.testing.assert_allclose(m_red, m_full, rtol=0, atol=SUBSPACE_RTOL * np.abs(m_full).max())
     np.testing.assert_allclose(v_red, v_full, rtol=SUBSPACE_VAR_RTOL, atol=SUBSPACE_VAR_RTOL * v_full.max())
     for criterion in ("mean_abs", "expected_abs"):
-        np.testing.assert_allclose(red.predicted_overall_error(Xs, criterion),
+        np.testing.assert_allclose(red.predicted_overall_error(Xs, criterion, precision="double"),
                                    full.predicted_overall_error(Xs, criterion), rtol=SUBSPACE_VAR_RTOL)
 
 
@@ -160,8 +160,25 @@ def test_chunked_criterion_equals_the_unchunked_one(make_rng, monkeypatch):
     monkeypatch.setattr(reduced_module, "_CHUNK_ELEMENTS", 64 * 10)  # chunks of 10 (expected) and 40 (mean) rows
     mean, var = model.predict(Xs)
     for criterion in ("mean_abs", "expected_abs"):
-        np.testing.assert_allclose(model.predicted_overall_error(Xs, criterion),
+        np.testing.assert_allclose(model.predicted_overall_error(Xs, criterion, precision="double"),
                                    predicted_overall_error(mean, var, criterion), rtol=1e-12)
+
+
+def test_single_precision_criterion_is_within_its_rounding_bound(make_rng):
+    """|single - double| <= (r + 3) eps_32 mean_j (|centre_j| + sum_i |c_i| |B_ij|), the dot-product bound."""
+    rng = make_rng(170)
+    X, Xs = rng.uniform(-1, 1, (60, 3)), rng.uniform(-1, 1, (500, 3))
+    Y = 3.0 + frf_like(X, 300)  # an offset, so the centre row carries weight
+    model = condition_reduced(X, Y, HYPER, variance=0.999)
+    single = model.predicted_overall_error(Xs)
+    double = model.predicted_overall_error(Xs, precision="double")
+    C, _ = model.coefficients.predict_factors(Xs, return_var=False)
+    B = model.outputs.basis.T * model.outputs.scale
+    terms = np.mean(np.abs(model.outputs.centre) + np.abs(C) @ np.abs(B), axis=1)
+    bound = (model.n_components + 3) * np.finfo(np.float32).eps * terms
+    assert single.dtype == np.float64
+    assert np.all(np.abs(single - double) <= bound)
+    assert np.any(single != double)  # it did run in single precision
 
 
 def test_more_responses_than_runs_without_a_k_by_k_array(make_rng):
@@ -188,7 +205,7 @@ def test_more_responses_than_runs_without_a_k_by_k_array(make_rng):
     # and the scores are right: against the direct formula on the (w, k) prediction
     mean, var = model.predict(Xs)
     assert mean.shape == (w, k)
-    np.testing.assert_allclose(score, predicted_overall_error(mean), rtol=1e-12)
+    np.testing.assert_allclose(score, predicted_overall_error(mean), rtol=1e-5)  # single precision, bound above
     np.testing.assert_allclose(expected, predicted_overall_error(mean, var, "expected_abs"), rtol=1e-12)
 
 
@@ -211,3 +228,5 @@ def test_bad_input_is_refused(make_rng):
     model = condition_reduced(rng.uniform(-1, 1, (10, 2)), Y, HYPER)
     with pytest.raises(ValueError, match="criterion"):
         model.predicted_overall_error(np.zeros((3, 2)), "median")
+    with pytest.raises(ValueError, match="precision"):
+        model.predicted_overall_error(np.zeros((3, 2)), precision="half")
