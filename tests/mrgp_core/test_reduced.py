@@ -207,6 +207,10 @@ def test_more_responses_than_runs_without_a_k_by_k_array(make_rng):
     assert mean.shape == (w, k)
     np.testing.assert_allclose(score, predicted_overall_error(mean), rtol=1e-5)  # single precision, bound above
     np.testing.assert_allclose(expected, predicted_overall_error(mean, var, "expected_abs"), rtol=1e-12)
+    # the update flow stores hyper-parameters and re-conditions: the basis is rebuilt identically
+    again = condition_reduced(X, Y, model.hyperparameters)
+    assert again.n_components == model.n_components
+    np.testing.assert_allclose(again.predicted_overall_error(Xs), score, rtol=1e-12)
 
 
 def test_bad_input_is_refused(make_rng):
