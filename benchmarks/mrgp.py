@@ -103,22 +103,37 @@ def load_data(seed: int, refresh: bool = False) -> dict:
     key = hashlib.sha256(np.ascontiguousarray(measured).tobytes() + freqs.tobytes()).hexdigest()[:12]
     path = CACHE_DIR / f"mrgp-fe-seed{seed}-{N_UNIFORM}+{N_STAGES}x{PER_STAGE}-{key}.npz"
     if path.exists() and not refresh:
-        with np.load(path) as f:
-            return {name: f[name] for name in f.files} | {"path": str(path), "cached": True}
-    rng = np.random.default_rng(seed)
-    X_train = [draw_stage(0, N_UNIFORM, alpha_true, rng)]
-    X_test = [draw_stage(0, HELD_OUT_PER_STAGE, alpha_true, rng)]
-    for t in range(1, N_STAGES + 1):
-        X_train.append(draw_stage(t, PER_STAGE, alpha_true, rng))
-        X_test.append(draw_stage(t, HELD_OUT_PER_STAGE, alpha_true, rng))
-    X_train, X_test = np.vstack(X_train), np.vstack(X_test)
+        return load_cache(path)
+    X_train, X_test = draw_design(alpha_true, np.random.default_rng(seed))
     t0 = time.perf_counter()
     Y_train = responses(model, X_train, freqs, measured)
     Y_test = responses(model, X_test, freqs, measured)
     seconds = time.perf_counter() - t0
     data = {"X_train": X_train, "Y_train": Y_train, "X_test": X_test, "Y_test": Y_test,
             "alpha_true": alpha_true, "freqs_hz": freqs, "measured": measured, "fe_seconds": np.float64(seconds)}
-    CACHE_DIR.mkdir(parents=True, exist_ok=True)
+    return save_cache(path, data)
+
+
+def draw_design(alpha_true: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Training and held-out inputs of all stages, shapes (N_UNIFORM + N_STAGES * PER_STAGE, m) and
+    ((N_STAGES + 1) * HELD_OUT_PER_STAGE, m)."""
+    X_train = [draw_stage(0, N_UNIFORM, alpha_true, rng)]
+    X_test = [draw_stage(0, HELD_OUT_PER_STAGE, alpha_true, rng)]
+    for t in range(1, N_STAGES + 1):
+        X_train.append(draw_stage(t, PER_STAGE, alpha_true, rng))
+        X_test.append(draw_stage(t, HELD_OUT_PER_STAGE, alpha_true, rng))
+    return np.vstack(X_train), np.vstack(X_test)
+
+
+def load_cache(path: Path) -> dict:
+    """A cached data set, with its path and ``cached=True``."""
+    with np.load(path) as f:
+        return {name: f[name] for name in f.files} | {"path": str(path), "cached": True}
+
+
+def save_cache(path: Path, data: dict) -> dict:
+    """Write ``data`` atomically to ``path``; returns it with its path and ``cached=False``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npz")
     np.savez(tmp, **data)
     tmp.replace(path)

@@ -46,7 +46,10 @@ The traps, and what this package does about them:
 
 Modules: :mod:`.kernels`, :mod:`.likelihood`, :mod:`.model`,
 :mod:`.optimizers` (``"gradient"``, ``"sao"``, ``"pso"``); :mod:`.adaptive`
-holds the pure pieces of the adaptive loop.
+holds the pure pieces of the adaptive loop; :mod:`.reduced` emulates
+thousands of responses through their leading principal directions
+(``fit_reduced``: same ``predict`` and ``predicted_overall_error``, an r x r
+``Q``).
 """
 
 from .kernels import correlation, squared_distances
@@ -62,6 +65,7 @@ from .likelihood import (
 )
 from .model import CRITERIA, MRGP, TrainingRecord, condition, default_bounds, fit, predicted_overall_error
 from .optimizers import TRAINERS, Result, get_trainer
+from .reduced import OutputBasis, ReducedMRGP, condition_reduced, fit_reduced, output_basis
 
 __all__ = [
     "fit",
@@ -84,4 +88,9 @@ __all__ = [
     "TRAINERS",
     "get_trainer",
     "Result",
+    "fit_reduced",
+    "condition_reduced",
+    "ReducedMRGP",
+    "OutputBasis",
+    "output_basis",
 ]

@@ -184,6 +184,33 @@ class MRGP:
         mean : ndarray, shape (w, k), response units
         var : ndarray, shape (w, k), response units squared, or None
         """
+        mean, s = self.predict_factors(Xstar, return_var=return_var, observation_noise=observation_noise,
+                                       mean_uncertainty=mean_uncertainty)
+        if not return_var:
+            return mean, None
+        return mean, np.outer(s, np.diag(self.terms.Q_reg) * self.scale**2)
+
+    def predict_factors(
+        self,
+        Xstar: np.ndarray,
+        *,
+        return_var: bool = True,
+        observation_noise: bool = False,
+        mean_uncertainty: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Posterior mean and the spatial factor ``s`` of the posterior covariance.
+
+        The posterior covariance of the k responses at one input ``x*`` is
+        ``s(x*) Q`` (Q in response units, :attr:`Q`), so :meth:`predict`'s
+        variance is ``outer(s, diag(Q))``. Callers that need other
+        combinations of the responses (:mod:`mrgp_core.reduced`) use ``s``
+        and ``Q`` directly. Parameters as :meth:`predict`.
+
+        Returns
+        -------
+        mean : ndarray, shape (w, k), response units
+        s : ndarray, shape (w,), dimensionless, or None
+        """
         Xstar = np.asarray(Xstar, dtype=float)
         if Xstar.ndim != 2 or Xstar.shape[1] != self.X.shape[1]:
             raise ValueError(f"Xstar must have shape (w, {self.X.shape[1]}), got {Xstar.shape}")
@@ -196,11 +223,7 @@ class MRGP:
             mean[sl] = m_c
             if return_var:
                 s[sl] = s_c
-        mean = self.centre + mean * self.scale
-        if not return_var:
-            return mean, None
-        q_diag = np.diag(self.terms.Q_reg) * self.scale**2
-        return mean, np.outer(s, q_diag)
+        return self.centre + mean * self.scale, s
 
     def _predict_standardised(self, Xs, return_var, observation_noise, mean_uncertainty):
         t = self.terms
