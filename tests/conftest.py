@@ -109,3 +109,9 @@ def write_box_model(folder: Path, cells=(6, 2, 1), order: int = 2) -> Path:
 def box_model_file(tmp_path) -> Path:
     """``write_box_model`` in tmp_path (tet10, 72 cells)."""
     return write_box_model(tmp_path / "box")
+
+
+@pytest.fixture(scope="session")
+def box_model_writer():
+    """``write_box_model`` itself, for module-scoped fixtures (test folders are not packages)."""
+    return write_box_model
