@@ -1,18 +1,16 @@
 """``<run folder>/model.vtu``: the updated model for ParaView, written at the end of a run.
 
 One core call (:func:`fe_core.io.vtu.model_vtu`: segments, updated factors per cell,
-the first modes of the updated model as point data) and one atomic write (a temporary
-``.model.vtu.*.tmp`` beside it, renamed into place; a killed writer's temporary file is
-removed by :meth:`tasks.runstore.RunStore.remove_temporaries`). A model without a mesh
-(matrices) writes nothing and says why in the log.
+the first modes of the updated model as point data) and one atomic write
+(:func:`tasks.runstore.atomic_write_file`: a temporary ``.model.vtu.*.tmp`` beside it,
+renamed into place; a killed writer's temporary file is removed when the run starts
+again). A model without a mesh (matrices) writes nothing and says why in the log.
 """
 
 from __future__ import annotations
 
-import logging
 import os
 import re
-import tempfile
 import time
 from pathlib import Path
 
@@ -20,22 +18,12 @@ import numpy as np
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from tasks.faults import kill_point
+from tasks import stages
+from tasks.runstore import atomic_write_file
 
 __all__ = ["VTU_NAME", "factors_from_parameters", "write_model_vtu", "model_vtu_task"]
 
 VTU_NAME = "model.vtu"
-
-log = logging.getLogger(__name__)
-
-
-def _logger():
-    try:
-        from prefect import get_run_logger
-
-        return get_run_logger()
-    except Exception:
-        return log
 
 
 def factors_from_parameters(parameters: dict, n_segments: int) -> tuple[np.ndarray, np.ndarray | None]:
@@ -82,10 +70,9 @@ def write_model_vtu(root: str | Path, model_name: str, parameters: dict, n_modes
     import scipy.sparse.linalg as spla
 
     from fe_core.io.vtu import DEFAULT_MODES, model_vtu
-    from tasks.stages import load_model
 
-    logger = _logger()
-    model = load_model(model_name)
+    logger = stages._logger()
+    model = stages.load_model(model_name)
     if model.mesh is None:
         logger.info("%s not written: the model %s is given as matrices (no mesh to draw)", VTU_NAME, model_name)
         return None
@@ -98,18 +85,7 @@ def write_model_vtu(root: str | Path, model_name: str, parameters: dict, n_modes
                        type(exc).__name__, exc)
         return None
     path = Path(root) / VTU_NAME
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        meshio.write(tmp, grid, file_format="vtu")
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        kill_point(f"before-rename:{path}")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_file(path, lambda tmp: meshio.write(tmp, grid, file_format="vtu"))
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(path, 0o666 & ~umask)  # readable like any other file (mkstemp's file is private)

@@ -166,26 +166,40 @@ def plot_mesh_factors(model, alpha, path: Path, gamma=None, view: MeshView | Non
     fig = Figure(figsize=(7.6 * len(factors), 5.6))
     seg = np.asarray(model.cell_segment)[view.cell]
     for k, (label, values) in enumerate(factors.items()):
-        ax = view.axes(fig, (1, len(factors), k + 1), f"Updated {label}: K_i (1 + alpha_i)"
-                       if k == 0 else f"Updated {label}: M_i (1 + gamma_i)")
+        symbol = label.split(" ")[0]
+        ax = view.axes(fig, (1, len(factors), k + 1), f"Updated {label}: " +
+                       ("K_i (1 + alpha_i)" if symbol == "alpha" else "M_i (1 + gamma_i)"))
         top = max(float(np.max(np.abs(values))), 1e-3)
         norm = Normalize(-top, top)
         cmap = colormaps["coolwarm"]
         rgba = np.vstack([to_rgba(REMAINDER_COLOR), cmap(norm(values))])
         view.draw(ax, rgba[seg + 1])
         bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.65, pad=0.08)
-        bar.set_label(label.split(" ")[0] + (" (grey: fixed remainder)" if np.any(seg < 0) else ""), fontsize=8)
+        remainder = "; grey: fixed remainder" if np.any(seg < 0) else ""
+        bar.set_label(f"{symbol} (labels: segment number: {symbol}){remainder}", fontsize=8)
         bar.ax.tick_params(labelsize=7)
-        for s, v in enumerate(values):
+        for v in values:
             bar.ax.axhline(v, color="k", lw=0.8)
+        _segment_labels(ax, view, seg, [f"{s + 1}: {v:+.3f}" for s, v in enumerate(values)])
     fig.subplots_adjust(left=0.0, right=0.97, bottom=0.03, top=0.93, wspace=0.05)
     return _save(fig, path)
+
+
+def _segment_labels(ax, view: MeshView, seg: np.ndarray, labels: list[str]) -> None:
+    """Each label at the centre of its segment's visible faces (none for a segment out of sight)."""
+    centres = view.polygons.mean(axis=1)
+    for s, text in enumerate(labels):
+        mine = seg == s
+        if mine.any():
+            c = centres[mine].mean(axis=0)
+            ax.text(c[0], c[1], c[2], text, fontsize=7, ha="center", va="center", zorder=7,
+                    bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="none", alpha=0.75))
 
 
 def _save(fig: Figure, path: Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI)
+    fig.savefig(path, dpi=DPI, bbox_inches="tight", pad_inches=0.15)  # flat structures leave empty bands
     return path
 
 

@@ -91,3 +91,22 @@ def test_a_matrices_model_has_no_cells_to_write():
 def test_wrong_number_of_factors_is_refused(model):
     with pytest.raises(ValueError, match="gamma must have 2 entries"):
         model_vtu(model, ALPHA, [0.1, 0.2, 0.3], 1)
+
+
+@pytest.mark.parametrize("max_bandwidth", [0, 10**9])
+def test_modes_by_sparse_cholesky_and_by_superlu_equal_the_dense_solve(model, monkeypatch, max_bandwidth):
+    """A wide-band K (any gmsh mesh) is factored by PARDISO for the modes, a banded one by SuperLU."""
+    import fe_core.frf
+    from fe_core.modal import eigenmodes
+
+    calls = []
+    real = fe_core.frf.spd_solver
+    monkeypatch.setattr(fe_core.frf, "MAX_BANDWIDTH", max_bandwidth)
+    monkeypatch.setattr(fe_core.frf, "spd_solver", lambda A: calls.append(A.shape) or real(A))
+    K, M = model.stiffness(ALPHA), model.mass(GAMMA)
+    freqs, vecs = eigenmodes(K, M, N_MODES)
+    assert len(calls) == (1 if max_bandwidth == 0 else 0)
+    w2 = scipy.linalg.eigh(K.toarray(), M.toarray(), eigvals_only=True, subset_by_index=[0, N_MODES - 1])
+    np.testing.assert_allclose(freqs, np.sqrt(w2) / (2 * np.pi), rtol=FREQ_RTOL)
+    residual = np.linalg.norm(K @ vecs - (M @ vecs) * (2 * np.pi * freqs) ** 2, axis=0)
+    assert np.all(residual <= RESIDUAL_RTOL * np.linalg.norm(K @ vecs, axis=0))

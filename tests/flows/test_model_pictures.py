@@ -130,3 +130,26 @@ def test_the_vtu_is_renamed_into_place_and_gamma_is_written(box_model_file, tmp_
     assert path == root / VTU_NAME and sorted(p.name for p in root.iterdir()) == [VTU_NAME]
     back = meshio.read(path)
     assert set(back.cell_data) == {"segment", "alpha", "gamma"} and len(back.point_data) == 2
+
+
+def test_an_interrupted_write_leaves_no_model_vtu_and_its_temporary_file_is_cleared(box_model_file, tmp_path,
+                                                                                      monkeypatch):
+    from tasks.runstore import RunStore
+
+    root = tmp_path / "run"
+    root.mkdir()
+
+    def interrupted(point):
+        assert point == f"before-rename:{root / VTU_NAME}"
+        temporaries = list(root.glob(f".{VTU_NAME}.*.tmp"))
+        assert len(temporaries) == 1 and meshio.read(temporaries[0], file_format="vtu").points.shape[0] > 0
+        (root / "left-by-a-kill.tmp").write_bytes(temporaries[0].read_bytes())
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("tasks.runstore.kill_point", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        write_model_vtu(root, str(box_model_file), {"alpha_1": 0.1, "alpha_2": 0.2}, n_modes=1)
+    assert sorted(p.name for p in root.iterdir()) == ["left-by-a-kill.tmp"]  # no model.vtu, no temporary
+    # A SIGKILL leaves the temporary file; the next run's start removes it (RunStore convention).
+    (root / "left-by-a-kill.tmp").rename(root / f".{VTU_NAME}.abc123.tmp")
+    assert [p.name for p in RunStore(root).remove_temporaries()] == [f".{VTU_NAME}.abc123.tmp"]
