@@ -176,7 +176,7 @@ def plot_mesh_factors(model, alpha, path: Path, gamma=None, view: MeshView | Non
         view.draw(ax, rgba[seg + 1])
         bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.65, pad=0.08)
         remainder = "; grey: fixed remainder" if np.any(seg < 0) else ""
-        bar.set_label(f"{symbol} (labels: segment number: {symbol}){remainder}", fontsize=8)
+        bar.set_label(f"{symbol} (on the mesh: segment number: value){remainder}", fontsize=8)
         bar.ax.tick_params(labelsize=7)
         for v in values:
             bar.ax.axhline(v, color="k", lw=0.8)

@@ -153,3 +153,21 @@ def test_an_interrupted_write_leaves_no_model_vtu_and_its_temporary_file_is_clea
     # A SIGKILL leaves the temporary file; the next run's start removes it (RunStore convention).
     (root / "left-by-a-kill.tmp").rename(root / f".{VTU_NAME}.abc123.tmp")
     assert [p.name for p in RunStore(root).remove_temporaries()] == [f".{VTU_NAME}.abc123.tmp"]
+
+
+def test_the_view_draws_the_three_sides_of_the_box_that_face_the_viewer(box_model_file):
+    """Seen from +x, -y, +z (the default azimuth -58 deg, elevation 24 deg), a box shows exactly one
+    of each pair of opposite sides."""
+    from fe_core.io import read_model
+    from fe_core.surface import face_normals
+    from tasks.report.mesh import MeshView
+
+    view = MeshView(read_model(box_model_file))
+    a, b, c = 0.3, 0.04, 0.03
+    n = view.polygons.shape[1]
+    normals = face_normals(view.polygons.reshape(-1, 3), np.arange(len(view.polygons) * n).reshape(-1, n))
+    assert normals[:, 0].sum() == pytest.approx(b * c, rel=1e-12)  # the tip x = a
+    assert normals[:, 1].sum() == pytest.approx(-a * c, rel=1e-12)  # the side y = 0
+    assert normals[:, 2].sum() == pytest.approx(a * b, rel=1e-12)  # the top z = c
+    assert np.linalg.norm(normals, axis=1).sum() == pytest.approx(a * b + b * c + c * a, rel=1e-12)
+    assert view.n_boundary == 2 * len(view.polygons)
