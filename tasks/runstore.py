@@ -39,7 +39,8 @@ import pyarrow.parquet as pq
 
 from tasks.faults import kill_point
 
-__all__ = ["RunStore", "CorruptFileError", "atomic_write_bytes", "atomic_write_file", "atomic_write_json", "package_versions", "git_commit"]
+__all__ = ["RunStore", "CorruptFileError", "atomic_write_bytes", "atomic_write_file", "atomic_write_json",
+           "package_versions", "git_commit"]
 
 log = logging.getLogger(__name__)
 
