@@ -119,6 +119,9 @@ class ParametricModel:
         Where each sensor and excitation point landed (node, distance), for the log.
     dof_table : ndarray, shape (n_total_dofs, 2), int, or None
         Node id and direction of each DOF of a matrices model.
+    cell_segment : ndarray, shape (n_cells,), int, or None
+        Segment index (0-based, in :attr:`segment_names`' order) of each mesh cell, -1 for
+        the fixed remainder; None without a mesh.
     """
 
     mesh: Mesh | None
@@ -142,6 +145,7 @@ class ParametricModel:
     remainder_mass: float = 0.0
     placements: list[str] = field(default_factory=list)
     dof_table: np.ndarray | None = None
+    cell_segment: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.n_total_dofs is None:
@@ -406,6 +410,7 @@ def build_model(
         segment_masses=seg_masses,
         material=material,
         formulation=formulation,
+        cell_segment=owner,
     )
     log.info(
         "assembled %d cells, %d nodes, %d free DOFs, %d segments (%s hex8)",

@@ -12,7 +12,9 @@ Examples::
     python -m flows.report --run-id my-run --runs-dir /data/runs --out /tmp/my-report
 
 What it draws depends on the folder: every run gets Figures 3-9 (FRF,
-errors, samples, parameters, distributions, training time); a ``--repeats``
+errors, samples, parameters, distributions, training time) and, for a model with
+a mesh, the mesh by segment with its sensors and excitation and the updated factors
+as colours (a model given as matrices gets one line saying why not); a ``--repeats``
 folder gets the statistics of Figures 10-13 and the FRF of its best run; a
 run with ``closure.json`` gets the residual maps before/after and the
 ranked candidate effects. Stage folders the report does not know are listed.
@@ -39,6 +41,7 @@ from flows.config import REPO  # noqa: E402
 from tasks.report import sections as sec  # noqa: E402
 from tasks.report.data import ReportError, is_repeats_folder, load_repeats, load_run  # noqa: E402
 from tasks.report.html import write_page  # noqa: E402
+from tasks.report.mesh import mesh_section  # noqa: E402
 
 __all__ = ["report_flow", "main", "REPORT_DIR", "PAGE"]
 
@@ -54,6 +57,7 @@ errors_task = task(sec.errors_section, name="error-figures", cache_policy=NO_CAC
 parameters_task = task(sec.parameters_section, name="parameter-figures", cache_policy=NO_CACHE)
 training_task = task(sec.training_section, name="training-figure", cache_policy=NO_CACHE)
 closure_task = task(sec.closure_section, name="closure-figures", cache_policy=NO_CACHE)
+mesh_task = task(mesh_section, name="mesh-figures", cache_policy=NO_CACHE)
 repeats_task = task(sec.repeats_section, name="repeats-figures", cache_policy=NO_CACHE)
 page_task = task(write_page, name="html-page", cache_policy=NO_CACHE)
 
@@ -70,14 +74,15 @@ def report_flow(run_root: str, out_dir: str | None = None) -> str:
         rep = load_repeats_task(root)
         best = rep.best_run()
         parts = [*repeats_task(rep, out),
-                 frf_task(best, out, f" - best run, {best.root.name}")]
+                 frf_task(best, out, f" - best run, {best.root.name}"), mesh_task(best, out)]
         closure = closure_task(best, out)
         title = f"Run report: {root.name} ({len(rep.runs)} repeats)"
         intro = [f"Repeats folder {root}; each repeat's own report: python -m flows.report --run-id "
                  f"{root.name}/repeat=<i>."] + sec.run_intro(best)[1:2]
     else:
         data = load_run_task(root)
-        parts = [frf_task(data, out), errors_task(data, out), parameters_task(data, out), training_task(data, out)]
+        parts = [frf_task(data, out), mesh_task(data, out), errors_task(data, out), parameters_task(data, out),
+                 training_task(data, out)]
         closure = closure_task(data, out)
         parts.append(sec.stages_section(data))
         title = f"Run report: {root.name}"

@@ -49,6 +49,7 @@ from flows.config import STRATEGIES, TRAINERS, ConfigError, UpdateConfig, load_c
 from mrgp_core import adaptive  # noqa: E402
 from tasks import fe_backends, stages  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
+from tasks.model_vtu import model_vtu_task  # noqa: E402
 from tasks.polish import POLISH_STAGE, polish_results, polish_task  # noqa: E402
 from tasks.runlock import RunLock, RunLockedError  # noqa: E402
 from tasks.runstore import RunStore, atomic_write_json, git_commit, package_versions  # noqa: E402
@@ -175,6 +176,7 @@ def _single_run(config: UpdateConfig, store: RunStore, measured, t0: float) -> d
         print(f"polish: {info['status']} after {info['n']} FE runs, overall error "
               f"{info['error_before']:.4%} -> {info['error_after']:.4%}")
     summary = _summary(config, store, iteration, last, measured, time.perf_counter() - t0)
+    model_vtu_task(root, config.model, summary["parameters"])  # <run>/model.vtu for ParaView, before the summary
     atomic_write_json(store.root / "summary.json", summary)
     return summary
 

@@ -39,7 +39,8 @@ import pyarrow.parquet as pq
 
 from tasks.faults import kill_point
 
-__all__ = ["RunStore", "CorruptFileError", "atomic_write_bytes", "atomic_write_json", "package_versions", "git_commit"]
+__all__ = ["RunStore", "CorruptFileError", "atomic_write_bytes", "atomic_write_file", "atomic_write_json",
+           "package_versions", "git_commit"]
 
 log = logging.getLogger(__name__)
 
@@ -52,12 +53,23 @@ class CorruptFileError(RuntimeError):
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` through a temporary file and a rename."""
+    atomic_write_file(path, lambda tmp: tmp.write_bytes(data))
+
+
+def atomic_write_file(path: Path, write) -> None:
+    """Write ``path`` through a temporary file ``.<name>.*.tmp`` beside it and a rename.
+
+    ``write(tmp)`` writes the content to the temporary path (for writers that take a file
+    name, e.g. meshio); the file is synced before the rename. A killed writer leaves only
+    the temporary file, which :meth:`RunStore.remove_temporaries` removes.
+    """
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
+        write(Path(tmp))
+        with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         kill_point(f"before-rename:{path}")
         os.replace(tmp, path)

@@ -411,6 +411,7 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
         formulation=options.get("formulation") if mf.cell_type == "hexahedron" else None,
         outputs=outputs, load=load, sensor_names=names, excitation_name=exc_name, n_total_dofs=n_total,
         parameter_bounds=bounds, source=str(spec.path), remainder_mass=rest_mass, placements=placements,
+        cell_segment=owner,
     )
     log.info("%s: %d %s cells, %d nodes, %d free DOFs, %d segments, %d remainder cells", spec.path, n_cells,
              mf.cell_type, n_nodes, free.size, len(seg_names), rest.size)

@@ -26,9 +26,10 @@ from tasks.report.data import ReportError, best_so_far, load_run, residual_frame
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 SINGLE_FIGURES = {"frf_overview.png", "frf_zoom.png", "residual_map.png", "error_overall.png", "error_per_sensor.png",
-                  "samples.png", "parameters.png", "distributions.png", "training_time.png"}
+                  "samples.png", "parameters.png", "distributions.png", "training_time.png",
+                  "mesh_segments.png", "mesh_factors.png"}
 REPEATS_FIGURES = {"repeats_error.png", "repeats_parameters.png", "repeats_error_trend.png", "training_time.png",
-                   "frf_overview.png", "frf_zoom.png", "residual_map.png"}
+                   "frf_overview.png", "frf_zoom.png", "residual_map.png", "mesh_segments.png", "mesh_factors.png"}
 
 
 @pytest.fixture(scope="module")
@@ -94,6 +95,20 @@ def test_report_of_a_single_run_has_every_figure_and_the_page_embeds_them(single
     for figure in ("Figure 3", "Figures 4 and 5", "Figures 6-8", "Figure 9"):
         assert figure in text
     assert (page.parent / "cache" / "frf_dense.parquet").exists()
+
+
+def test_every_run_and_every_repeat_writes_its_model_vtu(runs):
+    """The benchmark's 544 hex8 cells with the summary's alpha per cell (tests/flows/test_model_pictures.py
+    checks the modes)."""
+    import meshio
+
+    for folder in (runs / "single", runs / "repeats" / "repeat=0", runs / "conventional" / "repeat=1"):
+        grid = meshio.read(folder / "model.vtu")
+        summary = json.loads((folder / "summary.json").read_text())
+        alpha = np.array(list(summary["parameters"].values()))
+        assert grid.cells[0].type == "hexahedron" and len(grid.cells[0].data) == 544
+        np.testing.assert_array_equal(grid.cell_data["alpha"][0], alpha[grid.cell_data["segment"][0]])
+        assert len(grid.point_data) == 6
 
 
 def test_measured_amplitudes_recovered_from_the_run_equal_the_measurement_file(runs):

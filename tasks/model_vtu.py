@@ -1,0 +1,97 @@
+"""``<run folder>/model.vtu``: the updated model for ParaView, written at the end of a run.
+
+One core call (:func:`fe_core.io.vtu.model_vtu`: segments, updated factors per cell,
+the first modes of the updated model as point data) and one atomic write
+(:func:`tasks.runstore.atomic_write_file`: a temporary ``.model.vtu.*.tmp`` beside it,
+renamed into place; a killed writer's temporary file is removed when the run starts
+again). A model without a mesh (matrices) writes nothing and says why in the log.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+from prefect import task
+from prefect.cache_policies import NO_CACHE
+
+from tasks import stages
+from tasks.runstore import atomic_write_file
+
+__all__ = ["VTU_NAME", "factors_from_parameters", "write_model_vtu", "model_vtu_task"]
+
+VTU_NAME = "model.vtu"
+
+
+def factors_from_parameters(parameters: dict, n_segments: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """``alpha`` (and ``gamma`` when the parameters have mass factors) from a summary's
+    ``parameters`` (``{"alpha_1": ..., "gamma_1": ...}``), shape (n_segments,) each.
+
+    Raises ``ValueError`` naming a missing factor.
+    """
+    def vector(symbol: str) -> np.ndarray | None:
+        keys = [k for k in parameters if re.fullmatch(rf"{symbol}_\d+", k)]
+        if not keys:
+            return None
+        missing = [f"{symbol}_{i + 1}" for i in range(n_segments) if f"{symbol}_{i + 1}" not in parameters]
+        if missing:
+            raise ValueError(f"the parameters lack {', '.join(missing)} (the model has {n_segments} segments)")
+        return np.array([float(parameters[f"{symbol}_{i + 1}"]) for i in range(n_segments)])
+
+    alpha = vector("alpha")
+    if alpha is None:
+        raise ValueError("the parameters have no alpha_1 .. alpha_m")
+    return alpha, vector("gamma")
+
+
+def write_model_vtu(root: str | Path, model_name: str, parameters: dict, n_modes: int | None = None) -> Path | None:
+    """Write ``<root>/model.vtu`` of the run's model at its updated parameters.
+
+    Parameters
+    ----------
+    root : path
+        The run folder.
+    model_name : str
+        The run's model (a name or a model-file path, as in its config).
+    parameters : dict
+        The summary's ``parameters`` (``alpha_i``, and ``gamma_i`` if updated).
+    n_modes : int, optional
+        Modes written (default :data:`fe_core.io.vtu.DEFAULT_MODES`).
+
+    Returns
+    -------
+    Path or None
+        None when the model has no mesh or its modes could not be computed (logged).
+    """
+    import meshio
+    import scipy.sparse.linalg as spla
+
+    from fe_core.io.vtu import DEFAULT_MODES, model_vtu
+
+    logger = stages._logger()
+    model = stages.load_model(model_name)
+    if model.mesh is None:
+        logger.info("%s not written: the model %s is given as matrices (no mesh to draw)", VTU_NAME, model_name)
+        return None
+    alpha, gamma = factors_from_parameters(parameters, model.n_segments)
+    t0 = time.perf_counter()
+    try:
+        grid = model_vtu(model, alpha, gamma, DEFAULT_MODES if n_modes is None else n_modes)
+    except (ArithmeticError, RuntimeError, np.linalg.LinAlgError, spla.ArpackError) as exc:
+        logger.warning("%s not written: the modes of the updated model failed (%s: %s)", VTU_NAME,
+                       type(exc).__name__, exc)
+        return None
+    path = Path(root) / VTU_NAME
+    atomic_write_file(path, lambda tmp: meshio.write(tmp, grid, file_format="vtu"))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(path, 0o666 & ~umask)  # readable like any other file (mkstemp's file is private)
+    logger.info("%s written (%d cells, %d modes) in %.1f s", path, len(grid.cells[0].data), len(grid.point_data),
+                time.perf_counter() - t0)
+    return path
+
+
+model_vtu_task = task(write_model_vtu, name="model-vtu", cache_policy=NO_CACHE)
