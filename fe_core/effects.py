@@ -24,7 +24,19 @@ name                location                               parameter    unit
 ``grounded_spring`` a node                                 ``k``        N/m, on u_z to ground
 ``joint_band``      a plate joint (``joint x=230 mm``)     ``beta``     - (band K (1 + beta))
 ``damping``         ``a`` or ``b``                         ``delta``    1/s or s, added
+``grounded_spring_x``, ``_y``  a node                      ``k``        N/m, on u_x / u_y
+``sensor_mass``     ``all sensors``                        ``mass``     kg at every sensor node
+``sensor_gain``     a sensor (``sensor 3``)                ``g``        - (|Z_s| (1 + g))
+``patch``           cells within 1 or 2 rings of a node    ``beta``     - (patch K (1 + beta))
 ==================  =====================================  ===========  ==================
+
+Plausibility: every effect's fit box (:meth:`Effect.bounds_at`) is its
+*plausible* range, which a user may narrow or widen per kind with
+:meth:`Effect.set_limits`. Defaults: a point mass at most 20 % of the
+structure's mass, the sensor masses together at most 20 %, a grounded spring
+at most 1e8 N/m, a sensor gain within +-50 %, factors above -1 (kept off by a
+margin) and at most 10. A fit that ends on such a bound is not a finding
+(:func:`fe_core.closure.at_bound`).
 
 Every extension keeps K symmetric positive definite and M positive definite
 within the parameter bounds (springs and masses are non-negative, factors
@@ -77,6 +89,11 @@ __all__ = [
     "LinearisedResponse",
     "joint_bands",
     "candidate_nodes",
+    "SensorMass",
+    "SensorGain",
+    "patch_bands",
+    "sensor_gain",
+    "MASS_SHARE",
 ]
 
 
@@ -98,6 +115,9 @@ class Terms:
     mass: sp.spmatrix | None = None
     damping_a: float = 0.0
     damping_b: float = 0.0
+    #: Relative amplitude factors per sensor, shape (n_sensors,): the compared amplitude is
+    #: ``|Z_s| (1 + gain_s)`` (a calibration error; it changes the comparison, not the structure).
+    gain: np.ndarray | None = None
 
 
 class Effect(abc.ABC):
@@ -162,8 +182,18 @@ class Effect(abc.ABC):
         """Locations next to ``location`` (used to refine a searched location); none by default."""
         return []
 
+    def set_limits(self, lower=None, upper=None) -> "Effect":
+        """Set the plausible range (the fit box) of every parameter; returns the effect."""
+        if lower is not None:
+            self.lower = tuple(np.broadcast_to(np.asarray(lower, float), (self.n_parameters,)))
+        if upper is not None:
+            self.upper = tuple(np.broadcast_to(np.asarray(upper, float), (self.n_parameters,)))
+        if any(lo >= hi for lo, hi in zip(self.lower, self.upper)):
+            raise ValueError(f"effect {self.kind!r}: lower limits {self.lower} must be below upper {self.upper}")
+        return self
+
     def bounds_at(self, location: str) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds for a least-squares fit at a location, with excluded edges moved inward."""
+        """Bounds for a least-squares fit at a location (the plausible range), excluded edges moved inward."""
         lo = np.array(self.lower, float)
         hi = np.array(self.upper, float)
         if self.margin:
@@ -297,8 +327,12 @@ class _NodalEffect(Effect):
         return [f"node {m}" for m in near if m != n and f"node {m}" in self._index]
 
 
+#: Default plausible share of the structure's mass for an added mass.
+MASS_SHARE = 0.2
+
+
 class PointMass(_NodalEffect):
-    """A point mass at a node (translational, on u_x, u_y and u_z)."""
+    """A point mass at a node (translational, on u_x, u_y and u_z); at most :data:`MASS_SHARE` of the model."""
 
     kind = "point_mass"
     parameters = ("mass",)
@@ -306,6 +340,10 @@ class PointMass(_NodalEffect):
     lower = (0.0,)
     upper = (np.inf,)
     scale = (0.1,)
+
+    def __init__(self, model: ParametricModel, nodes: Sequence[int] | None = None):
+        super().__init__(model, nodes)
+        self.upper = (MASS_SHARE * float(model.total_mass()),)
 
     def terms(self, alpha, location, values) -> Terms:
         n = self.node(location)
@@ -320,9 +358,16 @@ class GroundedSpring(_NodalEffect):
     parameters = ("k",)
     units = ("N/m",)
     lower = (0.0,)
-    upper = (np.inf,)
+    upper = (1e8,)
     scale = (1e5,)
     component = 2
+
+    def __init__(self, model: ParametricModel, nodes: Sequence[int] | None = None, component: int | None = None):
+        super().__init__(model, nodes)
+        if component is not None:
+            if component not in (0, 1, 2):
+                raise ValueError(f"grounded spring direction must be 0, 1 or 2 (x, y, z), got {component!r}")
+            self.component = component
 
     def terms(self, alpha, location, values) -> Terms:
         n = self.node(location)
@@ -440,6 +485,103 @@ class RayleighDamping(Effect):
                 "unit": "1/s" if location == "a" else "s"}
 
 
+def _sensor_nodes(model: ParametricModel) -> np.ndarray:
+    """Node of each sensor, shape (n_sensors,)."""
+    nodes = getattr(model, "sensor_nodes", None)
+    if nodes is not None:
+        return np.asarray(nodes, dtype=int)
+    full = np.asarray(model.free_dofs)[np.asarray(model.sensor_dofs)]
+    return full // DOFS_PER_NODE
+
+
+class SensorMass(Effect):
+    """The transducers' own mass: one mass at every sensor node, on u_x, u_y and u_z.
+
+    An accelerometer is a rigid point mass, so it loads all three translations
+    of its node, not only the measured one. One value for all sensors (they
+    are usually alike); the plausible range is up to :data:`MASS_SHARE` of the
+    model for all of them together.
+    """
+
+    kind = "sensor_mass"
+    parameters = ("mass",)
+    units = ("kg",)
+    lower = (0.0,)
+    upper = (np.inf,)
+    scale = (0.01,)
+
+    def __init__(self, model: ParametricModel):
+        super().__init__(model)
+        self.nodes = _sensor_nodes(model)
+        self.upper = (MASS_SHARE * float(model.total_mass()) / self.nodes.size,)
+        pos = _free_position(model)
+        rows = pos[DOFS_PER_NODE * self.nodes[:, None] + np.arange(DOFS_PER_NODE)].ravel()
+        self._rows = rows[rows >= 0]
+
+    def locations(self) -> list[str]:
+        return ["all sensors"]
+
+    def terms(self, alpha, location, values) -> Terms:
+        return Terms(mass=_diag(self.model.n_dofs, self._rows, np.full(self._rows.size, float(values[0]))))
+
+    def describe(self, location) -> dict:
+        return {"nodes": [int(n) for n in self.nodes], "per_sensor": True}
+
+
+class SensorGain(Effect):
+    """A calibration error of one sensor: the measured amplitude is ``|Z_s| (1 + g)``.
+
+    Changes the comparison, not the structure (no matrix changes): the
+    predicted amplitude at that sensor is scaled. Plausible within +-50 %.
+    """
+
+    kind = "sensor_gain"
+    parameters = ("g",)
+    units = ("-",)
+    lower = (-0.5,)
+    upper = (0.5,)
+    scale = (0.05,)
+
+    def locations(self) -> list[str]:
+        return [f"sensor {s + 1}" for s in range(self.model.n_sensors)]
+
+    def terms(self, alpha, location, values) -> Terms:
+        gain = np.zeros(self.model.n_sensors)
+        gain[self.locations().index(location)] = float(values[0])
+        return Terms(gain=gain)
+
+    def describe(self, location) -> dict:
+        s = self.locations().index(location)
+        return {"sensor": s + 1, "node": int(_sensor_nodes(self.model)[s])}
+
+
+def patch_bands(model: ParametricModel, centres: Sequence[int], rings: Sequence[int] = (1, 2)) -> dict[str, np.ndarray]:
+    """Cells within ``r`` rings of each centre node (ring 1: the cells touching it), labelled
+    ``node <n> r<r>``: patches for damage localisation anywhere."""
+    cells = model.mesh.cells
+    bands = {}
+    for n in centres:
+        nodes = np.array([n])
+        for r in range(1, max(rings) + 1):
+            inside = np.flatnonzero(np.any(np.isin(cells, nodes), axis=1))
+            if r in rings:
+                bands[f"node {int(n)} r{r}"] = inside
+            nodes = np.unique(cells[inside])
+    return bands
+
+
+def _patch_factory(model: ParametricModel, stride: int = 2) -> Effect | None:
+    """Patches of 1 and 2 rings around every ``stride``-th top node in x and y (a 2 x 2 subgrid of the
+    top surface: neighbouring patches overlap, so no damage falls between them)."""
+    if model.material is None or model.formulation is None:
+        return None
+    top = candidate_nodes(model, "top")
+    xy = np.round(model.mesh.nodes[top, :2], 9)
+    xs, ys = np.unique(xy[:, 0]), np.unique(xy[:, 1])
+    keep = np.isin(xy[:, 0], xs[::stride]) & np.isin(xy[:, 1], ys[::stride])
+    return ElementBand(model, patch_bands(model, top[keep]), kind="patch")
+
+
 def joint_bands(model: ParametricModel, joints_x: Sequence[float], atol: float = 1e-9) -> dict[str, np.ndarray]:
     """Cells touching each joint plane ``x = x_j``: one band per joint, labelled ``joint x=<mm> mm``."""
     nodes_x = model.mesh.nodes[:, 0]
@@ -525,6 +667,11 @@ register_effect("point_mass", PointMass)
 register_effect("grounded_spring", GroundedSpring)
 register_effect("joint_band", _joint_factory)
 register_effect("damping", RayleighDamping)
+register_effect("grounded_spring_x", lambda model: GroundedSpring(model, component=0))
+register_effect("grounded_spring_y", lambda model: GroundedSpring(model, component=1))
+register_effect("sensor_mass", SensorMass)
+register_effect("sensor_gain", SensorGain)
+register_effect("patch", _patch_factory)
 
 
 # -- the extended model -------------------------------------------------------------------------------
@@ -538,6 +685,8 @@ def extended_matrices(model: ParametricModel, alpha, applied: Sequence[Applied] 
     a, b = model.damping
     for item in applied:
         t = item.terms(alpha)
+        if t.gain is not None:
+            continue
         if t.stiffness is not None:
             K = K + t.stiffness
         if t.mass is not None:
@@ -557,10 +706,22 @@ def extended_frf(model: ParametricModel, alpha, freqs_hz, applied: Sequence[Appl
     F = model.combined_load()
     omegas = hz_to_rad(freqs)
     if method == "direct":
-        return direct_frf(K, M, a * M + b * K, F, omegas, model.sensor_dofs)[:, :, 0]
-    if method != "krylov":
+        Z = direct_frf(K, M, a * M + b * K, F, omegas, model.sensor_dofs)[:, :, 0]
+    elif method == "krylov":
+        Z = krylov_frf(K, M, a, b, F, omegas, model.sensor_dofs)[:, :, 0]
+    else:
         raise ValueError(f"unknown FRF method {method!r}; choose 'krylov' or 'direct'")
-    return krylov_frf(K, M, a, b, F, omegas, model.sensor_dofs)[:, :, 0]
+    return Z * (1.0 + sensor_gain(model, alpha, applied))[None, :]
+
+
+def sensor_gain(model: ParametricModel, alpha, applied: Sequence[Applied] = ()) -> np.ndarray:
+    """Sum of the applied sensor gains, shape (n_sensors,) (zero without any)."""
+    g = np.zeros(model.n_sensors)
+    for item in applied:
+        t = item.terms(alpha)
+        if t.gain is not None:
+            g = g + t.gain
+    return g
 
 
 class LinearisedResponse:
@@ -594,12 +755,16 @@ class LinearisedResponse:
         self.X = krylov_frf(self.K, self.M, self.a, self.b, model.sensor_loads(), self.omegas, everything)
         self.field = self.X.sum(axis=2)  # (p, n): the combined-load response everywhere
         self.Z = self.field[:, model.sensor_dofs]  # (p, n_s)
+        self.gain = sensor_gain(model, self.alpha, self.applied)
 
     def derivative(self, terms: Terms) -> np.ndarray:
         """``d ln|Z_s(f)|`` per unit of the change described by ``terms``, shape (p, n_sensors)."""
         w = self.omegas
         p, n = self.field.shape
         dK, dM = terms.stiffness, terms.mass
+        out = np.zeros((p, self.model.n_sensors))
+        if terms.gain is not None:  # ln(|Z| (1 + g)): d/dg = 1 / (1 + g)
+            out += (np.asarray(terms.gain, float) / (1.0 + self.gain))[None, :]
         rows = []
         for A in (dK, dM):
             if A is not None:
@@ -608,7 +773,7 @@ class LinearisedResponse:
         if terms.damping_a or terms.damping_b:
             rows.append(np.arange(n))
         if not rows:
-            return np.zeros((p, self.model.n_sensors))
+            return out
         rows = np.unique(np.concatenate(rows))
         v = np.zeros((rows.size, p), dtype=complex)  # (dD Z)[rows], per frequency
         Zt = self.field.T  # (n, p)
@@ -621,7 +786,7 @@ class LinearisedResponse:
         if terms.damping_b:
             v += terms.damping_b * (self.K[rows] @ Zt) * (1j * w)[None, :]
         dZ = -np.einsum("prs,rp->ps", self.X[:, rows, :], v)
-        return np.real(dZ / self.Z)
+        return out + np.real(dZ / self.Z)
 
     def alpha_derivatives(self) -> np.ndarray:
         """``d ln|Z| / d alpha_i``, shape (p * n_sensors, n_segments), frequency-major rows.

@@ -26,7 +26,8 @@ def rigid(model, component: int) -> np.ndarray:
 
 
 def test_builtin_effects_are_registered_with_their_candidates(library, benchmark_model):
-    assert list(library) == ["segment_mass", "point_mass", "grounded_spring", "joint_band", "damping"]
+    assert list(library) == ["segment_mass", "point_mass", "grounded_spring", "joint_band", "damping",
+                             "grounded_spring_x", "grounded_spring_y", "sensor_mass", "sensor_gain", "patch"]
     top_free = benchmark_model.mesh.node_sets["top"]
     # 615 top nodes, 30 of them on the clamped faces.
     assert top_free.size == 615 and len(library["point_mass"].locations()) == 585
@@ -152,7 +153,9 @@ def test_extended_krylov_frf_matches_the_direct_solver_with_every_effect(library
 @pytest.mark.parametrize(
     ("kind", "location", "step"),
     [("point_mass", "node 397", 1e-3), ("grounded_spring", "node 633", 1e2), ("joint_band", "joint x=396 mm", 1e-3),
-     ("segment_mass", "segment2", 1e-3), ("damping", "a", 1e-2), ("damping", "b", 1e-7)],
+     ("segment_mass", "segment2", 1e-3), ("damping", "a", 1e-2), ("damping", "b", 1e-7),
+     ("sensor_mass", "all sensors", 1e-4), ("grounded_spring_x", "node 633", 1e2), ("patch", "node 331 r2", 1e-3),
+     ("sensor_gain", "sensor 4", 1e-3)],
 )
 def test_linearised_sensitivities_match_central_differences_of_the_direct_solver(library, benchmark_model, kind,
                                                                                 location, step):
@@ -162,7 +165,7 @@ def test_linearised_sensitivities_match_central_differences_of_the_direct_solver
     carried = [E.Applied(library["point_mass"], "node 337", np.array([0.05]))]
     lin = E.LinearisedResponse(benchmark_model, ALPHA_ACTUAL, FREQS, carried)
     analytic = lin.effect_derivatives(effect, location)[:, 0]
-    lo = 0.0 if kind in ("point_mass", "grounded_spring") else -step  # masses and springs are >= 0
+    lo = 0.0 if kind in ("point_mass", "grounded_spring", "sensor_mass", "grounded_spring_x") else -step  # masses and springs are >= 0
     plus = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, carried + [E.Applied(effect, location, [step])],
                           method="direct")
     minus = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, carried + [E.Applied(effect, location, [lo])],
@@ -183,3 +186,51 @@ def test_alpha_sensitivities_include_the_alpha_dependence_of_a_band(library, ben
         fd = (np.log(np.abs(E.extended_frf(benchmark_model, ap, FREQS, carried, method="direct")))
               - np.log(np.abs(E.extended_frf(benchmark_model, am, FREQS, carried, method="direct")))).ravel() / (2 * h)
         assert np.max(np.abs(J[:, i] - fd)) <= 1e-5 * np.max(np.abs(fd))
+
+
+def test_sensor_mass_puts_one_mass_on_every_translation_of_every_sensor_node(library, benchmark_model):
+    t = library["sensor_mass"].terms(ALPHA_ACTUAL, "all sensors", np.array([0.025]))
+    for c in range(3):  # an accelerometer is a rigid point mass: all three translations
+        v = rigid(benchmark_model, c)
+        assert v @ (t.mass @ v) == pytest.approx(6 * 0.025, rel=1e-12)
+    nodes = benchmark_model.free_dofs[t.mass.nonzero()[0]] // DOFS_PER_NODE
+    assert set(nodes) == set(benchmark_model.sensor_nodes)
+    # plausible: all six together at most 20 % of the structure
+    assert library["sensor_mass"].bounds_at("all sensors")[1][0] == pytest.approx(0.2 * 5.83726 / 6, rel=1e-5)
+
+
+def test_sensor_gain_scales_one_sensors_amplitude_and_leaves_the_structure_alone(library, benchmark_model):
+    applied = [E.Applied(library["sensor_gain"], "sensor 2", np.array([0.08]))]
+    K, M, a, b = E.extended_matrices(benchmark_model, ALPHA_ACTUAL, applied)
+    K0, M0, _, _ = E.extended_matrices(benchmark_model, ALPHA_ACTUAL)
+    assert abs(K - K0).max() == 0 and abs(M - M0).max() == 0
+    ratio = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, applied) / benchmark_model.frf(ALPHA_ACTUAL, FREQS)
+    assert np.allclose(ratio, [1, 1.08, 1, 1, 1, 1], rtol=1e-9)
+
+
+def test_grounded_springs_act_along_their_own_axis(library, benchmark_model):
+    for kind, c in (("grounded_spring_x", 0), ("grounded_spring_y", 1), ("grounded_spring", 2)):
+        t = library[kind].terms(ALPHA_ACTUAL, "node 633", np.array([1e5]))
+        for d in range(3):
+            v = rigid(benchmark_model, d)
+            assert v @ (t.stiffness @ v) == pytest.approx(1e5 if d == c else 0.0)
+    with pytest.raises(ValueError, match="direction"):
+        E.GroundedSpring(benchmark_model, component=3)
+
+
+def test_patches_grow_by_rings_of_cells_around_their_node(library, benchmark_model):
+    cells = benchmark_model.mesh.cells
+    bands = library["patch"].bands
+    ring1, ring2 = bands["node 331 r1"], bands["node 331 r2"]
+    assert set(ring1) == set(np.flatnonzero(np.any(cells == 331, axis=1)))
+    assert set(ring1) < set(ring2)
+    assert set(ring2) == set(np.flatnonzero(np.any(np.isin(cells, np.unique(cells[ring1])), axis=1)))
+
+
+def test_plausible_limits_can_be_set_and_default_to_a_fifth_of_the_structure(benchmark_model):
+    pm = E.PointMass(benchmark_model)
+    assert pm.bounds_at("node 337")[1][0] == pytest.approx(0.2 * benchmark_model.total_mass())
+    pm.set_limits(upper=0.5)
+    assert pm.bounds_at("node 337")[1][0] == 0.5
+    with pytest.raises(ValueError, match="below"):
+        pm.set_limits(lower=1.0)
