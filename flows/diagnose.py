@@ -136,7 +136,17 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
     print(f"residual after:  rms {ra['rms']:.3%}, chi2 {ra['chi2']:.1f} on {ra['dof']} dof, p = {ra['p_chi2']:.3g}",
           file=file)
     e = summary["effect"]
-    if e is not None:
+    verdict = summary.get("verdict")
+    if verdict is not None:
+        print(f"verdict: {verdict}", file=file)
+        word = "added" if verdict == "explained" else "candidate (structure remains, not a finding)"
+        for e in summary.get("effects", []):
+            print(f"  {e['step']}. {word}: {e['type']} at {e['location']}, {e['parameter']} = {e['value']:.4g} "
+                  f"{e['unit']}, explains {e['explained']:.1%} of the residual then", file=file)
+        for e in summary.get("implausible", []):
+            print(f"  implausible (fit ends on a plausibility bound): {e['type']} at {e['location']}, "
+                  f"{e['parameter']} = {e['value']:.4g} {e['unit']}", file=file)
+    elif e is not None:
         print(f"effect: {e['type']} at {e['location']}, {e['parameter']} = {e['value']:.4g} {e['unit']}"
               + (f"  {e['details']}" if e["details"] else ""), file=file)
     print(f"overall error: {summary['error_before']:.3%} -> {summary['error_after']:.3%} "
