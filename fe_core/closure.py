@@ -174,7 +174,8 @@ class ClosureResult:
     """Everything :func:`close_loop` found.
 
     ``steps`` are the added effects in order (``chosen`` is the first, kept for
-    one-effect readers); ``candidates`` is the ranking of the last round;
+    one-effect readers); ``candidates`` is the ranking of the first round and
+    ``rounds`` that of every round (the last one lists what remains);
     ``implausible`` the checked candidates of every round whose fit ended on a
     plausibility bound.
     """
@@ -189,6 +190,7 @@ class ClosureResult:
     steps: list[Candidate] = field(default_factory=list)
     verdict: str = "noise"
     implausible: list[Candidate] = field(default_factory=list)
+    rounds: list[list[Candidate]] = field(default_factory=list)
 
 
 # -- fitting ------------------------------------------------------------------------------------------
@@ -609,16 +611,17 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     sel = forward_select(model, freqs, u, base, before, library, significance=significance, per_type=per_type,
                          max_moves=max_moves, check_noise=check_noise, alpha_bounds=alpha_bounds,
                          max_effects=max_effects, times=times)
-    return ClosureResult(base, before, sel.ranked, sel.steps[0] if sel.steps else None, sel.final, sel.after, times,
-                         sel.steps, verdict(before, sel.after, len(sel.steps)), sel.implausible)
+    return ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
+                         sel.final, sel.after, times, sel.steps, verdict(before, sel.after, len(sel.steps)),
+                         sel.implausible, sel.rounds)
 
 
 @dataclass
 class Selection:
-    """What :func:`forward_select` added (in order), the last round's ranking and the final fit."""
+    """What :func:`forward_select` added (in order), each round's ranking and the final fit."""
 
     steps: list[Candidate]
-    ranked: list[Candidate]
+    rounds: list[list[Candidate]]
     implausible: list[Candidate]
     final: Fit
     after: ResidualAnalysis
@@ -644,7 +647,7 @@ def forward_select(model: ParametricModel, freqs_hz, amplitude, start: Fit, anal
     current, sigma = start, analysis.sigma
     steps: list[Candidate] = []
     implausible: list[Candidate] = []
-    ranked: list[Candidate] = []
+    rounds: list[list[Candidate]] = []
     for _ in range(max_effects):
         t = time.perf_counter()
         screened = screen(model, freqs, current, library)
@@ -658,7 +661,7 @@ def forward_select(model: ParametricModel, freqs_hz, amplitude, start: Fit, anal
         checked = dedupe(checked)
         chosen = decide(current, analysis, checked)
         implausible += [c for c in checked if c.implausible]
-        ranked = rank(merge(checked, screened))
+        rounds.append(rank(merge(checked, screened)))
         if chosen is None:
             break
         steps.append(chosen)
@@ -669,7 +672,7 @@ def forward_select(model: ParametricModel, freqs_hz, amplitude, start: Fit, anal
                  chosen.location, chosen.fit.values, 100 * chosen.explained, analysis.summary())
         if not analysis.structured:
             break
-    return Selection(steps, ranked, implausible, current, analysis)
+    return Selection(steps, rounds, implausible, current, analysis)
 
 
 def dedupe(checked: Sequence[Candidate]) -> list[Candidate]:

@@ -345,8 +345,6 @@ def decide_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndarra
         steps += sel.steps
         implausible += sel.implausible
         final, after = sel.final, sel.after
-        if sel.steps:
-            ranked = sel.ranked
     verdict = core.verdict(before, after, len(steps))
     cand_df = _candidates_frame(ranked, library)
     if not store.is_finished("decide"):

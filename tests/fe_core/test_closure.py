@@ -76,3 +76,49 @@ def test_clean_data_gets_no_effect(benchmark_model, name):
     np.testing.assert_array_equal(result.final.alpha, result.baseline.alpha)
     # The update itself is right: every alpha within 0.02 of the truth.
     assert np.max(np.abs(result.baseline.alpha - np.array(TRUTH["alpha"]))) < 0.02
+
+
+# -- issue 18: plausibility, verdicts, joint refits -----------------------------------------------------
+def test_a_fit_on_a_plausibility_bound_is_flagged_but_not_one_at_the_effects_absence(benchmark_model):
+    from fe_core.closure import at_bound
+    from fe_core.effects import ElementBand, PointMass
+
+    pm = PointMass(benchmark_model)
+    top = pm.bounds_at("node 337")[1][0]
+    assert top == pytest.approx(0.2 * benchmark_model.total_mass())
+    assert at_bound(pm, "node 337", [top]) and at_bound(pm, "node 337", [top - 1e-4])
+    assert not at_bound(pm, "node 337", [0.0])  # no mass: nothing, not implausible
+    assert not at_bound(pm, "node 337", [0.12])
+    band = ElementBand(benchmark_model, {"b": np.arange(10)})
+    assert at_bound(band, "b", [-0.999]) and not at_bound(band, "b", [-0.6])
+
+
+def test_verdicts_name_noise_explained_and_partly_explained():
+    from fe_core.closure import verdict
+
+    class A:  # only .structured is read
+        def __init__(self, structured):
+            self.structured = structured
+
+    assert verdict(A(False), A(False), 0) == "noise"
+    assert verdict(A(True), A(False), 2) == "explained"
+    assert verdict(A(True), A(True), 2) == "partly explained"
+    assert verdict(A(True), A(True), 0) == "partly explained"
+
+
+def test_an_earlier_effect_is_refitted_with_alpha_and_the_new_one(benchmark_model):
+    """Noise-free data with two effects: from a wrong earlier value, the joint fit recovers both."""
+    from fe_core.benchmark import ALPHA_ACTUAL
+    from fe_core.closure import fit_update
+    from fe_core.effects import Applied, GroundedSpring, PointMass, extended_frf
+
+    freqs = np.linspace(20, 400, 40)
+    pm, gs = PointMass(benchmark_model), GroundedSpring(benchmark_model)
+    truth = [Applied(pm, "node 337", np.array([0.12])), Applied(gs, "node 919", np.array([4e5]))]
+    u = np.abs(extended_frf(benchmark_model, ALPHA_ACTUAL, freqs, truth, method="direct"))
+    fit = fit_update(benchmark_model, freqs, u, ALPHA_ACTUAL, gs, "node 919", [2e5],
+                     prior=[Applied(pm, "node 337", np.array([0.06]))], max_evaluations=300)
+    assert fit.n_parameters == 8 and [a.location for a in fit.applied] == ["node 337", "node 919"]
+    assert fit.prior[0].values[0] == pytest.approx(0.12, rel=1e-3)
+    assert fit.values[0] == pytest.approx(4e5, rel=1e-3)
+    assert np.max(np.abs(fit.alpha - ALPHA_ACTUAL)) < 1e-3
