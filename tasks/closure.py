@@ -360,6 +360,10 @@ def decide_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndarra
     summary = _closure_json(store, settings, run_info, base, final, chosen, before, after, ranked, library, u,
                             sensors, freqs, before_info)
     summary.update(_verdict_json(verdict, steps, implausible, library, final))
+    atomic_write_bytes(store.root / "frf_closure.parquet", _parquet_bytes(pd.DataFrame({
+        "frequency_hz": np.repeat(freqs, len(sensors)), "sensor": np.tile(np.asarray(sensors, np.int64), len(freqs)),
+        "measured": u.ravel(), "alpha_only": base.model_amplitude.ravel(), "extended": final.model_amplitude.ravel()})))
+    summary["frf_table"] = "frf_closure.parquet"
     atomic_write_json(store.root / "closure.json", summary)
     try:
         from tasks.closure_plot import plot_residuals
@@ -422,8 +426,9 @@ def _errors(fit, u, sensors):
 
 def _params(fit, library) -> dict:
     out = {f"alpha_{i + 1}": float(v) for i, v in enumerate(fit.alpha)}
-    if fit.effect is not None:
-        out.update({f"{fit.effect}.{n}": float(v) for n, v in zip(library[fit.effect].parameters, fit.values)})
+    for a in fit.applied:  # the effects in the order added; a second one of a kind is named by its location
+        key = a.effect.kind if not any(f"{a.effect.kind}." in k for k in out) else f"{a.effect.kind}@{a.location}"
+        out.update({f"{key}.{n}": float(v) for n, v in zip(a.effect.parameters, a.values)})
     return out
 
 

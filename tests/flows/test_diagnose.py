@@ -55,6 +55,12 @@ def test_the_closure_of_a_reduced_run_names_the_point_mass_and_writes_its_tables
     after = pd.read_parquet(closure / "residual_after.parquet")
     assert after["residual"].abs().mean() == pytest.approx(on_disk["error_after"], rel=1e-9)
     assert (closure / "residuals.png").stat().st_size > 10_000
+    # Issue 18: the verdict, the effects in the order added, and the FRF of both models.
+    assert on_disk["verdict"] == "explained" and [e["type"] for e in on_disk["effects"]] == ["point_mass"]
+    assert on_disk["effects"][0]["value"] == pytest.approx(effect["value"], rel=1e-12)
+    frf = pd.read_parquet(closure / on_disk["frf_table"])
+    rel = (frf["extended"] - frf["measured"]).abs() / frf["measured"]
+    assert rel.mean() == pytest.approx(on_disk["error_after"], rel=1e-9)
     ranks = pd.read_parquet(closure / on_disk["tables"]["candidates"])
     assert ranks["rank"].tolist() == list(range(1, len(ranks) + 1)) and ranks["checked"].iloc[0]
 
