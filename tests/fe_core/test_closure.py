@@ -122,3 +122,43 @@ def test_an_earlier_effect_is_refitted_with_alpha_and_the_new_one(benchmark_mode
     assert fit.prior[0].values[0] == pytest.approx(0.12, rel=1e-3)
     assert fit.values[0] == pytest.approx(4e5, rel=1e-3)
     assert np.max(np.abs(fit.alpha - ALPHA_ACTUAL)) < 1e-3
+
+
+# -- issue 18: data/effects2 (full table: python -m benchmarks.closure --table) ---------------------------
+DATA2 = DATA.parent / "effects2"
+TRUTH2 = json.loads((DATA2 / "truth.json").read_text())["data"]
+
+
+def closure2(model, name, kinds):
+    """Forward selection from the nominal model with a small library (the cheapest that asserts the point)."""
+    from fe_core.effects import build_library
+
+    measured = read_measured(DATA2 / name)
+    return close_loop(model, measured.frequencies_hz, measured.amplitude, np.zeros(6),
+                      build_library(model, kinds), **SETTINGS)
+
+
+@pytest.mark.slow
+def test_a_sensor_reading_8_percent_high_is_named_as_its_gain_not_as_structure(benchmark_model):
+    truth = TRUTH2["sensor_gain.csv"]["effects"][0]
+    result = closure2(benchmark_model, "sensor_gain.csv", ["sensor_gain", "point_mass", "grounded_spring"])
+    assert result.verdict == "explained"
+    assert [(c.effect, c.location) for c in result.steps] == [("sensor_gain", truth["location"])]
+    assert result.final.values[0] == pytest.approx(truth["value"], abs=0.01)
+
+
+@pytest.mark.slow
+def test_an_effect_outside_the_library_is_never_called_explained(benchmark_model):
+    assert not TRUTH2["outside_library.csv"]["in_library"]
+    result = closure2(benchmark_model, "outside_library.csv",
+                      ["sensor_gain", "point_mass", "sensor_mass", "grounded_spring"])
+    assert result.before.structured
+    assert result.verdict == "partly explained" and result.after.structured
+
+
+@pytest.mark.slow
+def test_clean_data_far_from_nominal_get_noise(benchmark_model):
+    result = closure2(benchmark_model, "far_clean.csv", ["point_mass"])
+    assert result.verdict == "noise" and not result.steps
+    # Stiff segments (alpha_5 = 0.5) are weaker in the data: within 0.05 at 0.5 % noise (0.041 measured).
+    assert np.max(np.abs(result.baseline.alpha - np.array(TRUTH2["far_clean.csv"]["alpha"]))) < 0.05
