@@ -280,6 +280,12 @@ def aggregate(runs: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def markdown_table(table: pd.DataFrame) -> list[str]:
+    """Lines of a Markdown table of ``table`` (header, rule, one line per row)."""
+    md = ["| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
+    return md + ["| " + " | ".join(str(v) for v in row) + " |" for row in table.itertuples(index=False)]
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.compare", description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -310,8 +316,7 @@ def main(argv=None) -> int:
     runs = pd.DataFrame(records)
     table = aggregate(runs)
     table.to_csv(out.with_suffix(".csv"), index=False)
-    md = ["| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
-    md += ["| " + " | ".join(str(v) for v in row) + " |" for row in table.itertuples(index=False)]
+    md = markdown_table(table)
     text = "\n".join(md) + "\n"
     out.with_suffix(".md").write_text(
         f"Command: `python -m benchmarks.compare --seeds {' '.join(map(str, args.seeds))} "

@@ -73,17 +73,25 @@ class SegmentedMatrix:
     Attributes
     ----------
     pattern : scipy.sparse.csr_matrix, shape (n, n)
-        The union pattern (its data are the unscaled sum).
+        The union pattern (its data are the unscaled sum, remainder included).
     data : ndarray, shape (n_segments, nnz)
         Each segment's entries on ``pattern``.
+    fixed : ndarray, shape (nnz,), or None
+        The fixed remainder's entries on ``pattern`` (cells in no segment), added
+        unscaled by :meth:`combine`; None when every cell belongs to a segment.
     """
 
     pattern: sp.csr_matrix
     data: np.ndarray
+    fixed: np.ndarray | None = None
 
     @classmethod
-    def from_matrices(cls, matrices: Sequence[sp.spmatrix]) -> "SegmentedMatrix":
+    def from_matrices(cls, matrices: Sequence[sp.spmatrix], remainder: sp.spmatrix | None = None
+                      ) -> "SegmentedMatrix":
+        """Segment matrices (and an optional fixed remainder) on their union pattern."""
         mats = [sp.csr_matrix(m, dtype=float) for m in matrices]
+        if remainder is not None:
+            mats.append(sp.csr_matrix(remainder, dtype=float))
         for m in mats:
             m.sum_duplicates()
             m.sort_indices()
@@ -102,6 +110,8 @@ class SegmentedMatrix:
             # Exact alignment: each entry goes to its (row, col) slot in the union.
             data[i, np.searchsorted(union_keys, _keys(m, n))] = m.data
         total.data = data.sum(axis=0)
+        if remainder is not None:
+            return cls(pattern=total, data=data[:-1], fixed=data[-1])
         return cls(pattern=total, data=data)
 
     @property
@@ -116,6 +126,10 @@ class SegmentedMatrix:
         """Segment ``i``'s matrix on the common pattern."""
         return self._with_data(self.data[i].copy())
 
+    def remainder(self) -> sp.csr_matrix:
+        """The fixed remainder on the common pattern (zero when there is none)."""
+        return self._with_data(np.zeros(self.pattern.nnz) if self.fixed is None else self.fixed.copy())
+
     def combine(self, weights: np.ndarray) -> sp.csr_matrix:
         """``sum_i weights[i] * segment_i`` as a CSR matrix.
 
@@ -126,7 +140,8 @@ class SegmentedMatrix:
         weights = np.asarray(weights, dtype=float)
         if weights.shape != (self.n_segments,):
             raise ValueError(f"expected {self.n_segments} weights, got shape {weights.shape}")
-        return self._with_data(weights @ self.data)
+        combined = weights @ self.data
+        return self._with_data(combined if self.fixed is None else combined + self.fixed)
 
     def _with_data(self, data: np.ndarray) -> sp.csr_matrix:
         return sp.csr_matrix(

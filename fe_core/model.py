@@ -1,8 +1,12 @@
 """A finite element model parametrised by segment stiffness and mass factors.
 
-``K(alpha) = sum_i K_i (1 + alpha_i)`` and ``M(gamma) = sum_i M_i (1 + gamma_i)``
-(Eq. 2 of Zhou & Tang), with Rayleigh damping ``C = a M(gamma) + b K(alpha)``
-from the updated matrices. Every alpha_i and gamma_i must be finite and
+``K(alpha) = K_0 + sum_i K_i (1 + alpha_i)`` and ``M(gamma) = M_0 + sum_i M_i (1 + gamma_i)``
+(Eq. 2 of Zhou & Tang, plus a fixed remainder ``K_0, M_0`` of cells in no segment,
+absent in the benchmark), with Rayleigh damping ``C = a M(gamma) + b K(alpha)``
+from the updated matrices. Sensors are output vectors (a DOF, or a direction
+combining a node's DOFs) and the structure is driven by one load vector (the
+excitation). Models are built by :func:`build_model` (the benchmark's path) or
+read from a model file (:func:`fe_core.io.read_model`). Every alpha_i and gamma_i must be finite and
 greater than -1; the model refuses anything else before doing any work.
 """
 
@@ -66,53 +70,116 @@ def check_parameters(values, n: int, name: str) -> np.ndarray:
 
 @dataclass
 class ParametricModel:
-    """Segment-parametrised FE model with sensors and a load.
+    """Segment-parametrised FE model with output vectors (sensors) and a load vector (excitation).
+
+    ``K(alpha) = K_0 + sum_i K_i (1 + alpha_i)``, ``M(gamma) = M_0 + sum_i M_i (1 + gamma_i)``,
+    where ``K_0, M_0`` are the fixed remainder (cells in no segment; absent for the benchmark).
+    Sensor ``s`` measures ``L[:, s] . u`` and the structure is driven by ``F``.
 
     Attributes
     ----------
-    mesh : Mesh
+    mesh : Mesh or None
+        None for a model given as matrices.
     free_dofs : ndarray, shape (n_free,), int
-        Global DOF numbers (``3 * node + component``) of the free DOFs.
+        Global DOF numbers (``3 * node + component`` for a mesh, rows of the
+        DOF table for matrices) of the free DOFs.
     stiffness_segments, mass_segments : SegmentedMatrix
-        Segment matrices restricted to the free DOFs, N/m and kg.
+        Segment matrices (and the remainder) restricted to the free DOFs, N/m and kg.
     segment_names : list of str
     damping : (float, float)
         Rayleigh coefficients ``(a [1/s], b [s])``.
-    sensor_nodes : ndarray, shape (n_sensors,), int
+    sensor_nodes : ndarray, shape (n_sensors,), int, or None
+        Node of each sensor (None when the outputs are given directly).
     sensor_component : int
-        0, 1 or 2 for u_x, u_y, u_z.
+        0, 1 or 2 for u_x, u_y, u_z (with ``sensor_nodes``).
     segment_masses : list of float, kg
         Mass of each segment (clamped nodes included).
     material : Material or None
-        The material the element matrices were built with (None if unknown);
+        The material the element matrices were built with (None if unknown or several);
         model extensions that add element matrices (:mod:`fe_core.effects`) need it.
     formulation : str or None
         hex8 stiffness formulation, ``"incompatible"`` or ``"plain"``.
-    sensor_dofs : ndarray, shape (n_sensors,), int
-        Free-DOF indices of the sensors.
+    outputs : scipy.sparse.csr_matrix, shape (n_free, n_sensors), or None
+        Output vectors ``L`` (a unit entry for a sensor along x, y or z; the
+        direction cosines for a sensor along a unit vector). Made from
+        ``sensor_nodes`` when None.
+    load : ndarray, shape (n_free,), N, or None
+        The excitation ``F``; the sum of unit forces at the sensors (the
+        benchmark's combined load) when None.
+    sensor_names, excitation_name : list of str, str
+    n_total_dofs : int or None
+        DOFs before constraints (``3 * n_nodes`` for a mesh).
+    parameter_bounds : ndarray, shape (n_segments, 2), or None
+        Per-segment ``(lower, upper)`` of alpha from the model file; None = the run's box.
+    source : str or None
+        The model file the model was read from.
+    remainder_mass : float, kg
+        Mass of the fixed remainder (cells in no segment).
+    placements : list of str
+        Where each sensor and excitation point landed (node, distance), for the log.
+    dof_table : ndarray, shape (n_total_dofs, 2), int, or None
+        Node id and direction of each DOF of a matrices model.
     """
 
-    mesh: Mesh
+    mesh: Mesh | None
     free_dofs: np.ndarray
     stiffness_segments: SegmentedMatrix
     mass_segments: SegmentedMatrix
     segment_names: list[str]
     damping: tuple[float, float]
-    sensor_nodes: np.ndarray
+    sensor_nodes: np.ndarray | None = None
     sensor_component: int = 2
     segment_masses: list[float] = field(default_factory=list)
     material: Material | None = None
     formulation: str | None = None
-    sensor_dofs: np.ndarray = field(init=False)
+    outputs: sp.csr_matrix | None = None
+    load: np.ndarray | None = None
+    sensor_names: list[str] = field(default_factory=list)
+    excitation_name: str = "combined"
+    n_total_dofs: int | None = None
+    parameter_bounds: np.ndarray | None = None
+    source: str | None = None
+    remainder_mass: float = 0.0
+    placements: list[str] = field(default_factory=list)
+    dof_table: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        position = np.full(self.mesh.n_nodes * DOFS_PER_NODE, -1)
-        position[self.free_dofs] = np.arange(self.free_dofs.size)
-        global_dofs = DOFS_PER_NODE * np.asarray(self.sensor_nodes) + self.sensor_component
-        self.sensor_dofs = position[global_dofs]
-        if np.any(self.sensor_dofs < 0):
-            bad = np.asarray(self.sensor_nodes)[self.sensor_dofs < 0]
-            raise ValueError(f"sensor nodes {bad.tolist()} lie on constrained DOFs")
+        if self.n_total_dofs is None:
+            self.n_total_dofs = self.mesh.n_nodes * DOFS_PER_NODE
+        if self.outputs is None:
+            position = np.full(self.n_total_dofs, -1)
+            position[self.free_dofs] = np.arange(self.free_dofs.size)
+            global_dofs = DOFS_PER_NODE * np.asarray(self.sensor_nodes) + self.sensor_component
+            rows = position[global_dofs]
+            if np.any(rows < 0):
+                bad = np.asarray(self.sensor_nodes)[rows < 0]
+                raise ValueError(f"sensor nodes {bad.tolist()} lie on constrained DOFs")
+            n_s = rows.size
+            self.outputs = sp.csr_matrix((np.ones(n_s), (rows, np.arange(n_s))), shape=(self.free_dofs.size, n_s))
+        self.outputs = sp.csr_matrix(self.outputs, dtype=float)
+        if self.load is None:
+            self.load = np.asarray(self.outputs.sum(axis=1)).ravel()
+        self.load = np.asarray(self.load, dtype=float)
+        if not self.sensor_names:
+            self.sensor_names = [f"sensor {j + 1}" for j in range(self.outputs.shape[1])]
+        # The DOFs the outputs read, and how each sensor combines them.
+        coo = self.outputs.tocoo()
+        self._out_rows = np.unique(coo.row)
+        self._out_weights = self.outputs[self._out_rows].toarray()  # (k, n_sensors)
+
+    @property
+    def sensor_dofs(self) -> np.ndarray:
+        """Free-DOF index of each sensor, shape (n_sensors,), int, when every sensor is one DOF.
+
+        Raises ``ValueError`` for a sensor along a direction that combines DOFs (use :attr:`outputs`).
+        """
+        L = self.outputs.tocsc()
+        for j in range(L.shape[1]):
+            col = L.data[L.indptr[j]:L.indptr[j + 1]]
+            if col.size != 1 or col[0] != 1.0:
+                raise ValueError(f"{self.sensor_names[j]!r} combines several DOFs or is weighted; "
+                                 "use the model's output vectors (outputs, read_outputs)")
+        return L.indices[L.indptr[:-1]].copy()
 
     # -- sizes -----------------------------------------------------------
     @property
@@ -126,7 +193,7 @@ class ParametricModel:
 
     @property
     def n_sensors(self) -> int:
-        return self.sensor_dofs.size
+        return self.outputs.shape[1]
 
     @property
     def parameter_names(self) -> list[str]:
@@ -156,18 +223,24 @@ class ParametricModel:
     def total_mass(self, gamma=None) -> float:
         """Total mass in kg, free and clamped nodes included (from the element matrices)."""
         g = self._gamma(gamma)
-        return float(sum((1.0 + g[i]) * m for i, m in enumerate(self.segment_masses)))
+        return float(sum((1.0 + g[i]) * m for i, m in enumerate(self.segment_masses))) + self.remainder_mass
 
     # -- loads -----------------------------------------------------------
     def sensor_loads(self) -> np.ndarray:
-        """One unit load per sensor DOF, shape (n_free, n_sensors), N."""
-        F = np.zeros((self.n_dofs, self.n_sensors))
-        F[self.sensor_dofs, np.arange(self.n_sensors)] = 1.0
-        return F
+        """One unit load per sensor, along the sensor's direction, shape (n_free, n_sensors), N.
+
+        These are the output vectors as load cases (by reciprocity, the response at
+        the sensors to them is the sensor-by-sensor receptance matrix).
+        """
+        return self.outputs.toarray()
 
     def combined_load(self) -> np.ndarray:
-        """Unit in-phase forces at all sensor DOFs at once, shape (n_free,), N."""
-        return self.sensor_loads().sum(axis=1)
+        """The excitation, shape (n_free,), N: for the benchmark unit in-phase forces at all sensors."""
+        return self.load.copy()
+
+    def read_outputs(self, X: np.ndarray) -> np.ndarray:
+        """Sensor readings of response vectors: ``X`` (..., n_free) -> (..., n_sensors)."""
+        return X[..., self._out_rows] @ self._out_weights
 
     # -- responses -------------------------------------------------------
     def frf(self, alpha, freqs_hz, gamma=None, method: str = "krylov") -> np.ndarray:
@@ -213,8 +286,11 @@ class ParametricModel:
         a, b = self.damping
         omegas = hz_to_rad(freqs)
         if method == "direct":
-            return direct_frf(K, M, a * M + b * K, F, omegas, self.sensor_dofs)
-        return krylov_frf(K, M, a, b, F, omegas, self.sensor_dofs)
+            Z = direct_frf(K, M, a * M + b * K, F, omegas, self._out_rows)
+        else:
+            Z = krylov_frf(K, M, a, b, F, omegas, self._out_rows)
+        # (p, k, n_loads) at the output DOFs -> (p, n_sensors, n_loads)
+        return np.einsum("pkl,ks->psl", Z, self._out_weights)
 
     def natural_frequencies(self, alpha, n_modes: int = 6, gamma=None) -> np.ndarray:
         """Lowest natural frequencies, Hz, shape (n_modes,)."""
@@ -226,17 +302,25 @@ class ParametricModel:
         Returns
         -------
         freqs : ndarray, shape (n_modes,), Hz
-        shapes : ndarray, shape (n_modes, n_nodes, 3)
+        shapes : ndarray, shape (n_modes, n_nodes, 3), or (n_modes, n_total_dofs) without a mesh
             Mass-normalised, zero on constrained DOFs.
         labels : list of str
             ``"z-bending 1"``, ``"torsion 1"``, ... numbered per family, as in
-            the benchmark SPEC (symmetry of u_z about y = 0).
+            the benchmark SPEC (symmetry of u_z about y = 0); ``"mode 1"``,
+            ``"mode 2"``, ... for a model without a mesh or a mesh that is not
+            symmetric about y = 0 (the classification is the benchmark's).
         """
         freqs, vecs = eigenmodes(self.stiffness(alpha), self.mass(gamma), n_modes)
-        full = np.zeros((n_modes, self.mesh.n_nodes * DOFS_PER_NODE))
+        full = np.zeros((n_modes, self.n_total_dofs))
         full[:, self.free_dofs] = vecs.T
+        plain = [f"mode {k + 1}" for k in range(n_modes)]
+        if self.mesh is None:
+            return freqs, full, plain
         shapes = full.reshape(n_modes, self.mesh.n_nodes, DOFS_PER_NODE)
-        mirror = self._mirror_nodes()
+        try:
+            mirror = self._mirror_nodes()
+        except ValueError:
+            return freqs, shapes, plain
         counts: dict[str, int] = {}
         labels = []
         for shape in shapes:

@@ -101,8 +101,8 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz) -> tuple[np.ndarray, n
 
     The dynamic stiffness ``D(w) = K(alpha) - w^2 M + j w (a M + b K(alpha))``
     depends on ``alpha_i`` through ``dD/dalpha_i = (1 + j w b) K_i``, so with
-    ``h = D^-1 F`` (the response to the combined load) and ``g_s = D^-1 e_s``
-    (the adjoint for sensor s; D is complex symmetric)::
+    ``h = D^-1 F`` (the response to the combined load) and ``g_s = D^-1 l_s``
+    (the adjoint for sensor s, ``l_s`` its output vector; D is complex symmetric)::
 
         dZ_s / dalpha_i = -(1 + j w b) g_s^T K_i h
 
@@ -131,14 +131,14 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz) -> tuple[np.ndarray, n
     n_s = model.n_sensors
     rhs = np.zeros((model.n_dofs, 1 + n_s), dtype=complex)
     rhs[:, 0] = model.combined_load()
-    rhs[model.sensor_dofs, 1 + np.arange(n_s)] = 1.0
+    rhs[:, 1:] = model.sensor_loads()  # adjoint loads: the output vectors
     Z = np.empty((freqs.size, n_s), dtype=complex)
     dZ = np.empty((freqs.size, n_s, model.n_segments), dtype=complex)
     for f, w in enumerate(hz_to_rad(freqs)):
         D = (K - w**2 * M + 1j * w * (a * M + b * K)).tocsc()
         sol = spla.splu(D).solve(rhs)
         h, G = sol[:, 0], sol[:, 1:]
-        Z[f] = h[model.sensor_dofs]
+        Z[f] = model.read_outputs(h)
         for i, Ki in enumerate(segments):
             dZ[f, :, i] = -(1.0 + 1j * w * b) * (G.T @ (Ki @ h))
     return Z, dZ

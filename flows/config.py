@@ -39,7 +39,9 @@ class UpdateConfig:
     measured : str
         Measured FRF amplitudes (CSV, Parquet or UFF58).
     model : str
-        FE model name; ``three_plate`` is the benchmark.
+        FE model: a name (``three_plate``, the benchmark) or the path of a model
+        file ``model.toml`` (relative to the repository when not absolute; see
+        :mod:`fe_core.io.model_toml`). Parameter names and count come from the model.
     strategy : {"adaptive", "conventional"}
         ``conventional`` is Section 3.4's baseline: ``conventional_samples``
         uniform FE runs, one MRGP, the best of ``w`` predictions.
@@ -157,7 +159,7 @@ class UpdateConfig:
         if self.strategy not in STRATEGIES:
             raise bad("strategy", f"unknown strategy {self.strategy!r}; choose one of {', '.join(STRATEGIES)}")
         if self.model not in MODELS:
-            raise bad("model", f"unknown model {self.model!r}; choose one of {', '.join(MODELS)}")
+            check_model_path(self, bad)
         if not self.threshold > 0:
             raise bad("threshold", f"must be positive, got {self.threshold}")
         if self.lower < -1.0:
@@ -200,6 +202,16 @@ class UpdateConfig:
         """A path from the config, relative to the repository when not absolute."""
         p = Path(path)
         return p if p.is_absolute() else REPO / p
+
+
+def check_model_path(config: UpdateConfig, bad) -> None:
+    """``model`` is not a known name: it must be an existing ``.toml`` model file."""
+    path = config.resolve(config.model)
+    if path.suffix != ".toml":
+        raise bad("model", f"unknown model {config.model!r}; give a model name ({', '.join(MODELS)}) "
+                           "or the path of a model file (.toml)")
+    if not path.is_file():
+        raise bad("model", f"model file {str(path)!r} does not exist")
 
 
 _TYPES: dict[str, tuple[type, ...]] = {}

@@ -43,7 +43,14 @@ ELEMENTS_PER_WAVELENGTH = 6
 
 
 def max_frequency_hz(model_name: str) -> float:
-    """Highest frequency the model's mesh resolves, Hz (see the module docstring)."""
+    """Highest frequency the model's mesh resolves, Hz (see the module docstring).
+
+    The six-elements rule needs the benchmark's plate thickness and element size;
+    a model file has no such limit here (inf): its band is checked against its
+    natural frequencies instead (:func:`check_band`).
+    """
+    if model_name.endswith(".toml"):
+        return math.inf
     if model_name == "three_plate":
         from fe_core import benchmark as b
 
@@ -75,11 +82,37 @@ def check_inputs(config: UpdateConfig, measured: MeasuredFRF, model) -> None:
             f"the highest frequency the mesh of {config.model!r} resolves ({ELEMENTS_PER_WAVELENGTH} elements per bending "
             f"wavelength); {above.size} frequencies are out of range"
         )
+    if config.model.endswith(".toml"):
+        check_band(config, measured, model)
     if config.true_parameters is not None:
         truth = np.asarray(config.true_parameters, float)
         if truth.shape != (model.n_segments,):
             raise ConfigError(f"config: key 'true_parameters': the model {config.model!r} has "
                               f"{model.n_segments} parameters, got {truth.size}")
+
+
+#: The measured band is "far outside" the model's modes beyond this factor (a mesh in mm with SI
+#: materials puts every natural frequency 1000 times too low).
+BAND_FACTOR = 30.0
+
+
+def check_band(config: UpdateConfig, measured: MeasuredFRF, model) -> None:
+    """Refuse a measured band far from the model's lowest natural frequencies (units mix-ups).
+
+    With all alpha = 0: refused when every measured frequency is above
+    ``BAND_FACTOR`` times the highest of the lowest six natural frequencies, or
+    below the lowest one divided by ``BAND_FACTOR``.
+    """
+    n = min(6, model.n_dofs - 1)
+    freqs = model.natural_frequencies(np.zeros(model.n_segments), n_modes=n)
+    lo, hi = float(np.min(measured.frequencies_hz)), float(np.max(measured.frequencies_hz))
+    if lo > BAND_FACTOR * freqs[-1] or hi < freqs[0] / BAND_FACTOR:
+        raise ConfigError(
+            f"{config.model}: the model's natural frequencies ({', '.join(f'{f:.4g}' for f in freqs)} Hz at alpha = 0) "
+            f"are far outside the measured band {lo:g}-{hi:g} Hz of {measured.source} (more than {BAND_FACTOR:g}x); "
+            "check the units: a mesh in mm needs units = \"mm-t-s\" (E in MPa, rho in t/mm^3), "
+            "a mesh in m needs SI materials"
+        )
 
 
 def check_resume(config: UpdateConfig, root: Path, resumable: set[str]) -> None:
@@ -88,9 +121,11 @@ def check_resume(config: UpdateConfig, root: Path, resumable: set[str]) -> None:
     if not manifest.exists():
         return
     try:
-        old = json.loads(manifest.read_text())["config"]
+        record = json.loads(manifest.read_text())
+        old = record["config"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"{manifest}: unreadable run manifest ({exc}); choose a new --run-id") from None
+    check_model_unchanged(config, manifest, record)
     cfg = config.to_dict()
     changed = sorted(k for k in cfg if k not in resumable and old.get(k, cfg[k]) != cfg[k])
     if changed:
@@ -98,6 +133,19 @@ def check_resume(config: UpdateConfig, root: Path, resumable: set[str]) -> None:
             f"{manifest}: run {root.name!r} was started with other settings ({', '.join(changed)}); "
             "resume with the same settings or choose a new --run-id"
         )
+
+
+def check_model_unchanged(config: UpdateConfig, manifest: Path, record: dict) -> None:
+    """A run on a model file resumes only if the file and its mesh/matrices are unchanged (SHA-256)."""
+    from tasks.stages import model_fingerprint
+
+    stored = record.get("model_checksum")
+    if stored is None or record.get("config", {}).get("model") != config.model:
+        return
+    if model_fingerprint(config.model) != stored:
+        raise ConfigError(f"{manifest}: run {manifest.parent.name!r} was started with another version of the model "
+                          f"file {config.model} or its mesh/matrices (checksum differs); restore them or choose a "
+                          "new --run-id")
 
 
 def expected_output_mb(config: UpdateConfig, n_values: int, m: int) -> float:

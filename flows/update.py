@@ -105,7 +105,7 @@ def check_before_run(config: UpdateConfig):
     the file and key; nothing has been written into the run folder then.
     """
     measured = read_measured(config.resolve(config.measured))
-    model = stages.load_model(config.model)
+    model = load_model_checked(config)
     preflight.check_inputs(config, measured, model)
     root = config.resolve(config.runs_dir) / config.run_id
     preflight.check_resume(config, root, RESUMABLE_CHANGES)
@@ -118,6 +118,17 @@ def check_before_run(config: UpdateConfig):
         except fe_backends.FEBackendError as exc:
             raise ConfigError(str(exc)) from None
     return measured
+
+
+def load_model_checked(config: UpdateConfig):
+    """The run's FE model; a model file that cannot be used is a ConfigError naming the file and key."""
+    from fe_core.io import ModelFileError
+
+    try:
+        model = stages.load_model(config.model)
+    except ModelFileError as exc:
+        raise ConfigError(str(exc)) from None
+    return model
 
 
 def run_update(config: UpdateConfig) -> dict:
@@ -207,6 +218,7 @@ def _write_manifest(store: RunStore, config: UpdateConfig) -> None:
         "versions": {"python": sys.version.split()[0], **package_versions()},
         "git_commit": git_commit(),
         "stages": list(stages.STAGES),
+        "model_checksum": stages.model_fingerprint(config.model),
     })
 
 
@@ -330,6 +342,8 @@ def _run_parser() -> argparse.ArgumentParser:
         epilog="Settings come from the defaults, then --config, then these flags. See data/update.example.toml.",
     )
     p.add_argument("--config", metavar="PATH", help="TOML file with any of the settings (data/update.example.toml)")
+    p.add_argument("--model", metavar="NAME|PATH", help="FE model: three_plate (default, the benchmark) or a "
+                                                       "model file model.toml (README: Your own structure)")
     p.add_argument("--measured", metavar="PATH", help="measured FRF amplitudes: .csv, .parquet or .uff "
                                                       "(default data/benchmark/measured.csv)")
     p.add_argument("--run-id", metavar="ID", help="run folder name under data/runs; an existing id resumes that run")
@@ -415,7 +429,7 @@ def main(argv: list[str] | None = None) -> int:
             threshold=args.threshold, max_iterations=args.max_iterations,
             max_fe_evaluations=args.max_fe_evaluations, q=args.q, w=args.w, s=args.s, z=args.z,
             polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target,
-            polish_stall_rtol=args.polish_stall_rtol,
+            polish_stall_rtol=args.polish_stall_rtol, model=args.model,
         )
         if config.run_id is None:
             stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
@@ -446,6 +460,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     try:
+        for line in stages.load_model(config.model).placements:  # where the sensor and excitation points landed
+            print(f"model: {line}")
         summary = update_flow(config)
     finally:
         lock.release()

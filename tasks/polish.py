@@ -91,8 +91,8 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
     cols = stages.param_columns(m)
     p, n = measured_amplitude.shape
     best = int(np.argmin(E))
-    lower = np.full(m, polish_lower_bound(config.lower))
-    upper = np.full(m, config.upper)
+    lower, upper = stages.parameter_box(config, m)
+    lower = np.maximum(lower, polish_lower_bound(-1.0))
 
     # The polish asks for its new points in a deterministic sequence; the k-th new point
     # is sample base + k. On resume, a stored result with that id is reused if it was

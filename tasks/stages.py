@@ -45,6 +45,7 @@ __all__ = [
     "evaluate_sample",
     "training_data",
     "load_model",
+    "parameter_box",
 ]
 
 #: Environment variable: seconds each FE run sleeps (only for interruption tests).
@@ -72,12 +73,68 @@ def stage_rng(seed: int, iteration: int, stage: str) -> np.random.Generator:
 
 
 def load_model(name: str):
-    """The FE model by name (built once per process, then cached)."""
-    if name == "three_plate":
-        from fe_core.benchmark import three_plate
+    """The FE model by name or model-file path (built once per process, then cached).
 
-        return three_plate()
-    raise ValueError(f"unknown model {name!r}")
+    ``three_plate`` is a shortcut to the benchmark's model file
+    ``data/benchmark/model.toml`` (the same FRF as :func:`fe_core.benchmark.three_plate`,
+    tested). A model file (``.toml``, relative to the repository when not absolute)
+    is cached by the SHA-256 of its own and its mesh/matrix files' contents, so an
+    edited file is read again and an unchanged one never is. Raises
+    :class:`fe_core.io.ModelFileError` for a file that cannot be used.
+    """
+    return _model_from_file(MODEL_SHORTCUTS.get(name, name))
+
+
+#: Model names and the model files they stand for.
+MODEL_SHORTCUTS = {"three_plate": "data/benchmark/model.toml"}
+#: Models kept per process (a test process may alternate between a few).
+_CACHE_SIZE = 4
+_MODEL_CACHE: dict[tuple[str, str], object] = {}
+_REPO = Path(__file__).resolve().parents[1]
+
+
+def model_checksum(path: Path) -> str:
+    """SHA-256 over the model file and the files it refers to (mesh, matrices, DOF table)."""
+    import hashlib
+
+    from fe_core.io import model_files
+
+    digest = hashlib.sha256()
+    for f in model_files(path):
+        digest.update(f.name.encode() + b"\0" + f.read_bytes())
+    return digest.hexdigest()
+
+
+def model_fingerprint(name: str) -> str | None:
+    """The checksum of a model file and its mesh/matrices (None for a built-in model name)."""
+    if name in MODEL_SHORTCUTS:
+        return None
+    path = Path(name) if Path(name).is_absolute() else _REPO / name
+    return model_checksum(path)
+
+
+def _model_from_file(name: str):
+    from fe_core.io import read_model
+
+    path = Path(name) if Path(name).is_absolute() else _REPO / name
+    key = (str(path), model_checksum(path) if path.exists() else "")
+    if key not in _MODEL_CACHE:
+        for old in [k for k in _MODEL_CACHE if k[0] == key[0]]:  # an edited file's old model
+            del _MODEL_CACHE[old]
+        while len(_MODEL_CACHE) >= _CACHE_SIZE:
+            del _MODEL_CACHE[next(iter(_MODEL_CACHE))]
+        _MODEL_CACHE[key] = read_model(path)
+    return _MODEL_CACHE[key]
+
+
+def parameter_box(config, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """The search box, shape (m,) each: the model file's per-segment bounds where given, else lower/upper."""
+    lower, upper = np.full(m, float(config.lower)), np.full(m, float(config.upper))
+    bounds = getattr(load_model(config.model), "parameter_bounds", None)
+    if bounds is not None:
+        lower = np.where(np.isfinite(bounds[:, 0]), bounds[:, 0], lower)
+        upper = np.where(np.isfinite(bounds[:, 1]), bounds[:, 1], upper)
+    return lower, upper
 
 
 def param_columns(m: int) -> list[str]:
@@ -241,7 +298,7 @@ def samples_task(root: str, config, iteration: int, m: int) -> int:
         cols = param_columns(m)
         if iteration == 1:
             n = config.conventional_samples if config.strategy == "conventional" else config.q
-            lower, upper = np.full(m, config.lower), np.full(m, config.upper)
+            lower, upper = parameter_box(config, m)
             X = adaptive.uniform_samples(n, lower, upper, stage_rng(config.seed, iteration, "samples"))
             first_id = 0
         else:
@@ -378,7 +435,7 @@ def distribution_task(root: str, config, iteration: int, m: int) -> dict:
     """Step f: the sampling distribution of the next candidates, and the minimum distance."""
     store = RunStore(root)
     if not _done(store, iteration, "distribution"):
-        lower, upper = np.full(m, config.lower), np.full(m, config.upper)
+        lower, upper = parameter_box(config, m)
         if iteration == 1 or config.strategy == "conventional":
             # Table 2, step c: the first candidates are uniform over the whole box.
             kind, mean, std, dist = "uniform", (lower + upper) / 2, (upper - lower) / np.sqrt(12), None
@@ -426,7 +483,7 @@ def predict_task(root: str, config, iteration: int, m: int, train_stage: str = "
     """Draw ``w`` candidates and predict their overall errors with the trained MRGP."""
     store = RunStore(root)
     if not _done(store, iteration, output_stage):
-        lower, upper = np.full(m, config.lower), np.full(m, config.upper)
+        lower, upper = parameter_box(config, m)
         rng = stage_rng(config.seed, iteration, "predict")
         info = store.stage_info(iteration, "distribution")
         if info["kind"] == "uniform":

@@ -10,6 +10,13 @@ Every element module exposes the same small interface, vectorised over elements:
     naming the first element with a non-positive Jacobian.
 ``element_mass(coords, rho) -> (n, 3 * NODES, 3 * NODES)``
     Consistent mass, kg.
+``element_volumes(coords) -> (n,)``
+    Signed cell volumes, m^3 (``rho * V`` is the cell's mass).
+``check_cells(coords) -> None``
+    Raises the same ``ValueError`` as ``element_stiffness`` for inverted or
+    degenerate cells (det J at most 1e-10 of the cell's size cubed, see
+    ``_common.check_jacobians``), without computing matrices: a model reader
+    calls it to refuse a mesh before any work.
 
 Element DOFs are node-major, ``[u_x0, u_y0, u_z0, u_x1, ...]``. A new family is one
 module plus one line in :data:`ELEMENTS`.
@@ -19,13 +26,15 @@ from __future__ import annotations
 
 from types import ModuleType
 
-from . import hex8
+from . import hex8, tet4, tet10
 
 __all__ = ["ELEMENTS", "element_family"]
 
 #: meshio cell type -> element module.
 ELEMENTS: dict[str, ModuleType] = {
     "hexahedron": hex8,
+    "tetra": tet4,
+    "tetra10": tet10,
 }
 
 

@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._common import check_jacobians
+
 __all__ = [
     "NODES",
     "NODE_SIGNS",
@@ -42,6 +44,8 @@ __all__ = [
     "strain_matrix",
     "element_stiffness",
     "element_mass",
+    "element_volumes",
+    "check_cells",
 ]
 
 #: Reference coordinates of the 8 nodes, shape (8, 3).
@@ -187,9 +191,7 @@ def element_stiffness(
     xi, w = gauss_points()
     J = _jacobians(coords, xi)  # (e, p, 3, 3)
     detJ = np.linalg.det(J)
-    if np.any(detJ <= 0.0):
-        bad = int(np.flatnonzero(np.any(detJ <= 0.0, axis=1))[0])
-        raise ValueError(f"element {bad} has a non-positive Jacobian (inverted or degenerate cell)")
+    check_jacobians(detJ, coords)
     Jinv = np.linalg.inv(J)
     # dN/dx = J^-1 dN/dxi, written per node: grad_x[e,p,a,:] = Jinv[e,p] @ dN[p,a,:]
     grad_x = np.einsum("epij,paj->epai", Jinv, shape_gradients(xi))
@@ -236,3 +238,15 @@ def element_mass(coords: np.ndarray, rho: float) -> np.ndarray:
     for c in range(3):
         Me[:, :, c, :, c] = Ms
     return Me.reshape(coords.shape[0], 24, 24)
+
+
+def check_cells(coords: np.ndarray) -> None:
+    """Raise ``ValueError`` naming the first cell with non-positive det J at a Gauss point."""
+    coords = np.asarray(coords, dtype=float)
+    check_jacobians(np.linalg.det(_jacobians(coords, gauss_points()[0])), coords)
+
+
+def element_volumes(coords: np.ndarray) -> np.ndarray:
+    """Signed volumes ``sum det J`` (2x2x2 Gauss), shape (n_elements,), m^3."""
+    xi, w = gauss_points()
+    return np.linalg.det(_jacobians(np.asarray(coords, dtype=float), xi)) @ w

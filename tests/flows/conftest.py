@@ -30,51 +30,25 @@ def reduced_settings_frozen():
 
 
 @pytest.fixture(scope="session")
-def prefect_server(tmp_path_factory):
-    """One local Prefect server for the tests that start many flow subprocesses.
+def prefect_harness():
+    """One Prefect test server for the whole session (Prefect's documented pattern).
 
-    Each ``python -m flows.update`` otherwise starts (and waits for) its own
-    temporary server, about 6 s; with ``PREFECT_API_URL`` pointing here a
-    subprocess only imports and runs. Yields the environment to pass to them.
+    Each ``prefect_test_harness()`` starts a server and a database of its own, 5-20 s on a
+    busy 2-core machine; the flow tests share one instead of starting one per module.
     """
-    import os
-    import signal
-    import socket
-    import subprocess
-    import sys
-    import time
-    import urllib.request
+    from prefect.settings import PREFECT_API_URL
+    from prefect.testing.utilities import prefect_test_harness
 
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
+    with prefect_test_harness(server_startup_timeout=120):
+        yield PREFECT_API_URL.value()
+
+
+@pytest.fixture(scope="session")
+def prefect_server(prefect_harness, tmp_path_factory):
+    """The environment for flow subprocesses (``python -m flows.update``), pointing at the session's server.
+
+    Each subprocess otherwise starts (and waits for) its own temporary server, about 6 s;
+    with ``PREFECT_API_URL`` set it only imports and runs.
+    """
     home = tmp_path_factory.mktemp("prefect-home")
-    env = {**os.environ, "PREFECT_HOME": str(home), "DO_NOT_TRACK": "1", "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
-           "PREFECT_SERVER_UI_ENABLED": "false"}
-    log = open(home / "server.log", "w")
-    server = subprocess.Popen([sys.executable, "-m", "prefect", "server", "start", "--host", "127.0.0.1",
-                               "--port", str(port)], env=env, stdout=log, stderr=subprocess.STDOUT,
-                              start_new_session=True)
-    url = f"http://127.0.0.1:{port}/api"
-    try:
-        deadline = time.time() + 90
-        while True:
-            try:
-                urllib.request.urlopen(url + "/health", timeout=2).read()
-                break
-            except OSError:
-                if server.poll() is not None or time.time() > deadline:
-                    raise RuntimeError(f"the Prefect server did not start: {(home / 'server.log').read_text()}")
-                time.sleep(0.3)
-        yield {"PREFECT_HOME": str(home), "PREFECT_API_URL": url, "DO_NOT_TRACK": "1"}
-    finally:
-        try:
-            os.killpg(server.pid, signal.SIGTERM)
-            server.wait(timeout=20)
-        except (ProcessLookupError, subprocess.TimeoutExpired):
-            try:
-                os.killpg(server.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-            server.wait(timeout=20)
-        log.close()
+    return {"PREFECT_HOME": str(home), "PREFECT_API_URL": prefect_harness, "DO_NOT_TRACK": "1"}

@@ -18,11 +18,9 @@ FIGURES = ("correlation.png", "correlation_map.png", "singular_values.png")
 
 
 @pytest.fixture(scope="module")
-def harness():
-    from prefect.testing.utilities import prefect_test_harness
-
-    with prefect_test_harness():
-        yield
+def harness(prefect_harness):
+    """The session's Prefect test server (tests/flows/conftest.py)."""
+    return prefect_harness
 
 
 def small_meta(seed: int = 3) -> dict:

@@ -19,16 +19,13 @@ CLOSURE_KEYS = {"effect", "error_before", "error_after", "parameters_before", "p
 
 
 @pytest.fixture(scope="module")
-def diagnosed(tmp_path_factory, reduced_settings_frozen):
-    from prefect.testing.utilities import prefect_test_harness
-
+def diagnosed(tmp_path_factory, reduced_settings_frozen, prefect_harness):
     runs = tmp_path_factory.mktemp("runs")
     config = UpdateConfig(run_id="pm", runs_dir=str(runs), measured=str(DATA / "point_mass.csv"),
                           **dict(reduced_settings_frozen))
-    with prefect_test_harness():
-        update.update_flow(config)
-        summary = dg.diagnose("pm", runs, noise=0.005)
-        again = dg.diagnose("pm", runs, noise=0.005)
+    update.update_flow(config)
+    summary = dg.diagnose("pm", runs, noise=0.005)
+    again = dg.diagnose("pm", runs, noise=0.005)
     return runs / "pm", summary, again
 
 
@@ -73,9 +70,7 @@ def test_a_second_diagnosis_reads_every_step_back(diagnosed):
 
 
 @pytest.mark.slow
-def test_a_closure_killed_during_its_checks_redoes_only_the_missing_ones(diagnosed, tmp_path):
-    from prefect.testing.utilities import prefect_test_harness
-
+def test_a_closure_killed_during_its_checks_redoes_only_the_missing_ones(diagnosed, tmp_path, prefect_harness):
     root, summary, _ = diagnosed
     closure = root / "closure"
     checks = sorted((closure / "step=check").glob("check=*.parquet"))
@@ -85,8 +80,7 @@ def test_a_closure_killed_during_its_checks_redoes_only_the_missing_ones(diagnos
     (closure / "step=check" / "checks.parquet").unlink()
     checks[-1].unlink()
     kept = {p: p.stat().st_mtime_ns for p in checks[:-1]}
-    with prefect_test_harness():
-        resumed = dg.diagnose("pm", root.parent, noise=0.005)
+    resumed = dg.diagnose("pm", root.parent, noise=0.005)
     assert {p: p.stat().st_mtime_ns for p in checks[:-1]} == kept
     assert checks[-1].exists()
     assert resumed["effect"]["location"] == summary["effect"]["location"]

@@ -65,11 +65,8 @@ def test_on_noisy_data_the_polish_stops_where_the_error_levels_off_at_the_noise(
     assert off.evaluations > res.evaluations and off.status != "stagnated"
 
 
-def test_polish_stage_is_counted_stored_and_resumes_from_its_fe_runs(reduced_config, measured):
-    from prefect.testing.utilities import prefect_test_harness
-
-    with prefect_test_harness():
-        summary = update.update_flow(reduced_config)
+def test_polish_stage_is_counted_stored_and_resumes_from_its_fe_runs(reduced_config, measured, prefect_harness):
+    summary = update.update_flow(reduced_config)
     root = Path(reduced_config.runs_dir) / reduced_config.run_id
     store = RunStore(root)
     k = summary["iterations"]

@@ -32,11 +32,9 @@ REPEATS_FIGURES = {"repeats_error.png", "repeats_parameters.png", "repeats_error
 
 
 @pytest.fixture(scope="module")
-def harness():
-    from prefect.testing.utilities import prefect_test_harness
-
-    with prefect_test_harness():
-        yield
+def harness(prefect_harness):
+    """The session's Prefect test server (tests/flows/conftest.py)."""
+    return prefect_harness
 
 
 def _reduced() -> dict:

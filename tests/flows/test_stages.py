@@ -29,9 +29,16 @@ def run_first_stages(config, measured):
     return RunStore(root)
 
 
+#: data/benchmark/measured.csv was written on one machine and is recomputed here on another:
+#: BLAS kernels and summation order differ in the last bits. The direct complex LU is accurate to
+#: about 1e-9 relative on the benchmark's smallest amplitudes (fe_core/frf.py, krylov_frf's rtol
+#: note; README "Why the FRF is fast"), so that, not round-off on one CPU, is the tolerance.
+STORED_VS_FRESH_RTOL = 1e-9
+
+
 def test_measured_benchmark_file_is_the_model_at_the_actual_alpha(measured):
     Z = three_plate().frf(ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ, method="direct")
-    np.testing.assert_allclose(measured.amplitude, np.abs(Z), rtol=1e-12)
+    np.testing.assert_allclose(measured.amplitude, np.abs(Z), rtol=STORED_VS_FRESH_RTOL)
 
 
 def test_first_samples_are_uniform_in_the_box_and_seeded(reduced_config, tmp_path):

@@ -27,11 +27,8 @@ def write_reduced_config(path: Path, runs_dir: Path, settings: dict) -> Path:
     return path
 
 
-def test_whole_flow_under_the_test_harness(reduced_config):
-    from prefect.testing.utilities import prefect_test_harness
-
-    with prefect_test_harness():
-        summary = update.update_flow(reduced_config)
+def test_whole_flow_under_the_test_harness(reduced_config, prefect_harness):
+    summary = update.update_flow(reduced_config)
     assert SUMMARY_KEYS <= set(summary)
     store = RunStore(Path(reduced_config.runs_dir) / "reduced")
     on_disk = json.loads((store.root / "summary.json").read_text())
@@ -64,10 +61,11 @@ def _strip(summary: dict) -> dict:
 
 
 @pytest.mark.slow
-def test_sigkill_during_fe_stage_of_iteration_2_then_resume_gives_the_same_summary(tmp_path, reduced_settings):
+def test_sigkill_during_fe_stage_of_iteration_2_then_resume_gives_the_same_summary(tmp_path, reduced_settings,
+                                                                                   prefect_server):
     runs = tmp_path / "runs"
     cfg = write_reduced_config(tmp_path / "reduced.toml", runs, reduced_settings)
-    env = {"PREFECT_HOME": str(tmp_path / "prefect-home")}
+    env = prefect_server  # the session's server: no temporary server per subprocess
 
     ref = _run_cli(["--config", str(cfg), "--run-id", "reference"], env)
     out, _ = ref.communicate(timeout=300)
@@ -105,11 +103,8 @@ def test_sigkill_during_fe_stage_of_iteration_2_then_resume_gives_the_same_summa
     assert "resumes" in RunStore(runs / "victim").read_manifest()
 
 
-def test_rerun_of_the_train_stage_writes_a_new_folder_and_leaves_the_original(reduced_config):
-    from prefect.testing.utilities import prefect_test_harness
-
-    with prefect_test_harness():
-        update.update_flow(reduced_config.replace(max_iterations=2, max_fe_evaluations=19))
+def test_rerun_of_the_train_stage_writes_a_new_folder_and_leaves_the_original(reduced_config, prefect_harness):
+    update.update_flow(reduced_config.replace(max_iterations=2, max_fe_evaluations=19))
     root = Path(reduced_config.runs_dir) / "reduced"
     store = RunStore(root)
     original = (store.stage_dir(1, "train") / "hyperparameters.parquet").read_bytes()

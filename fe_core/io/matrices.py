@@ -1,0 +1,114 @@
+"""Matrices exported by another FE program: per-segment stiffness and mass, a remainder, a DOF table.
+
+Matrix files: Matrix Market ``.mtx`` (``scipy.io.mmread``) or SciPy's sparse
+``.npz`` (``scipy.sparse.save_npz`` / ``load_npz``). The DOF table is a CSV file
+with the header ``node,direction`` and one row per matrix row: the node id (any
+integer the exporting program uses) and the direction ``x``, ``y`` or ``z``
+(or 1, 2, 3).
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import scipy.io
+import scipy.sparse as sp
+
+__all__ = ["read_matrix", "read_dof_table", "check_symmetric_psd", "DIRECTIONS", "MatrixFileError"]
+
+DIRECTIONS = {"x": 0, "y": 1, "z": 2, "1": 0, "2": 1, "3": 2}
+
+#: Relative asymmetry ``max |A - A^T| / max |A|`` above which a matrix is refused.
+SYMMETRY_RTOL = 1e-10
+#: Most negative eigenvalue, relative to the largest, still taken as round-off of a PSD matrix.
+PSD_RTOL = 1e-10
+#: Largest size checked by a dense eigenvalue decomposition (larger ones: necessary conditions).
+DENSE_CHECK_MAX = 3000
+
+
+class MatrixFileError(ValueError):
+    """A matrix or DOF-table file that cannot be used; the message names the file."""
+
+
+def read_matrix(path: str | Path) -> sp.csr_matrix:
+    """A sparse matrix from ``.mtx`` or ``.npz``, as CSR of floats."""
+    path = Path(path)
+    if not path.exists():
+        raise MatrixFileError(f"{path}: no such matrix file")
+    try:
+        if path.suffix == ".mtx":
+            A = scipy.io.mmread(str(path))
+        elif path.suffix == ".npz":
+            A = sp.load_npz(path)
+        else:
+            raise MatrixFileError(f"{path}: unknown matrix format {path.suffix!r}; use .mtx or .npz")
+    except MatrixFileError:
+        raise
+    except Exception as exc:
+        raise MatrixFileError(f"{path}: cannot read the matrix ({type(exc).__name__}: {exc})") from None
+    A = sp.csr_matrix(A, dtype=float)
+    if A.shape[0] != A.shape[1]:
+        raise MatrixFileError(f"{path}: matrix is {A.shape[0]} x {A.shape[1]}, not square")
+    if not np.all(np.isfinite(A.data)):
+        raise MatrixFileError(f"{path}: matrix has non-finite entries")
+    return A
+
+
+def read_dof_table(path: str | Path) -> np.ndarray:
+    """The DOF table, shape (n, 2), int: node id and direction (0, 1, 2) of each matrix row."""
+    path = Path(path)
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.reader(fh))
+    except OSError as exc:
+        raise MatrixFileError(f"{path}: cannot read the DOF table ({exc.strerror})") from None
+    if not rows or [c.strip() for c in rows[0]] != ["node", "direction"]:
+        raise MatrixFileError(f"{path}: the DOF table needs the header 'node,direction'")
+    out = np.empty((len(rows) - 1, 2), dtype=np.int64)
+    for i, row in enumerate(rows[1:]):
+        try:
+            node, direction = (c.strip() for c in row)
+            out[i] = int(node), DIRECTIONS[direction.lower()]
+        except (ValueError, KeyError):
+            raise MatrixFileError(f"{path}: line {i + 2}: expected 'node,direction' with an integer node and "
+                                  f"direction x, y or z, got {','.join(row)!r}") from None
+    keys = out[:, 0] * 3 + out[:, 1]
+    uniq, counts = np.unique(keys, return_counts=True)
+    if np.any(counts > 1):
+        k = uniq[counts > 1][0]
+        raise MatrixFileError(f"{path}: node {k // 3} direction {'xyz'[k % 3]} appears {counts.max()} times")
+    return out
+
+
+def check_symmetric_psd(A: sp.csr_matrix, name: str) -> None:
+    """Refuse a matrix that is not symmetric or not positive semidefinite (``ValueError`` naming it).
+
+    Symmetry: ``max |A - A^T| <= SYMMETRY_RTOL max |A|``. Semidefiniteness: exact
+    (dense eigenvalues) up to ``DENSE_CHECK_MAX`` rows; above that the necessary
+    conditions ``A_ii >= 0`` and ``|A_ij| <= sqrt(A_ii A_jj)``.
+    """
+    scale = float(abs(A).max()) if A.nnz else 0.0
+    if scale == 0.0:
+        return
+    asym = float(abs(A - A.T).max()) if (A - A.T).nnz else 0.0
+    if asym > SYMMETRY_RTOL * scale:
+        raise ValueError(f"{name} is not symmetric: max |A - A^T| = {asym:.3g}, {asym / scale:.2g} of max |A|")
+    d = A.diagonal()
+    if np.any(d < -PSD_RTOL * scale):
+        i = int(np.argmin(d))
+        raise ValueError(f"{name} is not positive semidefinite: diagonal entry {i} is {d[i]:.6g}")
+    if A.shape[0] <= DENSE_CHECK_MAX:
+        lowest = float(np.linalg.eigvalsh(A.toarray())[0])
+        if lowest < -PSD_RTOL * scale * A.shape[0]:
+            raise ValueError(f"{name} is not positive semidefinite: lowest eigenvalue {lowest:.6g} "
+                             f"(largest entry {scale:.6g})")
+        return
+    coo = A.tocoo()
+    bound = np.sqrt(np.clip(d[coo.row], 0, None) * np.clip(d[coo.col], 0, None))
+    bad = np.abs(coo.data) > bound * (1 + 1e-8) + PSD_RTOL * scale
+    if np.any(bad):
+        k = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{name} is not positive semidefinite: |A[{coo.row[k]}, {coo.col[k]}]| exceeds "
+                         "sqrt(A_ii A_jj)")

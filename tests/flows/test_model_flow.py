@@ -1,0 +1,84 @@
+"""``python -m flows.update --model path/to/model.toml``: the flow on model files."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flows import update
+from flows.config import REPO
+from tasks import stages
+from tasks.runstore import RunStore
+
+BENCH_TOML = "data/benchmark/model.toml"
+EXAMPLE = REPO / "data" / "examples" / "cantilever_matrices"
+
+
+def _strip(summary: dict) -> dict:
+    return {k: v for k, v in summary.items() if k not in ("wall_seconds", "run_folder")}
+
+
+@pytest.mark.slow
+def test_the_name_three_plate_is_a_shortcut_to_the_benchmark_model_file(reduced_config, prefect_harness):
+    """Same run by name and by path (tests/fe_core/test_model_file.py: the file's FRF is three_plate()'s)."""
+    assert stages.load_model("three_plate") is stages.load_model(BENCH_TOML)
+    by_name = update.update_flow(reduced_config)
+    by_file = update.update_flow(reduced_config.replace(model=BENCH_TOML, run_id="by-file"))
+    assert _strip(by_file) == _strip(by_name)
+    manifest = RunStore(Path(reduced_config.runs_dir) / "by-file").read_manifest()
+    assert manifest["config"]["model"] == BENCH_TOML
+
+
+def test_a_matrices_model_runs_within_its_bounds_and_resumes(reduced_config, tmp_path, prefect_harness):
+    """The example's 4 segments with bounds [-0.5, 0.5] from model.toml: samples stay inside, resume reads back."""
+    config = reduced_config.replace(model=str(EXAMPLE / "model.toml"), measured=str(EXAMPLE / "measured.csv"),
+                                    max_iterations=2, max_fe_evaluations=19, polish_max_fe=7)
+    first = update.update_flow(config)
+    again = update.update_flow(config)
+    assert list(first["parameters"]) == ["alpha_1", "alpha_2", "alpha_3", "alpha_4"]
+    assert _strip(again) == _strip(first)
+    store = RunStore(Path(config.runs_dir) / config.run_id)
+    X = np.vstack([store.read_table(k, "samples")[[f"alpha_{i}" for i in range(1, 5)]].to_numpy() for k in (1, 2)])
+    assert X.min() >= -0.5 and X.max() <= 0.5
+    assert X.min() < -0.2 and X.max() > 0.2  # the box is the model's, not a sliver of it
+    values = np.array(list(first["parameters"].values()))
+    assert np.all(np.abs(values) <= 0.5)
+
+
+def test_the_model_is_cached_by_the_checksum_of_its_files(tmp_path):
+    for f in ("model.toml", "three_plate.inp"):
+        shutil.copy(REPO / "data" / "benchmark" / f, tmp_path / f)
+    path = str(tmp_path / "model.toml")
+    first = stages.load_model(path)
+    assert stages.load_model(path) is first
+    assert first.placements[0] == "sensor 1 's1': nearest node 79 at 0 from [0.02875, 0.02, 0.01]"
+    text = (tmp_path / "model.toml").read_text()
+    (tmp_path / "model.toml").write_text(text.replace("a = 0.01", "a = 0.02"))
+    edited = stages.load_model(path)
+    assert edited is not first and edited.damping == (0.02, 1e-4)
+    mesh = (tmp_path / "three_plate.inp").read_text()
+    (tmp_path / "three_plate.inp").write_text(mesh.replace("*NSET, NSET=top", "*NSET, NSET=upper"))
+    assert stages.load_model(path) is not edited  # the mesh file is part of the checksum
+
+
+def test_resuming_after_the_model_file_changed_is_refused(tmp_path, capsys):
+    """The manifest keeps the model files' checksum; an edited mesh refuses the resume before any work."""
+    from flows.config import load_config
+
+    for f in ("model.toml", "three_plate.inp"):
+        shutil.copy(REPO / "data" / "benchmark" / f, tmp_path / f)
+    runs = tmp_path / "runs"
+    config = load_config(None, model=str(tmp_path / "model.toml"), runs_dir=str(runs), run_id="r")
+    store = RunStore(runs / "r")
+    update._write_manifest(store, config)
+    assert store.read_manifest()["model_checksum"] == stages.model_fingerprint(config.model)
+    inp = tmp_path / "three_plate.inp"
+    inp.write_text(inp.read_text().replace("*NSET, NSET=top", "*NSET, NSET=upper"))
+    before = (runs / "r" / "manifest.json").read_bytes()
+    code = update.main(["--model", str(tmp_path / "model.toml"), "--runs-dir", str(runs), "--run-id", "r"])
+    err = capsys.readouterr().err
+    assert code == 2 and "another version of the model file" in err and "manifest.json" in err
+    assert (runs / "r" / "manifest.json").read_bytes() == before
