@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -119,6 +119,13 @@ class ParametricModel:
         Where each sensor and excitation point landed (node, distance), for the log.
     dof_table : ndarray, shape (n_total_dofs, 2), int, or None
         Node id and direction of each DOF of a matrices model.
+    cell_stiffness : callable or None
+        ``cell_stiffness(cells) -> (len(cells), d, d)``, N/m: element stiffness matrices of
+        mesh cells at alpha = 0, DOFs as :func:`fe_core.assembly.cell_dofs` (model
+        extensions that stiffen a set of cells need it; built from ``material`` and
+        ``formulation`` when None).
+    segment_cells : list of ndarray or None
+        Cells of each segment (None: the mesh's cell sets named as the segments).
     """
 
     mesh: Mesh | None
@@ -142,6 +149,8 @@ class ParametricModel:
     remainder_mass: float = 0.0
     placements: list[str] = field(default_factory=list)
     dof_table: np.ndarray | None = None
+    cell_stiffness: Callable[[np.ndarray], np.ndarray] | None = None
+    segment_cells: list[np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         if self.n_total_dofs is None:

@@ -114,7 +114,13 @@ def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closu
         if unknown:
             raise DiagnoseError(f"unknown effect(s) {', '.join(unknown)}; registered: "
                                 f"{', '.join(registered_effects())}")
-    settings = ct.ClosureSettings.make(model=cfg.get("model", "three_plate"), measured=str(measured_path),
+    model_name = cfg.get("model", "three_plate")
+    if effects is not None:  # an effect that cannot apply to this model is refused before any work
+        try:
+            ct.effect_library(model_name, effects)
+        except ValueError as exc:
+            raise DiagnoseError(f"--effects: {exc}") from None
+    settings = ct.ClosureSettings.make(model=model_name, measured=str(measured_path),
                                        alpha_start=alpha, alpha_bounds=[lower, upper], effects=effects,
                                        n_jobs=options.pop("n_jobs", None) or cfg.get("n_jobs", 1), **options)
     if not (settings["noise"] is None or settings["noise"] > 0):

@@ -34,7 +34,7 @@ from prefect import task
 from prefect.cache_policies import NO_CACHE
 
 from fe_core import closure as core
-from fe_core.effects import Applied, build_library, extended_frf
+from fe_core.effects import Applied, build_library, extended_frf, registered_effects
 from fe_core.residual import analyse_residual, log_residual, overall_error, per_sensor_error
 from tasks.runstore import atomic_write_bytes, atomic_write_json
 from tasks.stages import load_model
@@ -47,6 +47,7 @@ __all__ = [
     "check_task",
     "decide_task",
     "residual_table",
+    "effect_library",
 ]
 
 log = logging.getLogger(__name__)
@@ -173,7 +174,23 @@ def _fit_from_parameters(model, library, freqs, u, alpha, effect, location, valu
 
 
 def _library(model, settings) -> dict:
-    return {e.kind: e for e in build_library(model, settings.get("effects"))}
+    return _cached_library(model, settings.get("effects"))
+
+
+def effect_library(model_name: str, effects=None) -> dict:
+    """The effect library of a model by name or model-file path (``ValueError`` for an effect that does
+    not apply to it), built once per process."""
+    return _cached_library(load_model(model_name), effects)
+
+
+def _cached_library(model, effects) -> dict:
+    """The effect library by kind, built once per model and effect list in a process (the screen,
+    every check and the decision of a closure use the same; 320 patches take a second to build)."""
+    cache = model.__dict__.setdefault("_closure_libraries", {})
+    key = (tuple(registered_effects()), None if effects is None else tuple(effects))
+    if key not in cache:
+        cache[key] = {e.kind: e for e in build_library(model, effects)}
+    return cache[key]
 
 
 def _param_table(fit: core.Fit, library: dict) -> pd.DataFrame:
@@ -252,7 +269,7 @@ def check_candidate(model_name: str, effects, kind: str, location: str, linear_v
                     max_moves: int, alpha_bounds) -> dict:
     """One full FE check (runs in a worker process); returns a flat record."""
     model = load_model(model_name)
-    library = {e.kind: e for e in build_library(model, effects)}
+    library = _cached_library(model, effects)
     cand = core.Candidate(effect=kind, location=location, n_locations=len(library[kind].locations()),
                           linear_values=np.asarray(linear_values, float), linear_rss=0.0, linear_explained=0.0)
     base = core.Fit(alpha=np.asarray(base_alpha, float), effect=None, location=None, values=np.zeros(0),
