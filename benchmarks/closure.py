@@ -3,6 +3,7 @@
     OMP_NUM_THREADS=1 python -m benchmarks.closure                  # every data set
     OMP_NUM_THREADS=1 python -m benchmarks.closure point_mass.csv    # one
     OMP_NUM_THREADS=1 python -m benchmarks.closure --speed           # FRF with each effect vs base
+    OMP_NUM_THREADS=1 python -m benchmarks.closure --table           # data/effects2: docs/closure2.md
 
 Each closure starts from the nominal model (alpha = 0) with the cheap
 multi-start least-squares update of :func:`fe_core.closure.multistart_update`
@@ -115,7 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.closure", description=__doc__.splitlines()[0])
     p.add_argument("files", nargs="*", help="data file names in data/effects (default: all)")
     p.add_argument("--speed", action="store_true", help="time the extended FRF and the screening instead")
+    p.add_argument("--table", action="store_true",
+                   help="forward selection on every data set of data/effects2; markdown table to docs/closure2.md")
     args = p.parse_args(argv)
+    if args.table:
+        return table(args.files)
     if args.speed:
         for row in speed():
             print(f"{row['what']:<50} {1e3 * row['seconds']:8.1f} ms")
@@ -135,6 +140,43 @@ def main(argv: list[str] | None = None) -> int:
               f"(noise floor {row['noise_floor']:.3%})  {row['seconds']:.1f} s, {row['fe_solves']} FE solves",
               flush=True)
     print(json.dumps(rows, indent=1))
+    return 0
+
+
+def _truth_text(entry: dict) -> str:
+    effects = entry["effects"]
+    if not effects:
+        return "none"
+    return "; ".join(f"{e['effect']} {e['location']} = {e['value']:.4g} {e['unit']}" for e in effects)
+
+
+def table(files: list[str] | None = None) -> int:
+    """The issue-18 table: truth, verdict, effects added (in order), error before -> after, seconds."""
+    data2 = DATA.parent / "effects2"
+    truth = json.loads((data2 / "truth.json").read_text())["data"]
+    model = three_plate()
+    lines = ["| data | truth | verdict | effects added (in order, final joint values) | implausible fits | "
+             "error before -> after | noise floor | s |", "|" + "---|" * 8]
+    for name in files or list(truth):
+        measured = read_measured(data2 / name)
+        t0 = time.perf_counter()
+        result = close_loop(model, measured.frequencies_hz, measured.amplitude, np.zeros(model.n_segments),
+                            **SETTINGS)
+        seconds = time.perf_counter() - t0
+        u = measured.amplitude
+        added = "; ".join(f"{a.effect.kind} {a.location} = {a.values[0]:.4g} {a.effect.units[0]} "
+                          f"({c.explained:.0%})" for c, a in zip(result.steps, result.final.applied)) or "-"
+        bad = "; ".join(f"{c.effect} {c.location} = {c.fit.values[0]:.4g}" for c in result.implausible[:3]) or "-"
+        line = (f"| {name} | {_truth_text(truth[name])} | {result.verdict} | {added} | {bad} | "
+                f"{overall_error(result.baseline.relative(u)):.2%} -> {overall_error(result.final.relative(u)):.2%} | "
+                f"{result.before.noise_floor:.2%} | {seconds:.0f} |")
+        lines.append(line)
+        print(line, flush=True)
+    out = Path(__file__).resolve().parents[1] / "docs" / "closure2.md"
+    out.write_text("# Closing the loop, second round (data/effects2)\n\nWritten by `python -m benchmarks.closure "
+                   "--table` (one core, OPENBLAS_NUM_THREADS=1), settings " + json.dumps(SETTINGS)
+                   + ", forward selection up to 3 effects, every registered effect kind.\n\n" + "\n".join(lines) + "\n")
+    print(f"wrote {out}")
     return 0
 
 

@@ -23,6 +23,17 @@ Steps (each a plain function, so a flow can store and resume them one by one):
    fit too). An effect is added only if the residual before it is
    structure (chi-square test) and its extended BIC beats the model without it.
 
+5. Forward selection (:func:`close_loop`): steps 2-4 repeat with the
+   effects added so far in the model, all of them refitted together with
+   alpha at every step, while the residual is structure and an effect
+   improves the extended BIC (up to ``max_effects``). A fit that ends on an
+   effect's plausibility bound (:meth:`fe_core.effects.Effect.bounds_at`) is
+   reported implausible and never added.
+6. The verdict: ``noise`` (the residual before was noise, nothing to add),
+   ``explained`` (effects were added and the residual after them is noise),
+   ``partly explained`` (structure remains: what was added and the best
+   candidates are candidates, not findings).
+
 The candidates' ranking is by extended BIC for checked candidates, then by
 the extended BIC predicted by the linearisation.
 """
@@ -65,6 +76,11 @@ __all__ = [
     "dedupe",
     "merge",
     "error_summary",
+    "at_bound",
+    "verdict",
+    "VERDICTS",
+    "Selection",
+    "forward_select",
 ]
 
 log = logging.getLogger(__name__)
@@ -74,6 +90,8 @@ ALPHA_SCALE = 0.1
 #: Default fit bounds of alpha: the updating flow's default box [-1, 1], kept 0.05 off -1, where
 #: a segment's stiffness vanishes and the least-squares landscape turns steep and ill-conditioned.
 ALPHA_BOUNDS = (-0.95, 1.0)
+#: The three verdicts of a closure.
+VERDICTS = ("noise", "explained", "partly explained")
 
 
 @dataclass
@@ -106,6 +124,10 @@ class Fit:
     evaluations: int
     seconds: float = 0.0
     message: str = ""
+    #: Effects added at earlier steps, with their values refitted in this fit.
+    prior: list = field(default_factory=list)
+    #: The newest effect as an :class:`fe_core.effects.Applied` (None without one).
+    added: Applied | None = None
 
     @property
     def rss(self) -> float:
@@ -113,7 +135,12 @@ class Fit:
 
     @property
     def n_parameters(self) -> int:
-        return self.alpha.size + self.values.size
+        return self.alpha.size + self.values.size + sum(a.values.size for a in self.prior)
+
+    @property
+    def applied(self) -> list:
+        """All effects of the fit, in the order added (earlier ones, then the newest)."""
+        return list(self.prior) + ([] if self.added is None else [self.added])
 
     def relative(self, amplitude: np.ndarray) -> np.ndarray:
         return relative_residual(self.model_amplitude, amplitude)
@@ -138,11 +165,20 @@ class Candidate:
     delta_ebic: float | None = None
     explained: float | None = None
     moved_from: list[str] = field(default_factory=list)
+    #: The full fit ended on a plausibility bound (of this or an earlier effect): never added.
+    implausible: bool = False
 
 
 @dataclass
 class ClosureResult:
-    """Everything :func:`close_loop` found."""
+    """Everything :func:`close_loop` found.
+
+    ``steps`` are the added effects in order (``chosen`` is the first, kept for
+    one-effect readers); ``candidates`` is the ranking of the first round and
+    ``rounds`` that of every round (the last one lists what remains);
+    ``implausible`` the checked candidates of every round whose fit ended on a
+    plausibility bound.
+    """
 
     baseline: Fit
     before: ResidualAnalysis
@@ -151,18 +187,21 @@ class ClosureResult:
     final: Fit
     after: ResidualAnalysis
     seconds: dict
+    steps: list[Candidate] = field(default_factory=list)
+    verdict: str = "noise"
+    implausible: list[Candidate] = field(default_factory=list)
+    rounds: list[list[Candidate]] = field(default_factory=list)
 
 
 # -- fitting ------------------------------------------------------------------------------------------
-def _amplitudes(model, alpha, freqs, effect, location, values) -> np.ndarray:
-    applied = [] if effect is None else [Applied(effect, location, np.asarray(values, float))]
+def _amplitudes(model, alpha, freqs, applied) -> np.ndarray:
     return np.abs(extended_frf(model, alpha, freqs, applied))
 
 
 def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effect | None = None,
                location: str | None = None, value0=None, *, max_evaluations: int = 600, tol: float = 1e-8,
-               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS) -> Fit:
-    """Least squares on the FE model over alpha (and one effect's parameters) from a start point.
+               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, prior: Sequence[Applied] = ()) -> Fit:
+    """Least squares on the FE model over alpha (and the effects' parameters) from a start point.
 
     Minimises ``sum ln(|Z_model| / u)^2`` with scipy's trust-region
     reflective method (``least_squares``, ``trf``) in parameters scaled by
@@ -188,6 +227,9 @@ def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effe
         ``ftol``, ``xtol`` and ``gtol`` of the optimiser.
     alpha_bounds : (float, float)
         Box of every alpha_i; the lower edge must be above -1.
+    prior : sequence of Applied
+        Effects added before: refitted together with alpha (and ``effect``),
+        from their values. Their refitted values are in ``Fit.prior``.
     """
     t0 = time.perf_counter()
     if not alpha_bounds[0] > -1.0:
@@ -196,16 +238,19 @@ def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effe
     u = np.asarray(amplitude, float)
     m = model.n_segments
     alpha0 = check_parameters(alpha0, m, "alpha")
-    if effect is None:
-        scale, lo, hi, theta0 = (np.full(m, ALPHA_SCALE), np.full(m, alpha_bounds[0]), np.full(m, alpha_bounds[1]),
-                                 alpha0.copy())
-    else:
-        elo, ehi = effect.bounds_at(location)
-        v0 = np.zeros(effect.n_parameters) if value0 is None else np.atleast_1d(np.asarray(value0, float))
-        scale = np.r_[np.full(m, ALPHA_SCALE), effect.scale_at(location)]
-        lo = np.r_[np.full(m, alpha_bounds[0]), elo]
-        hi = np.r_[np.full(m, alpha_bounds[1]), ehi]
-        theta0 = np.r_[alpha0, v0]
+    parts = [(np.full(m, ALPHA_SCALE), np.full(m, alpha_bounds[0]), np.full(m, alpha_bounds[1]), alpha0.copy())]
+    items = [(a.effect, a.location, np.atleast_1d(np.asarray(a.values, float))) for a in prior]
+    if effect is not None:
+        items.append((effect, location, np.zeros(effect.n_parameters) if value0 is None
+                      else np.atleast_1d(np.asarray(value0, float))))
+    for eff, loc, v0 in items:
+        elo, ehi = eff.bounds_at(loc)
+        parts.append((eff.scale_at(loc), elo, ehi, v0))
+    scale, lo, hi, theta0 = (np.concatenate(x) for x in zip(*parts))
+    sizes = np.cumsum([m] + [eff.n_parameters for eff, _, _ in items])
+
+    def applied_at(theta):
+        return [Applied(eff, loc, theta[a:b]) for (eff, loc, _), a, b in zip(items, sizes[:-1], sizes[1:])]
     # Strictly inside the box (least_squares' requirement), by a hair of each scale.
     theta0 = np.clip(theta0, lo + 1e-6 * scale, hi - 1e-6 * scale)
     count = [0]
@@ -213,7 +258,7 @@ def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effe
     def fun(x):
         theta = np.clip(theta0 + scale * x, lo, hi)
         count[0] += 1
-        return log_residual(_amplitudes(model, theta[:m], freqs, effect, location, theta[m:]), u).ravel()
+        return log_residual(_amplitudes(model, theta[:m], freqs, applied_at(theta)), u).ravel()
 
     with np.errstate(invalid="ignore"):
         lb, ub = (lo - theta0) / scale, (hi - theta0) / scale
@@ -221,9 +266,12 @@ def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effe
                            ftol=tol, xtol=tol, gtol=tol, max_nfev=max(1, max_evaluations // (theta0.size + 1)))
     theta = np.clip(theta0 + scale * result.x, lo, hi)
     r = result.fun.reshape(u.shape)
+    applied = applied_at(theta)
+    added = applied.pop() if effect is not None else None
     return Fit(alpha=theta[:m], effect=None if effect is None else effect.kind, location=location,
-               values=theta[m:], model_amplitude=np.exp(r) * u, residual=r, evaluations=count[0],
-               seconds=time.perf_counter() - t0, message=str(result.message))
+               values=np.array([]) if added is None else added.values, model_amplitude=np.exp(r) * u, residual=r,
+               evaluations=count[0], seconds=time.perf_counter() - t0, message=str(result.message),
+               prior=applied, added=added)
 
 
 def multistart_update(model: ParametricModel, freqs_hz, amplitude, alpha_start=None, n_starts: int = 4,
@@ -310,16 +358,22 @@ def _best_linear(r_perp: np.ndarray, q: np.ndarray, cols: np.ndarray, lo: np.nda
 
 def screen(model: ParametricModel, freqs_hz, base: Fit, library: Sequence[Effect],
            linearised: LinearisedResponse | None = None) -> list[Candidate]:
-    """Linearised explained share of every candidate at the updated point ``base`` (no effect in it).
+    """Linearised explained share of every candidate at the updated point ``base``.
+
+    The effects already in ``base`` (``base.applied``) stay in the model and
+    are refitted with alpha (their columns are projected out with alpha's);
+    their own (effect, location) pairs are not candidates again.
 
     Returns
     -------
     list of Candidate
         All candidates, sorted by ``linear_explained`` (largest first).
     """
-    lin = linearised or LinearisedResponse(model, base.alpha, freqs_hz)
+    applied = base.applied
+    lin = linearised or LinearisedResponse(model, base.alpha, freqs_hz, applied)
     r = base.residual.ravel()
-    q = _projector(lin.alpha_derivatives())
+    q = _projector(_refitted_columns(lin, applied))
+    taken = {(a.effect.kind, a.location) for a in applied}
     r_perp = r - q @ (q.T @ r)
     rss0 = float(r_perp @ r_perp)
     n = r.size
@@ -328,6 +382,8 @@ def screen(model: ParametricModel, freqs_hz, base: Fit, library: Sequence[Effect
     for effect in library:
         locations = effect.locations()
         for loc in locations:
+            if (effect.kind, loc) in taken:
+                continue
             s = effect.scale_at(loc)
             cols = np.column_stack([lin.derivative(effect.derivative(base.alpha, loc, i)).ravel() * s[i]
                                     for i in range(effect.n_parameters)])
@@ -341,6 +397,28 @@ def screen(model: ParametricModel, freqs_hz, base: Fit, library: Sequence[Effect
                                  linear_delta_bic=bic - bic0, linear_delta_ebic=ebic - bic0))
     out.sort(key=lambda c: -c.linear_explained)
     return out
+
+
+def _refitted_columns(lin: LinearisedResponse, applied: Sequence[Applied]) -> np.ndarray:
+    """Jacobian columns of what a candidate's fit re-fits: alpha and the effects already added (scaled)."""
+    cols = [lin.alpha_derivatives()]
+    cols += [lin.effect_derivatives(a.effect, a.location) * a.effect.scale_at(a.location) for a in applied]
+    return np.column_stack(cols)
+
+
+def at_bound(effect: Effect, location: str, values, rtol: float = 1e-2) -> bool:
+    """True if a fitted value ends on a plausibility bound of ``effect`` (within ``rtol`` of its scale).
+
+    A bound at zero (the effect's absence: no mass, no spring) does not count:
+    an effect fitted to nothing is not added anyway.
+    """
+    lo, hi = effect.bounds_at(location)
+    tol = rtol * effect.scale_at(location)
+    v = np.atleast_1d(np.asarray(values, float))
+    with np.errstate(invalid="ignore"):  # infinite bounds compare False
+        hit_lo = np.isfinite(lo) & (lo != 0) & (v <= lo + np.maximum(tol, 1e-3 * np.abs(lo)))
+        hit_hi = np.isfinite(hi) & (hi != 0) & (v >= hi - np.maximum(tol, 1e-3 * np.abs(hi)))
+    return bool(np.any(hit_lo | hit_hi))
 
 
 def pick_for_check(candidates: Sequence[Candidate], per_type: int = 2, factor: float = 10.0) -> list[Candidate]:
@@ -379,9 +457,9 @@ def scores(rss: float, n_values: int, n_parameters: int, n_locations: int = 1) -
 def _relocation_target(model, freqs, fit: Fit, effect: Effect, candidates: list[str]):
     """Linearised best move of the fitted effect to one of ``candidates``: (location, values, predicted RSS)."""
     here = Applied(effect, fit.location, fit.values)
-    lin = LinearisedResponse(model, fit.alpha, freqs, [here])
+    lin = LinearisedResponse(model, fit.alpha, freqs, fit.prior + [here])
     r = fit.residual.ravel()
-    q = _projector(lin.alpha_derivatives())
+    q = _projector(_refitted_columns(lin, fit.prior))
     # Take the effect away where it is (linear in its values), then add it at the candidate.
     r_moved = r - lin.effect_derivatives(effect, fit.location) @ fit.values
     r_perp = r_moved - q @ (q.T @ r_moved)
@@ -412,7 +490,7 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
     that differ by per cents). Fills ``candidate.fit`` (and ``moved_from``)
     and returns the candidate.
     """
-    kw = dict(alpha_bounds=alpha_bounds, max_evaluations=max_evaluations, tol=tol)
+    kw = dict(alpha_bounds=alpha_bounds, max_evaluations=max_evaluations, tol=tol, prior=base.applied)
     fit = fit_update(model, freqs_hz, amplitude, base.alpha, effect, candidate.location,
                      _start_value(effect, candidate.location, candidate.linear_values), **kw)
     if fit.rss > base.rss:  # the linear start led astray: start from the effect's absence
@@ -420,7 +498,7 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
         again.evaluations += fit.evaluations
         fit = again
     moved = []
-    visited = {fit.location}
+    visited = {fit.location} | {a.location for a in base.applied if a.effect.kind == effect.kind}
     # Only a contender is worth moving: one that explains at least ``contender`` of the residual.
     searched = len(effect.locations()) > 1 and effect.n_parameters == 1 and fit.rss <= (1 - contender) * base.rss
     for _ in range(max_moves if searched else 0):
@@ -433,7 +511,8 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
         if predicted >= fit.rss:
             break
         visited.add(loc)
-        trial = fit_update(model, freqs_hz, amplitude, fit.alpha, effect, loc, _start_value(effect, loc, values), **kw)
+        trial = fit_update(model, freqs_hz, amplitude, fit.alpha, effect, loc, _start_value(effect, loc, values),
+                           **{**kw, "prior": fit.prior})
         trial.evaluations += fit.evaluations
         trial.seconds += fit.seconds
         if trial.rss >= fit.rss:
@@ -448,10 +527,11 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
 
 
 def decide(base: Fit, before: ResidualAnalysis, checked: Sequence[Candidate]) -> Candidate | None:
-    """Score the checked candidates against the model without effect; the chosen one, or None.
+    """Score the checked candidates against the model without the new effect; the chosen one, or None.
 
-    Sets ``bic``, ``ebic``, their differences to the base model and the
-    explained share on each candidate.
+    Sets ``bic``, ``ebic``, their differences to the base model, the
+    explained share and ``implausible`` (the fit ends on a plausibility bound
+    of any of its effects) on each candidate; an implausible one is never chosen.
     """
     n = base.residual.size
     bic0, _ = scores(base.rss, n, base.n_parameters)
@@ -459,10 +539,19 @@ def decide(base: Fit, before: ResidualAnalysis, checked: Sequence[Candidate]) ->
         c.bic, c.ebic = scores(c.fit.rss, n, c.fit.n_parameters, c.n_locations)
         c.delta_bic, c.delta_ebic = c.bic - bic0, c.ebic - bic0
         c.explained = 1.0 - c.fit.rss / base.rss if base.rss > 0 else 0.0
-    if not checked or not before.structured:
+        c.implausible = any(at_bound(a.effect, a.location, a.values) for a in c.fit.applied)
+    plausible = [c for c in checked if not c.implausible]
+    if not plausible or not before.structured:
         return None
-    best = min(checked, key=lambda c: c.ebic)
+    best = min(plausible, key=lambda c: c.ebic)
     return best if best.delta_ebic < 0 else None
+
+
+def verdict(before: ResidualAnalysis, after: ResidualAnalysis, n_added: int) -> str:
+    """``noise`` (nothing to explain), ``explained`` (effects added, noise after) or ``partly explained``."""
+    if not before.structured:
+        return "noise"
+    return "explained" if n_added > 0 and not after.structured else "partly explained"
 
 
 def rank(candidates: Sequence[Candidate]) -> list[Candidate]:
@@ -476,8 +565,8 @@ def rank(candidates: Sequence[Candidate]) -> list[Candidate]:
 def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library: Sequence[Effect] | None = None,
                noise: float | None = None, significance: float = 0.01, per_type: int = 2,
                max_moves: int = 6, restarts: int = 0, seed: int = 0, check_noise: bool = False,
-               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS) -> ClosureResult:
-    """Baseline fit, residual analysis, screening, checks, decision and the updated model.
+               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, max_effects: int = 3) -> ClosureResult:
+    """Baseline fit, residual analysis, then forward selection: screening, checks and a decision per step.
 
     Parameters
     ----------
@@ -507,8 +596,11 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
         be added then; the checks only refine the candidates' scores).
     alpha_bounds : (float, float)
         Box of the stiffness factors.
+    max_effects : int
+        Most effects added (forward selection stops earlier at noise or when
+        no effect improves the extended BIC).
     """
-    times = {}
+    times = {"baseline": 0.0, "screen": 0.0, "check": 0.0}
     t = time.perf_counter()
     library = build_library(model) if library is None else list(library)
     freqs = np.asarray(freqs_hz, float)
@@ -516,21 +608,71 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     base, before = baseline(model, freqs, u, alpha_start, noise, significance, restarts, seed, alpha_bounds)
     times["baseline"] = time.perf_counter() - t
     log.info("baseline: %s", before.summary())
-    t = time.perf_counter()
-    screened = screen(model, freqs, base, library)
-    times["screen"] = time.perf_counter() - t
-    t = time.perf_counter()
+    sel = forward_select(model, freqs, u, base, before, library, significance=significance, per_type=per_type,
+                         max_moves=max_moves, check_noise=check_noise, alpha_bounds=alpha_bounds,
+                         max_effects=max_effects, times=times)
+    return ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
+                         sel.final, sel.after, times, sel.steps, verdict(before, sel.after, len(sel.steps)),
+                         sel.implausible, sel.rounds)
+
+
+@dataclass
+class Selection:
+    """What :func:`forward_select` added (in order), each round's ranking and the final fit."""
+
+    steps: list[Candidate]
+    rounds: list[list[Candidate]]
+    implausible: list[Candidate]
+    final: Fit
+    after: ResidualAnalysis
+
+
+def forward_select(model: ParametricModel, freqs_hz, amplitude, start: Fit, analysis: ResidualAnalysis,
+                   library: Sequence[Effect], *, significance: float = 0.01, per_type: int = 2, max_moves: int = 6,
+                   check_noise: bool = False, alpha_bounds: tuple[float, float] = ALPHA_BOUNDS,
+                   max_effects: int = 3, times: dict | None = None) -> Selection:
+    """Add effects one at a time from ``start`` (a fit with or without effects, ``analysis`` its residual).
+
+    Each round screens every candidate with the effects so far in the model,
+    checks the best few in full (all effects refitted with alpha) and adds the
+    one that lowers the extended BIC most, if any and if plausible; it stops at
+    noise (chi-square test with the noise level of ``analysis``), when nothing
+    improves, or after ``max_effects`` rounds. ``times`` (seconds per stage)
+    is added to if given.
+    """
+    times = {} if times is None else times
+    freqs = np.asarray(freqs_hz, float)
+    u = np.asarray(amplitude, float)
     by_kind = {e.kind: e for e in library}
-    checked = []
-    if before.structured or check_noise:
-        for c in pick_for_check(screened, per_type):
-            checked.append(check(model, freqs, u, base, by_kind[c.effect], c, max_moves, alpha_bounds))
-    times["check"] = time.perf_counter() - t
-    checked = dedupe(checked)
-    chosen = decide(base, before, checked)
-    final = chosen.fit if chosen is not None else base
-    after = analyse_residual(final.residual, freqs, final.n_parameters, before.sigma, significance, final.relative(u))
-    return ClosureResult(base, before, rank(merge(checked, screened)), chosen, final, after, times)
+    current, sigma = start, analysis.sigma
+    steps: list[Candidate] = []
+    implausible: list[Candidate] = []
+    rounds: list[list[Candidate]] = []
+    for _ in range(max_effects):
+        t = time.perf_counter()
+        screened = screen(model, freqs, current, library)
+        times["screen"] = times.get("screen", 0.0) + time.perf_counter() - t
+        t = time.perf_counter()
+        checked = []
+        if analysis.structured or (check_noise and not steps):
+            for c in pick_for_check(screened, per_type):
+                checked.append(check(model, freqs, u, current, by_kind[c.effect], c, max_moves, alpha_bounds))
+        times["check"] = times.get("check", 0.0) + time.perf_counter() - t
+        checked = dedupe(checked)
+        chosen = decide(current, analysis, checked)
+        implausible += [c for c in checked if c.implausible]
+        rounds.append(rank(merge(checked, screened)))
+        if chosen is None:
+            break
+        steps.append(chosen)
+        current = chosen.fit
+        analysis = analyse_residual(current.residual, freqs, current.n_parameters, sigma, significance,
+                                    current.relative(u))
+        log.info("step %d: added %s at %s = %s (%.0f %% of the residual); %s", len(steps), chosen.effect,
+                 chosen.location, chosen.fit.values, 100 * chosen.explained, analysis.summary())
+        if not analysis.structured:
+            break
+    return Selection(steps, rounds, implausible, current, analysis)
 
 
 def dedupe(checked: Sequence[Candidate]) -> list[Candidate]:

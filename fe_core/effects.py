@@ -24,7 +24,26 @@ name                location                               parameter    unit
 ``grounded_spring`` a node                                 ``k``        N/m, on u_z to ground
 ``joint_band``      a plate joint (``joint x=230 mm``)     ``beta``     - (band K (1 + beta))
 ``damping``         ``a`` or ``b``                         ``delta``    1/s or s, added
+``grounded_spring_x``, ``_y``  a node                      ``k``        N/m, on u_x / u_y
+``sensor_mass``     ``all sensors``                        ``mass``     kg at every sensor node
+``sensor_gain``     a sensor (``sensor 3``)                ``g``        - (|Z_s| (1 + g))
+``patch``           cells within 1 or 2 rings of a node    ``beta``     - (patch K (1 + beta))
+``cell_set``        a named cell set (``set right``)       ``beta``     - (set K (1 + beta))
 ==================  =====================================  ===========  ==================
+
+Any model: nodes and their DOFs come from the mesh or, for a model given as
+matrices, from its DOF table (:func:`node_rows`); the cell effects (``patch``,
+``cell_set``, ``joint_band``) need a mesh and its element matrices
+(``ParametricModel.cell_stiffness``) and are left out elsewhere (refused when
+named, :func:`build_library`).
+
+Plausibility: every effect's fit box (:meth:`Effect.bounds_at`) is its
+*plausible* range, which a user may narrow or widen per kind with
+:meth:`Effect.set_limits`. Defaults: a point mass at most 20 % of the
+structure's mass, the sensor masses together at most 20 %, a grounded spring
+at most 1e8 N/m, a sensor gain within +-50 %, factors above -1 (kept off by a
+margin) and at most 10. A fit that ends on such a bound is not a finding
+(:func:`fe_core.closure.at_bound`).
 
 Every extension keeps K symmetric positive definite and M positive definite
 within the parameter bounds (springs and masses are non-negative, factors
@@ -77,6 +96,14 @@ __all__ = [
     "LinearisedResponse",
     "joint_bands",
     "candidate_nodes",
+    "SensorMass",
+    "SensorGain",
+    "patch_bands",
+    "sensor_gain",
+    "MASS_SHARE",
+    "node_rows",
+    "has_cell_stiffness",
+    "patch_centres",
 ]
 
 
@@ -98,6 +125,9 @@ class Terms:
     mass: sp.spmatrix | None = None
     damping_a: float = 0.0
     damping_b: float = 0.0
+    #: Relative amplitude factors per sensor, shape (n_sensors,): the compared amplitude is
+    #: ``|Z_s| (1 + gain_s)`` (a calibration error; it changes the comparison, not the structure).
+    gain: np.ndarray | None = None
 
 
 class Effect(abc.ABC):
@@ -162,8 +192,18 @@ class Effect(abc.ABC):
         """Locations next to ``location`` (used to refine a searched location); none by default."""
         return []
 
+    def set_limits(self, lower=None, upper=None) -> "Effect":
+        """Set the plausible range (the fit box) of every parameter; returns the effect."""
+        if lower is not None:
+            self.lower = tuple(np.broadcast_to(np.asarray(lower, float), (self.n_parameters,)))
+        if upper is not None:
+            self.upper = tuple(np.broadcast_to(np.asarray(upper, float), (self.n_parameters,)))
+        if any(lo >= hi for lo, hi in zip(self.lower, self.upper)):
+            raise ValueError(f"effect {self.kind!r}: lower limits {self.lower} must be below upper {self.upper}")
+        return self
+
     def bounds_at(self, location: str) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds for a least-squares fit at a location, with excluded edges moved inward."""
+        """Bounds for a least-squares fit at a location (the plausible range), excluded edges moved inward."""
         lo = np.array(self.lower, float)
         hi = np.array(self.upper, float)
         if self.margin:
@@ -213,20 +253,58 @@ class Applied:
 
 # -- helpers ------------------------------------------------------------------------------------------
 def _free_position(model: ParametricModel) -> np.ndarray:
+    """Free-DOF index of every DOF before constraints (-1 on a constrained DOF), shape (n_total_dofs,)."""
     pos = getattr(model, "_free_position_cache", None)
     if pos is None:
-        pos = np.full(model.mesh.n_nodes * DOFS_PER_NODE, -1)
+        pos = np.full(model.n_total_dofs, -1)
         pos[model.free_dofs] = np.arange(model.free_dofs.size)
         model._free_position_cache = pos
     return pos
 
 
-def candidate_nodes(model: ParametricModel, node_set: str = "top") -> np.ndarray:
-    """Nodes of a named set that have free DOFs (all nodes with free DOFs if the set is absent)."""
-    nodes = model.mesh.node_sets.get(node_set, np.arange(model.mesh.n_nodes))
-    pos = _free_position(model)
-    free = np.all(pos[DOFS_PER_NODE * np.asarray(nodes)[:, None] + np.arange(DOFS_PER_NODE)] >= 0, axis=1)
-    return np.asarray(nodes)[free]
+def node_rows(model: ParametricModel) -> tuple[np.ndarray, np.ndarray]:
+    """Every node's translational DOFs on the free DOFs, for a mesh or a matrices model.
+
+    Returns
+    -------
+    nodes : ndarray, shape (k,), int
+        Node ids (0-based mesh nodes, or the ids of a matrices model's DOF table).
+    rows : ndarray, shape (k, 3), int
+        Free-DOF index of u_x, u_y, u_z of each node; -1 where the DOF is
+        constrained, -2 where a matrices model has no such DOF.
+    """
+    cached = getattr(model, "_node_rows_cache", None)
+    if cached is None:
+        pos = _free_position(model)
+        if model.dof_table is None:
+            nodes = np.arange(model.n_total_dofs // DOFS_PER_NODE)
+            rows = pos[DOFS_PER_NODE * nodes[:, None] + np.arange(DOFS_PER_NODE)]
+        else:
+            table = np.asarray(model.dof_table)
+            nodes, which = np.unique(table[:, 0], return_inverse=True)
+            rows = np.full((nodes.size, DOFS_PER_NODE), -2)
+            rows[which, table[:, 1]] = pos
+        cached = model._node_rows_cache = (nodes, rows, {int(n): i for i, n in enumerate(nodes)})
+    return cached[0], cached[1]
+
+
+def _rows_of(model: ParametricModel, node: int) -> np.ndarray:
+    """Free-DOF index of u_x, u_y, u_z of one node (negative if constrained or absent), shape (3,)."""
+    _, rows = node_rows(model)
+    return rows[model._node_rows_cache[2][int(node)]]
+
+
+def candidate_nodes(model: ParametricModel, node_set: str = "top", component: int | None = None) -> np.ndarray:
+    """Nodes of a named set whose DOFs are all free (all such nodes if the set or the mesh is absent);
+    with ``component``, the nodes whose DOF along that axis is free."""
+    nodes, rows = node_rows(model)
+    if model.mesh is not None and node_set in model.mesh.node_sets:
+        pick = np.asarray(model.mesh.node_sets[node_set])
+        nodes, rows = nodes[pick], rows[pick]
+    if component is not None:
+        return nodes[rows[:, component] >= 0]
+    # Every DOF the node has is free (a matrices model may lack some translations: -2).
+    return nodes[np.all(rows != -1, axis=1) & np.any(rows >= 0, axis=1)]
 
 
 def _diag(n: int, rows: np.ndarray, values: np.ndarray) -> sp.csr_matrix:
@@ -234,6 +312,8 @@ def _diag(n: int, rows: np.ndarray, values: np.ndarray) -> sp.csr_matrix:
 
 
 def _segment_cells(model: ParametricModel) -> list[np.ndarray]:
+    if model.cell_segment is not None:
+        return [np.flatnonzero(model.cell_segment == i) for i in range(len(model.segment_names))]
     try:
         return [model.mesh.cell_sets[name] for name in model.segment_names]
     except KeyError as exc:
@@ -272,8 +352,11 @@ class _NodalEffect(Effect):
 
     def __init__(self, model: ParametricModel, nodes: Sequence[int] | None = None):
         super().__init__(model)
-        self.nodes = np.asarray(candidate_nodes(model, self.node_set) if nodes is None else nodes, dtype=int)
+        self.nodes = np.asarray(self._candidates() if nodes is None else nodes, dtype=int)
         self._index = {f"node {n}": int(n) for n in self.nodes}
+
+    def _candidates(self) -> np.ndarray:
+        return candidate_nodes(self.model, self.node_set)
 
     def locations(self) -> list[str]:
         return list(self._index)
@@ -286,19 +369,31 @@ class _NodalEffect(Effect):
 
     def describe(self, location) -> dict:
         n = self.node(location)
+        if self.model.mesh is None:  # a matrices model: no coordinates
+            return {"node": n}
         x, y, z = self.model.mesh.nodes[n]
         return {"node": n, "x_m": float(x), "y_m": float(y), "z_m": float(z)}
 
     def neighbours(self, location) -> list[str]:
-        """Candidate nodes sharing a cell with this node."""
+        """Candidate nodes sharing a cell with this node (without a mesh: coupled to it in K)."""
         n = self.node(location)
-        cells = self.model.mesh.cells
-        near = np.unique(cells[np.any(cells == n, axis=1)])
+        if self.model.mesh is not None:
+            cells = self.model.mesh.cells
+            near = np.unique(cells[np.any(cells == n, axis=1)])
+        else:
+            rows = _rows_of(self.model, n)
+            coupled = np.unique(self.model.stiffness_segments.pattern[rows[rows >= 0]].indices)
+            nodes, all_rows = node_rows(self.model)
+            near = nodes[np.any(np.isin(all_rows, coupled), axis=1)]
         return [f"node {m}" for m in near if m != n and f"node {m}" in self._index]
 
 
+#: Default plausible share of the structure's mass for an added mass.
+MASS_SHARE = 0.2
+
+
 class PointMass(_NodalEffect):
-    """A point mass at a node (translational, on u_x, u_y and u_z)."""
+    """A point mass at a node (translational, on u_x, u_y and u_z); at most :data:`MASS_SHARE` of the model."""
 
     kind = "point_mass"
     parameters = ("mass",)
@@ -307,9 +402,13 @@ class PointMass(_NodalEffect):
     upper = (np.inf,)
     scale = (0.1,)
 
+    def __init__(self, model: ParametricModel, nodes: Sequence[int] | None = None):
+        super().__init__(model, nodes)
+        self.upper = (MASS_SHARE * float(model.total_mass()),)
+
     def terms(self, alpha, location, values) -> Terms:
-        n = self.node(location)
-        rows = _free_position(self.model)[DOFS_PER_NODE * n + np.arange(DOFS_PER_NODE)]
+        rows = _rows_of(self.model, self.node(location))
+        rows = rows[rows >= 0]
         return Terms(mass=_diag(self.model.n_dofs, rows, np.full(rows.size, float(values[0]))))
 
 
@@ -320,14 +419,77 @@ class GroundedSpring(_NodalEffect):
     parameters = ("k",)
     units = ("N/m",)
     lower = (0.0,)
-    upper = (np.inf,)
+    upper = (1e8,)
     scale = (1e5,)
     component = 2
 
+    def __init__(self, model: ParametricModel, nodes: Sequence[int] | None = None, component: int | None = None):
+        if component is not None:
+            if component not in (0, 1, 2):
+                raise ValueError(f"grounded spring direction must be 0, 1 or 2 (x, y, z), got {component!r}")
+            self.component = component
+        super().__init__(model, nodes)
+
+    def _candidates(self) -> np.ndarray:
+        return candidate_nodes(self.model, self.node_set, self.component)
+
     def terms(self, alpha, location, values) -> Terms:
-        n = self.node(location)
-        row = _free_position(self.model)[DOFS_PER_NODE * n + self.component]
+        row = _rows_of(self.model, self.node(location))[self.component]
         return Terms(stiffness=_diag(self.model.n_dofs, np.array([row]), np.array([float(values[0])])))
+
+
+def has_cell_stiffness(model: ParametricModel) -> bool:
+    """True if the model can give its cells' element stiffness (a mesh with known elements and materials)."""
+    return model.mesh is not None and (model.cell_stiffness is not None
+                                       or (model.material is not None and model.formulation is not None))
+
+
+def _cells_stiffness(model: ParametricModel, cells: np.ndarray) -> np.ndarray:
+    """Element stiffness matrices of ``cells`` at alpha = 0, shape (c, d, d), N/m.
+
+    From the model's own ``cell_stiffness`` (a model file: any element family and
+    material per cell), else hex8 with the model's material; the benchmark's 544
+    cells are computed once and cached on the model.
+    """
+    if not has_cell_stiffness(model):
+        where = f" ({model.source})" if model.source else ""
+        raise ValueError(f"effects on a set of cells need the element matrices of a mesh; this model{where} "
+                         + ("has no mesh (it is given as matrices)" if model.mesh is None else
+                            "does not give them (several materials without cell_stiffness)"))
+    if model.cell_stiffness is not None:
+        return model.cell_stiffness(cells)
+    Ke = getattr(model, "_cell_stiffness_cache", None)
+    if Ke is None:
+        Ke = model._cell_stiffness_cache = element_stiffness(model.mesh.cell_coords, model.material.D,
+                                                             model.formulation)
+    return Ke[cells]
+
+
+def _band_matrix(model: ParametricModel, cells: np.ndarray, owner: np.ndarray) -> SegmentedMatrix:
+    """The stiffness of ``cells`` on the free DOFs, split by the segment owning each cell (cells
+    in no segment are the fixed part, not scaled by alpha).
+
+    Assembled directly on the free DOFs from the cached element matrices (entries on a
+    constrained DOF dropped): a few milliseconds per band, so hundreds of patches cost
+    well under a second.
+    """
+    Ke = _cells_stiffness(model, cells)  # (c, d, d)
+    dofs = _free_position(model)[cell_dofs(model.mesh.cells[cells])]  # (c, d), -1 = constrained
+    d = dofs.shape[1]
+    rows = np.repeat(dofs, d, axis=1).ravel()
+    cols = np.tile(dofs, (1, d)).ravel()
+    m = model.n_segments
+    seg = np.repeat(np.where(owner[cells] >= 0, owner[cells], m), d * d)  # row m: cells in no segment
+    keep = (rows >= 0) & (cols >= 0)
+    rows, cols, seg, vals = rows[keep], cols[keep], seg[keep], Ke.ravel()[keep]
+    n = model.n_dofs
+    keys, slot = np.unique(rows.astype(np.int64) * n + cols, return_inverse=True)
+    data = np.bincount(seg * keys.size + slot, weights=vals, minlength=(m + 1) * keys.size).reshape(m + 1, -1)
+    counts = np.bincount(keys // n, minlength=n)
+    pattern = sp.csr_matrix((data.sum(axis=0), (keys % n).astype(np.int32),
+                             np.concatenate([[0], np.cumsum(counts)])), shape=(n, n))
+    fixed = data[m] if np.any(owner[cells] < 0) else None
+    return SegmentedMatrix(pattern=pattern, data=data[:m], fixed=fixed)
 
 
 class ElementBand(Effect):
@@ -350,28 +512,17 @@ class ElementBand(Effect):
         super().__init__(model)
         if kind:
             self.kind = kind
-        if model.material is None or model.formulation is None:
-            raise ValueError("element bands need the model's material and formulation "
-                             "(build the model with fe_core.model.build_model)")
+        _cells_stiffness(model, np.zeros(0, dtype=int))  # refuses a model without element matrices
         self.bands = {label: np.asarray(cells, dtype=int) for label, cells in bands.items()}
         seg_cells = _segment_cells(model)
         owner = np.full(model.mesh.n_cells, -1)
         for s, cells in enumerate(seg_cells):
             owner[cells] = s
-        n_total = model.mesh.n_nodes * DOFS_PER_NODE
-        free = model.free_dofs
         self._matrices: dict[str, SegmentedMatrix] = {}
         for label, cells in self.bands.items():
             if cells.size == 0:
                 raise ValueError(f"element band {label!r} has no cells")
-            Ke = element_stiffness(model.mesh.cell_coords[cells], model.material.D, model.formulation)
-            dofs = cell_dofs(model.mesh.cells[cells])
-            parts = []
-            for s in range(model.n_segments):
-                mine = owner[cells] == s
-                A = assemble(Ke[mine], dofs[mine], n_total) if mine.any() else sp.csr_matrix((n_total, n_total))
-                parts.append(A[free][:, free])
-            self._matrices[label] = SegmentedMatrix.from_matrices(parts)
+            self._matrices[label] = _band_matrix(model, cells, owner)
 
     def locations(self) -> list[str]:
         return list(self.bands)
@@ -440,6 +591,156 @@ class RayleighDamping(Effect):
                 "unit": "1/s" if location == "a" else "s"}
 
 
+def _sensor_nodes(model: ParametricModel) -> np.ndarray:
+    """Node of each sensor, shape (n_sensors,)."""
+    nodes = getattr(model, "sensor_nodes", None)
+    if nodes is not None:
+        return np.asarray(nodes, dtype=int)
+    # The node of the DOFs each output vector reads (a sensor along a vector reads one node's DOFs).
+    L = model.outputs.tocsc()
+    first = L.indices[L.indptr[:-1]]  # a free-DOF index per sensor
+    all_nodes, rows = node_rows(model)
+    owner = np.full(model.n_dofs, -1)
+    for c in range(DOFS_PER_NODE):
+        ok = rows[:, c] >= 0
+        owner[rows[ok, c]] = all_nodes[ok]
+    return owner[first]
+
+
+class SensorMass(Effect):
+    """The transducers' own mass: one mass at every sensor node, on u_x, u_y and u_z.
+
+    An accelerometer is a rigid point mass, so it loads all three translations
+    of its node, not only the measured one. One value for all sensors (they
+    are usually alike); the plausible range is up to :data:`MASS_SHARE` of the
+    model for all of them together.
+    """
+
+    kind = "sensor_mass"
+    parameters = ("mass",)
+    units = ("kg",)
+    lower = (0.0,)
+    upper = (np.inf,)
+    scale = (0.01,)
+
+    def __init__(self, model: ParametricModel):
+        super().__init__(model)
+        self.nodes = _sensor_nodes(model)
+        self.upper = (MASS_SHARE * float(model.total_mass()) / self.nodes.size,)
+        rows = np.concatenate([_rows_of(model, n) for n in self.nodes])
+        self._rows = np.unique(rows[rows >= 0])
+
+    def locations(self) -> list[str]:
+        return ["all sensors"]
+
+    def terms(self, alpha, location, values) -> Terms:
+        return Terms(mass=_diag(self.model.n_dofs, self._rows, np.full(self._rows.size, float(values[0]))))
+
+    def describe(self, location) -> dict:
+        return {"nodes": [int(n) for n in self.nodes], "per_sensor": True}
+
+
+class SensorGain(Effect):
+    """A calibration error of one sensor: the measured amplitude is ``|Z_s| (1 + g)``.
+
+    Changes the comparison, not the structure (no matrix changes): the
+    predicted amplitude at that sensor is scaled. Plausible within +-50 %.
+    """
+
+    kind = "sensor_gain"
+    parameters = ("g",)
+    units = ("-",)
+    lower = (-0.5,)
+    upper = (0.5,)
+    scale = (0.05,)
+
+    def locations(self) -> list[str]:
+        return [f"sensor {s + 1}" for s in range(self.model.n_sensors)]
+
+    def terms(self, alpha, location, values) -> Terms:
+        gain = np.zeros(self.model.n_sensors)
+        gain[self.locations().index(location)] = float(values[0])
+        return Terms(gain=gain)
+
+    def describe(self, location) -> dict:
+        s = self.locations().index(location)
+        return {"sensor": s + 1, "node": int(_sensor_nodes(self.model)[s])}
+
+
+def patch_bands(model: ParametricModel, centres: Sequence[int], rings: Sequence[int] = (1, 2)) -> dict[str, np.ndarray]:
+    """Cells within ``r`` rings of each centre node (ring 1: the cells touching it), labelled
+    ``node <n> r<r>``: patches for damage localisation anywhere."""
+    cells = model.mesh.cells
+    bands = {}
+    for n in centres:
+        nodes = np.array([n])
+        for r in range(1, max(rings) + 1):
+            inside = np.flatnonzero(np.any(np.isin(cells, nodes), axis=1))
+            if r in rings:
+                bands[f"node {int(n)} r{r}"] = inside
+            nodes = np.unique(cells[inside])
+    return bands
+
+
+def patch_centres(model: ParametricModel, n_target: int = 160) -> np.ndarray:
+    """About ``n_target`` patch centres spread over any mesh: the node nearest the mean of the free
+    nodes in each box of a grid, refined until that many boxes hold nodes."""
+    nodes = candidate_nodes(model, node_set="")
+    xyz = model.mesh.nodes[nodes]
+    lo = xyz.min(axis=0)
+    h = float(np.ptp(xyz, axis=0).max())
+    while True:
+        boxes, which = np.unique(np.floor((xyz - lo) / h).astype(np.int64), axis=0, return_inverse=True)
+        if boxes.shape[0] >= min(n_target, nodes.size) or h <= 0:
+            break
+        h /= 1.25
+    which = which.ravel()
+    mean = np.zeros((boxes.shape[0], 3))
+    np.add.at(mean, which, xyz)
+    mean /= np.bincount(which)[:, None]
+    dist = np.linalg.norm(xyz - mean[which], axis=1)
+    order = np.lexsort((dist, which))  # per box, nearest first
+    first = order[np.r_[True, np.diff(which[order]) != 0]]
+    return np.sort(nodes[first])
+
+
+def _patch_factory(model: ParametricModel, stride: int = 2) -> Effect | None:
+    """Patches of 1 and 2 rings of cells around centre nodes: on a model with a ``top`` node set (the
+    benchmark) every ``stride``-th top node in x and y (a 2 x 2 subgrid of the top surface: neighbouring
+    patches overlap, so no damage falls between them); on any other mesh :func:`patch_centres`.
+    None for a model without element matrices (matrices only)."""
+    if not has_cell_stiffness(model):
+        return None
+    if "top" in model.mesh.node_sets:
+        top = candidate_nodes(model, "top")
+        xy = np.round(model.mesh.nodes[top, :2], 9)
+        xs, ys = np.unique(xy[:, 0]), np.unique(xy[:, 1])
+        keep = np.isin(xy[:, 0], xs[::stride]) & np.isin(xy[:, 1], ys[::stride])
+        centres = top[keep]
+    else:
+        centres = patch_centres(model)
+    return ElementBand(model, patch_bands(model, centres), kind="patch")
+
+
+def _cell_set_factory(model: ParametricModel) -> Effect | None:
+    """The stiffness factor of every named cell set of the mesh (``set <name>``), except sets made of
+    whole segments (their factor is a combination of the alphas); None if there is none."""
+    if not has_cell_stiffness(model):
+        return None
+    segments = _segment_cells(model)
+    owner = np.full(model.mesh.n_cells, -1)
+    for s, cells in enumerate(segments):
+        owner[cells] = s
+    bands = {}
+    for name, cells in model.mesh.cell_sets.items():
+        cells = np.asarray(cells, dtype=int)
+        touched = np.unique(owner[cells])
+        whole = touched.min() >= 0 and sum(segments[t].size for t in touched) == np.unique(cells).size
+        if cells.size and not whole:
+            bands[f"set {name}"] = cells
+    return ElementBand(model, bands, kind="cell_set") if bands else None
+
+
 def joint_bands(model: ParametricModel, joints_x: Sequence[float], atol: float = 1e-9) -> dict[str, np.ndarray]:
     """Cells touching each joint plane ``x = x_j``: one band per joint, labelled ``joint x=<mm> mm``."""
     nodes_x = model.mesh.nodes[:, 0]
@@ -499,13 +800,22 @@ def registered_effects() -> list[str]:
 
 
 def build_library(model: ParametricModel, names: Sequence[str] | None = None) -> list[Effect]:
-    """Instantiate the registered effects (all, or ``names`` in that order) for a model."""
+    """Instantiate the registered effects (all, or ``names`` in that order) for a model.
+
+    Effects that do not apply to the model (a patch on a model given as matrices) are left out of
+    the default library; named explicitly they are refused with ``ValueError`` saying what they need.
+    """
+    explicit = names is not None
     names = registered_effects() if names is None else list(names)
     out = []
     for name in names:
         if name not in _REGISTRY:
             raise ValueError(f"unknown effect {name!r}; registered: {', '.join(registered_effects())}")
         effect = _REGISTRY[name](model)
+        if effect is None and explicit:
+            needs = _NEEDS.get(name, "what its factory looks for")
+            raise ValueError(f"effect {name!r} does not apply to the model {model.source or ''}".rstrip()
+                             + f": it needs {needs}")
         if effect is not None:
             if effect.kind != name:
                 effect.kind = name
@@ -513,9 +823,19 @@ def build_library(model: ParametricModel, names: Sequence[str] | None = None) ->
     return out
 
 
+#: What the built-in effects that do not apply to every model need (for the refusal's message).
+_NEEDS = {
+    "patch": "a mesh whose element matrices the model gives (not a model given as matrices)",
+    "cell_set": "a mesh with element matrices and a named cell set that is not a union of whole segments",
+    "joint_band": "a mesh with element matrices and cell sets plate1, plate2, ... meeting at planes x = const",
+}
+
+
 def _joint_factory(model: ParametricModel) -> Effect | None:
+    if not has_cell_stiffness(model):
+        return None
     joints = _block_joints(model)
-    if not joints or model.material is None:
+    if not joints:
         return None
     return ElementBand(model, joint_bands(model, joints), kind="joint_band")
 
@@ -525,6 +845,12 @@ register_effect("point_mass", PointMass)
 register_effect("grounded_spring", GroundedSpring)
 register_effect("joint_band", _joint_factory)
 register_effect("damping", RayleighDamping)
+register_effect("grounded_spring_x", lambda model: GroundedSpring(model, component=0))
+register_effect("grounded_spring_y", lambda model: GroundedSpring(model, component=1))
+register_effect("sensor_mass", SensorMass)
+register_effect("sensor_gain", SensorGain)
+register_effect("patch", _patch_factory)
+register_effect("cell_set", _cell_set_factory)
 
 
 # -- the extended model -------------------------------------------------------------------------------
@@ -538,6 +864,8 @@ def extended_matrices(model: ParametricModel, alpha, applied: Sequence[Applied] 
     a, b = model.damping
     for item in applied:
         t = item.terms(alpha)
+        if t.gain is not None:
+            continue
         if t.stiffness is not None:
             K = K + t.stiffness
         if t.mass is not None:
@@ -549,29 +877,44 @@ def extended_matrices(model: ParametricModel, alpha, applied: Sequence[Applied] 
 
 def extended_frf(model: ParametricModel, alpha, freqs_hz, applied: Sequence[Applied] = (),
                  method: str = "krylov") -> np.ndarray:
-    """Receptance at the sensors under the combined load, with effects; shape (p, n_sensors), m/N."""
+    """Receptance at the sensors (the model's output vectors) under its load, with effects; shape (p, n_sensors),
+    m/N (the benchmark's load is the combined one)."""
     freqs = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
     if freqs.ndim != 1 or freqs.size == 0 or np.any(~(freqs > 0)):
         raise ValueError(f"frequencies must be a non-empty 1-D array of positive values in Hz, got {freqs_hz!r}")
     K, M, a, b = extended_matrices(model, alpha, applied)
     F = model.combined_load()
     omegas = hz_to_rad(freqs)
+    rows = model._out_rows  # the DOFs the output vectors read
     if method == "direct":
-        return direct_frf(K, M, a * M + b * K, F, omegas, model.sensor_dofs)[:, :, 0]
-    if method != "krylov":
+        Z = direct_frf(K, M, a * M + b * K, F, omegas, rows)[:, :, 0]
+    elif method == "krylov":
+        Z = krylov_frf(K, M, a, b, F, omegas, rows)[:, :, 0]
+    else:
         raise ValueError(f"unknown FRF method {method!r}; choose 'krylov' or 'direct'")
-    return krylov_frf(K, M, a, b, F, omegas, model.sensor_dofs)[:, :, 0]
+    return (Z @ model._out_weights) * (1.0 + sensor_gain(model, alpha, applied))[None, :]
+
+
+def sensor_gain(model: ParametricModel, alpha, applied: Sequence[Applied] = ()) -> np.ndarray:
+    """Sum of the applied sensor gains, shape (n_sensors,) (zero without any)."""
+    g = np.zeros(model.n_sensors)
+    for item in applied:
+        t = item.terms(alpha)
+        if t.gain is not None:
+            g = g + t.gain
+    return g
 
 
 class LinearisedResponse:
     """First-order change of ln|Z| at the sensors for any change of (K, M, a, b).
 
-    With ``D(w) = K - w^2 M + j w (a M + b K)`` and the combined load F,
-    ``Z = D^-1 F`` and ``dZ = -D^-1 dD Z``. D is complex symmetric, so the
-    sensor rows of ``D^-1`` are the responses ``X_s`` to a unit load at each
-    sensor (reciprocity), and ``dZ_s = -X_s^T (dD Z)``: one solve with the six
-    sensor loads gives the sensitivity to *every* candidate, e.g. a point mass
-    at each of hundreds of nodes, without a solve per candidate.
+    With ``D(w) = K - w^2 M + j w (a M + b K)``, the model's load F and output
+    vectors ``l_s``, the field is ``h = D^-1 F``, ``Z_s = l_s^T h`` and
+    ``dZ_s = -l_s^T D^-1 dD h``. D is complex symmetric, so ``l_s^T D^-1`` is
+    the response ``X_s`` to a unit load along ``l_s`` (reciprocity), and
+    ``dZ_s = -X_s^T (dD h)``: one solve with F and the sensor loads gives the
+    sensitivity to *every* candidate, e.g. a point mass at each of hundreds of
+    nodes, without a solve per candidate.
 
     Parameters
     ----------
@@ -590,16 +933,21 @@ class LinearisedResponse:
         self.applied = list(applied)
         self.K, self.M, self.a, self.b = extended_matrices(model, alpha, applied)
         everything = np.arange(model.n_dofs)
-        # X[f, :, s]: field response to a unit load at sensor s.
-        self.X = krylov_frf(self.K, self.M, self.a, self.b, model.sensor_loads(), self.omegas, everything)
-        self.field = self.X.sum(axis=2)  # (p, n): the combined-load response everywhere
-        self.Z = self.field[:, model.sensor_dofs]  # (p, n_s)
+        # X[f, :, s]: field response to a unit load along output vector s; field: to the model's load F.
+        loads = np.column_stack([model.combined_load(), model.sensor_loads()])
+        both = krylov_frf(self.K, self.M, self.a, self.b, loads, self.omegas, everything)
+        self.field, self.X = both[:, :, 0], both[:, :, 1:]  # (p, n), (p, n, n_s)
+        self.Z = model.read_outputs(self.field)  # (p, n_s)
+        self.gain = sensor_gain(model, self.alpha, self.applied)
 
     def derivative(self, terms: Terms) -> np.ndarray:
         """``d ln|Z_s(f)|`` per unit of the change described by ``terms``, shape (p, n_sensors)."""
         w = self.omegas
         p, n = self.field.shape
         dK, dM = terms.stiffness, terms.mass
+        out = np.zeros((p, self.model.n_sensors))
+        if terms.gain is not None:  # ln(|Z| (1 + g)): d/dg = 1 / (1 + g)
+            out += (np.asarray(terms.gain, float) / (1.0 + self.gain))[None, :]
         rows = []
         for A in (dK, dM):
             if A is not None:
@@ -608,7 +956,7 @@ class LinearisedResponse:
         if terms.damping_a or terms.damping_b:
             rows.append(np.arange(n))
         if not rows:
-            return np.zeros((p, self.model.n_sensors))
+            return out
         rows = np.unique(np.concatenate(rows))
         v = np.zeros((rows.size, p), dtype=complex)  # (dD Z)[rows], per frequency
         Zt = self.field.T  # (n, p)
@@ -621,7 +969,7 @@ class LinearisedResponse:
         if terms.damping_b:
             v += terms.damping_b * (self.K[rows] @ Zt) * (1j * w)[None, :]
         dZ = -np.einsum("prs,rp->ps", self.X[:, rows, :], v)
-        return np.real(dZ / self.Z)
+        return out + np.real(dZ / self.Z)
 
     def alpha_derivatives(self) -> np.ndarray:
         """``d ln|Z| / d alpha_i``, shape (p * n_sensors, n_segments), frequency-major rows.

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -122,6 +122,11 @@ class ParametricModel:
     cell_segment : ndarray, shape (n_cells,), int, or None
         Segment index (0-based, in :attr:`segment_names`' order) of each mesh cell, -1 for
         the fixed remainder; None without a mesh.
+    cell_stiffness : callable or None
+        ``cell_stiffness(cells) -> (len(cells), d, d)``, N/m: element stiffness matrices of
+        mesh cells at alpha = 0, DOFs as :func:`fe_core.assembly.cell_dofs` (model
+        extensions that stiffen a set of cells need it; built from ``material`` and
+        ``formulation`` when None).
     """
 
     mesh: Mesh | None
@@ -146,6 +151,7 @@ class ParametricModel:
     placements: list[str] = field(default_factory=list)
     dof_table: np.ndarray | None = None
     cell_segment: np.ndarray | None = None
+    cell_stiffness: Callable[[np.ndarray], np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         if self.n_total_dofs is None:

@@ -114,7 +114,13 @@ def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closu
         if unknown:
             raise DiagnoseError(f"unknown effect(s) {', '.join(unknown)}; registered: "
                                 f"{', '.join(registered_effects())}")
-    settings = ct.ClosureSettings.make(model=cfg.get("model", "three_plate"), measured=str(measured_path),
+    model_name = cfg.get("model", "three_plate")
+    if effects is not None:  # an effect that cannot apply to this model is refused before any work
+        try:
+            ct.effect_library(model_name, effects)
+        except ValueError as exc:
+            raise DiagnoseError(f"--effects: {exc}") from None
+    settings = ct.ClosureSettings.make(model=model_name, measured=str(measured_path),
                                        alpha_start=alpha, alpha_bounds=[lower, upper], effects=effects,
                                        n_jobs=options.pop("n_jobs", None) or cfg.get("n_jobs", 1), **options)
     if not (settings["noise"] is None or settings["noise"] > 0):
@@ -136,7 +142,17 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
     print(f"residual after:  rms {ra['rms']:.3%}, chi2 {ra['chi2']:.1f} on {ra['dof']} dof, p = {ra['p_chi2']:.3g}",
           file=file)
     e = summary["effect"]
-    if e is not None:
+    verdict = summary.get("verdict")
+    if verdict is not None:
+        print(f"verdict: {verdict}", file=file)
+        word = "added" if verdict == "explained" else "candidate (structure remains, not a finding)"
+        for e in summary.get("effects", []):
+            print(f"  {e['step']}. {word}: {e['type']} at {e['location']}, {e['parameter']} = {e['value']:.4g} "
+                  f"{e['unit']}, explains {e['explained']:.1%} of the residual then", file=file)
+        for e in summary.get("implausible", []):
+            print(f"  implausible (fit ends on a plausibility bound): {e['type']} at {e['location']}, "
+                  f"{e['parameter']} = {e['value']:.4g} {e['unit']}", file=file)
+    elif e is not None:
         print(f"effect: {e['type']} at {e['location']}, {e['parameter']} = {e['value']:.4g} {e['unit']}"
               + (f"  {e['details']}" if e["details"] else ""), file=file)
     print(f"overall error: {summary['error_before']:.3%} -> {summary['error_after']:.3%} "

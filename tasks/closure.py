@@ -34,7 +34,7 @@ from prefect import task
 from prefect.cache_policies import NO_CACHE
 
 from fe_core import closure as core
-from fe_core.effects import Applied, build_library, extended_frf
+from fe_core.effects import Applied, build_library, extended_frf, registered_effects
 from fe_core.residual import analyse_residual, log_residual, overall_error, per_sensor_error
 from tasks.runstore import atomic_write_bytes, atomic_write_json
 from tasks.stages import load_model
@@ -47,6 +47,7 @@ __all__ = [
     "check_task",
     "decide_task",
     "residual_table",
+    "effect_library",
 ]
 
 log = logging.getLogger(__name__)
@@ -71,11 +72,12 @@ class ClosureSettings(dict):
     Keys: ``model``, ``measured``, ``alpha_start`` (list), ``noise`` (float or
     None = estimated), ``significance``, ``per_type``, ``max_moves``,
     ``restarts``, ``seed``, ``effects`` (list of registered names or None),
-    ``alpha_bounds`` (pair), ``n_jobs``.
+    ``alpha_bounds`` (pair), ``n_jobs``, ``max_effects`` (forward selection).
     """
 
     DEFAULTS = dict(noise=None, significance=0.01, per_type=1, max_moves=6, restarts=2, seed=0, effects=None,
-                    alpha_bounds=list(core.ALPHA_BOUNDS), n_jobs=1, check_noise=False)
+                    alpha_bounds=list(core.ALPHA_BOUNDS), n_jobs=1, check_noise=False,
+                    max_effects=3)
 
     @classmethod
     def make(cls, **kwargs) -> "ClosureSettings":
@@ -167,11 +169,28 @@ def _fit_from_parameters(model, library, freqs, u, alpha, effect, location, valu
     amp = np.abs(extended_frf(model, alpha, freqs, applied))
     return core.Fit(alpha=np.asarray(alpha, float), effect=effect, location=location,
                     values=np.asarray(values, float), model_amplitude=amp, residual=log_residual(amp, u),
-                    evaluations=int(evaluations), seconds=float(seconds), message=message)
+                    evaluations=int(evaluations), seconds=float(seconds), message=message,
+                    added=applied[0] if applied else None)
 
 
 def _library(model, settings) -> dict:
-    return {e.kind: e for e in build_library(model, settings.get("effects"))}
+    return _cached_library(model, settings.get("effects"))
+
+
+def effect_library(model_name: str, effects=None) -> dict:
+    """The effect library of a model by name or model-file path (``ValueError`` for an effect that does
+    not apply to it), built once per process."""
+    return _cached_library(load_model(model_name), effects)
+
+
+def _cached_library(model, effects) -> dict:
+    """The effect library by kind, built once per model and effect list in a process (the screen,
+    every check and the decision of a closure use the same; 320 patches take a second to build)."""
+    cache = model.__dict__.setdefault("_closure_libraries", {})
+    key = (tuple(registered_effects()), None if effects is None else tuple(effects))
+    if key not in cache:
+        cache[key] = {e.kind: e for e in build_library(model, effects)}
+    return cache[key]
 
 
 def _param_table(fit: core.Fit, library: dict) -> pd.DataFrame:
@@ -250,7 +269,7 @@ def check_candidate(model_name: str, effects, kind: str, location: str, linear_v
                     max_moves: int, alpha_bounds) -> dict:
     """One full FE check (runs in a worker process); returns a flat record."""
     model = load_model(model_name)
-    library = {e.kind: e for e in build_library(model, effects)}
+    library = _cached_library(model, effects)
     cand = core.Candidate(effect=kind, location=location, n_locations=len(library[kind].locations()),
                           linear_values=np.asarray(linear_values, float), linear_rss=0.0, linear_explained=0.0)
     base = core.Fit(alpha=np.asarray(base_alpha, float), effect=None, location=None, values=np.zeros(0),
@@ -333,18 +352,35 @@ def decide_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndarra
     after = analyse_residual(final.residual, freqs, final.n_parameters, before.sigma, settings["significance"],
                              final.relative(u))
     ranked = core.rank(core.merge(checked, list(screened.values())))
+    steps, implausible = ([chosen] if chosen is not None else []), [c for c in checked if c.implausible]
+    if chosen is not None and after.structured and settings.get("max_effects", 3) > 1:
+        # Forward selection beyond the first effect (all effects refitted at each step), in one call.
+        sel = core.forward_select(model, freqs, u, final, after, list(library.values()),
+                                  significance=settings["significance"], per_type=settings["per_type"],
+                                  max_moves=settings["max_moves"], alpha_bounds=tuple(settings["alpha_bounds"]),
+                                  max_effects=settings.get("max_effects", 3) - 1)
+        steps += sel.steps
+        implausible += sel.implausible
+        final, after = sel.final, sel.after
+    verdict = core.verdict(before, after, len(steps))
     cand_df = _candidates_frame(ranked, library)
     if not store.is_finished("decide"):
         store.write_table("decide", "candidates", cand_df)
         store.write_table("decide", "residual_after", residual_table(freqs, sensors, final.relative(u),
                                                                      final.residual))
         store.finish("decide", ["candidates", "residual_after"], {"chosen": None if chosen is None else
-                                                                 [chosen.effect, chosen.location]})
+                                                                 [chosen.effect, chosen.location],
+                                                                 "verdict": verdict})
     # The report-facing copies: (frequency_hz, sensor, residual) at the closure folder's top.
     for name, step in (("residual_before", "baseline"), ("residual_after", "decide")):
         atomic_write_bytes(store.root / f"{name}.parquet", store.path(step, name).read_bytes())
     summary = _closure_json(store, settings, run_info, base, final, chosen, before, after, ranked, library, u,
                             sensors, freqs, before_info)
+    summary.update(_verdict_json(verdict, steps, implausible, library, final))
+    atomic_write_bytes(store.root / "frf_closure.parquet", _parquet_bytes(pd.DataFrame({
+        "frequency_hz": np.repeat(freqs, len(sensors)), "sensor": np.tile(np.asarray(sensors, np.int64), len(freqs)),
+        "measured": u.ravel(), "alpha_only": base.model_amplitude.ravel(), "extended": final.model_amplitude.ravel()})))
+    summary["frf_table"] = "frf_closure.parquet"
     atomic_write_json(store.root / "closure.json", summary)
     try:
         from tasks.closure_plot import plot_residuals
@@ -376,6 +412,24 @@ def _candidates_frame(ranked: list[core.Candidate], library: dict) -> pd.DataFra
     return pd.DataFrame(rows)
 
 
+def _effect_entry(c: core.Candidate, library: dict, values=None) -> dict:
+    eff = library[c.effect]
+    v = c.fit.values if values is None else values
+    return {"type": c.effect, "location": c.location,
+            "value": float(v[0]) if eff.n_parameters == 1 else dict(zip(eff.parameters, map(float, v))),
+            "parameter": eff.parameters[0], "unit": _unit(eff, c.location), "details": eff.describe(c.location)}
+
+
+def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, final: core.Fit) -> dict:
+    """``verdict``, ``effects`` (in the order added, values of the final joint fit, each with the share of
+    the residual it explained when added) and ``implausible`` (fits that ended on a plausibility bound)."""
+    finals = [a.values for a in final.applied] if steps else []
+    effects = [{**_effect_entry(c, library, v), "explained": c.explained, "delta_ebic": c.delta_ebic, "step": k}
+               for k, (c, v) in enumerate(zip(steps, finals), start=1)]
+    return {"verdict": verdict, "effects": effects,
+            "implausible": [{**_effect_entry(c, library), "explained": c.explained} for c in implausible]}
+
+
 def _unit(effect, location) -> str:
     if effect.kind == "damping":
         return effect.describe(location)["unit"]
@@ -389,8 +443,9 @@ def _errors(fit, u, sensors):
 
 def _params(fit, library) -> dict:
     out = {f"alpha_{i + 1}": float(v) for i, v in enumerate(fit.alpha)}
-    if fit.effect is not None:
-        out.update({f"{fit.effect}.{n}": float(v) for n, v in zip(library[fit.effect].parameters, fit.values)})
+    for a in fit.applied:  # the effects in the order added; a second one of a kind is named by its location
+        key = a.effect.kind if not any(f"{a.effect.kind}." in k for k in out) else f"{a.effect.kind}@{a.location}"
+        out.update({f"{key}.{n}": float(v) for n, v in zip(a.effect.parameters, a.values)})
     return out
 
 

@@ -412,10 +412,27 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
         outputs=outputs, load=load, sensor_names=names, excitation_name=exc_name, n_total_dofs=n_total,
         parameter_bounds=bounds, source=str(spec.path), remainder_mass=rest_mass, placements=placements,
         cell_segment=owner,
+        cell_stiffness=_cell_stiffness_of(family, coords, materials, material_of, options),
     )
     log.info("%s: %d %s cells, %d nodes, %d free DOFs, %d segments, %d remainder cells", spec.path, n_cells,
              mf.cell_type, n_nodes, free.size, len(seg_names), rest.size)
     return model
+
+
+def _cell_stiffness_of(family, coords: np.ndarray, materials: list, material_of: np.ndarray, options: dict):
+    """``cells -> (len(cells), d, d)`` element stiffness matrices (N/m) of a mesh model's cells, each with its
+    material: for effects that stiffen or weaken a set of cells (:mod:`fe_core.effects`)."""
+    def cell_stiffness(cells: np.ndarray) -> np.ndarray:
+        cells = np.asarray(cells, dtype=int)
+        d = coords.shape[1] * DOFS_PER_NODE
+        Ke = np.empty((cells.size, d, d))
+        for i, mat in enumerate(materials):
+            mine = material_of[cells] == i
+            if mine.any():
+                Ke[mine] = family.element_stiffness(coords[cells[mine]], mat.D, **options)
+        return Ke
+
+    return cell_stiffness
 
 
 def _element_options(spec: _Spec, cell_type: str) -> dict:

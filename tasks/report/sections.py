@@ -283,6 +283,15 @@ def closure_section(data: RunData, out: Path) -> Section | None:
                      "Residual map before and after"))
     else:
         notes.append("closure.json names no residual table this report can read.")
+    frf_path = folder / (c.get("frf_table") or "frf_closure.parquet")
+    if frf_path.is_file():
+        figs.append((figures.plot_closure_frf(pd.read_parquet(frf_path), out / "closure_frf.png",
+                                              f"FRF: alpha only and with the added effects ({c.get('verdict', '')})"),
+                     "FRF of the final extended model beside the alpha-only one"))
+    if c.get("verdict"):
+        paragraphs.append(f"Verdict: {c['verdict']}. " + "; ".join(
+            f"{e['step']}. {e['type']} at {e['location']} = {e['value']:.4g} {e['unit']} "
+            f"({e['explained']:.0%} of the residual then)" for e in c.get("effects", []) if isinstance(e, dict)))
     ranked = _candidate_table(c.get("candidates"))
     if ranked is not None:
         df, score = ranked

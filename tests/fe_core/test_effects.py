@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -26,7 +28,8 @@ def rigid(model, component: int) -> np.ndarray:
 
 
 def test_builtin_effects_are_registered_with_their_candidates(library, benchmark_model):
-    assert list(library) == ["segment_mass", "point_mass", "grounded_spring", "joint_band", "damping"]
+    assert list(library) == ["segment_mass", "point_mass", "grounded_spring", "joint_band", "damping",
+                             "grounded_spring_x", "grounded_spring_y", "sensor_mass", "sensor_gain", "patch"]
     top_free = benchmark_model.mesh.node_sets["top"]
     # 615 top nodes, 30 of them on the clamped faces.
     assert top_free.size == 615 and len(library["point_mass"].locations()) == 585
@@ -152,7 +155,9 @@ def test_extended_krylov_frf_matches_the_direct_solver_with_every_effect(library
 @pytest.mark.parametrize(
     ("kind", "location", "step"),
     [("point_mass", "node 397", 1e-3), ("grounded_spring", "node 633", 1e2), ("joint_band", "joint x=396 mm", 1e-3),
-     ("segment_mass", "segment2", 1e-3), ("damping", "a", 1e-2), ("damping", "b", 1e-7)],
+     ("segment_mass", "segment2", 1e-3), ("damping", "a", 1e-2), ("damping", "b", 1e-7),
+     ("sensor_mass", "all sensors", 1e-4), ("grounded_spring_x", "node 633", 1e2), ("patch", "node 331 r2", 1e-3),
+     ("sensor_gain", "sensor 4", 1e-3)],
 )
 def test_linearised_sensitivities_match_central_differences_of_the_direct_solver(library, benchmark_model, kind,
                                                                                 location, step):
@@ -162,7 +167,7 @@ def test_linearised_sensitivities_match_central_differences_of_the_direct_solver
     carried = [E.Applied(library["point_mass"], "node 337", np.array([0.05]))]
     lin = E.LinearisedResponse(benchmark_model, ALPHA_ACTUAL, FREQS, carried)
     analytic = lin.effect_derivatives(effect, location)[:, 0]
-    lo = 0.0 if kind in ("point_mass", "grounded_spring") else -step  # masses and springs are >= 0
+    lo = 0.0 if kind in ("point_mass", "grounded_spring", "sensor_mass", "grounded_spring_x") else -step  # masses and springs are >= 0
     plus = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, carried + [E.Applied(effect, location, [step])],
                           method="direct")
     minus = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, carried + [E.Applied(effect, location, [lo])],
@@ -183,3 +188,154 @@ def test_alpha_sensitivities_include_the_alpha_dependence_of_a_band(library, ben
         fd = (np.log(np.abs(E.extended_frf(benchmark_model, ap, FREQS, carried, method="direct")))
               - np.log(np.abs(E.extended_frf(benchmark_model, am, FREQS, carried, method="direct")))).ravel() / (2 * h)
         assert np.max(np.abs(J[:, i] - fd)) <= 1e-5 * np.max(np.abs(fd))
+
+
+def test_sensor_mass_puts_one_mass_on_every_translation_of_every_sensor_node(library, benchmark_model):
+    t = library["sensor_mass"].terms(ALPHA_ACTUAL, "all sensors", np.array([0.025]))
+    for c in range(3):  # an accelerometer is a rigid point mass: all three translations
+        v = rigid(benchmark_model, c)
+        assert v @ (t.mass @ v) == pytest.approx(6 * 0.025, rel=1e-12)
+    nodes = benchmark_model.free_dofs[t.mass.nonzero()[0]] // DOFS_PER_NODE
+    assert set(nodes) == set(benchmark_model.sensor_nodes)
+    # plausible: all six together at most 20 % of the structure
+    assert library["sensor_mass"].bounds_at("all sensors")[1][0] == pytest.approx(0.2 * 5.83726 / 6, rel=1e-5)
+
+
+def test_sensor_gain_scales_one_sensors_amplitude_and_leaves_the_structure_alone(library, benchmark_model):
+    applied = [E.Applied(library["sensor_gain"], "sensor 2", np.array([0.08]))]
+    K, M, a, b = E.extended_matrices(benchmark_model, ALPHA_ACTUAL, applied)
+    K0, M0, _, _ = E.extended_matrices(benchmark_model, ALPHA_ACTUAL)
+    assert abs(K - K0).max() == 0 and abs(M - M0).max() == 0
+    ratio = E.extended_frf(benchmark_model, ALPHA_ACTUAL, FREQS, applied) / benchmark_model.frf(ALPHA_ACTUAL, FREQS)
+    assert np.allclose(ratio, [1, 1.08, 1, 1, 1, 1], rtol=1e-9)
+
+
+def test_grounded_springs_act_along_their_own_axis(library, benchmark_model):
+    for kind, c in (("grounded_spring_x", 0), ("grounded_spring_y", 1), ("grounded_spring", 2)):
+        t = library[kind].terms(ALPHA_ACTUAL, "node 633", np.array([1e5]))
+        for d in range(3):
+            v = rigid(benchmark_model, d)
+            assert v @ (t.stiffness @ v) == pytest.approx(1e5 if d == c else 0.0)
+    with pytest.raises(ValueError, match="direction"):
+        E.GroundedSpring(benchmark_model, component=3)
+
+
+def test_patches_grow_by_rings_of_cells_around_their_node(library, benchmark_model):
+    cells = benchmark_model.mesh.cells
+    bands = library["patch"].bands
+    ring1, ring2 = bands["node 331 r1"], bands["node 331 r2"]
+    assert set(ring1) == set(np.flatnonzero(np.any(cells == 331, axis=1)))
+    assert set(ring1) < set(ring2)
+    assert set(ring2) == set(np.flatnonzero(np.any(np.isin(cells, np.unique(cells[ring1])), axis=1)))
+
+
+def test_plausible_limits_can_be_set_and_default_to_a_fifth_of_the_structure(benchmark_model):
+    pm = E.PointMass(benchmark_model)
+    assert pm.bounds_at("node 337")[1][0] == pytest.approx(0.2 * benchmark_model.total_mass())
+    pm.set_limits(upper=0.5)
+    assert pm.bounds_at("node 337")[1][0] == 0.5
+    with pytest.raises(ValueError, match="below"):
+        pm.set_limits(lower=1.0)
+
+
+# -- any model (issue 15): a model given as matrices, a tetrahedral mesh from a model file -------------
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def cantilever():
+    """scikit-fem's cantilever as exported matrices: no mesh, DOF-table node ids, tip load along y + z/2."""
+    from fe_core.io import read_model
+
+    return read_model(REPO / "data" / "examples" / "cantilever_matrices" / "model.toml")
+
+
+@pytest.fixture(scope="module")
+def tet_bar(tmp_path_factory):
+    """A 0.4 x 0.04 x 0.02 m tet4 bar from a model file: segment ``left`` (x < 0.2), the ``right`` cell
+    set is the fixed remainder; clamped at x = 0; sensors y and z at the tip, load along (0, 1, 1)."""
+    import meshio
+
+    from fe_core.io import read_model
+    from fe_core.tet_mesh import box_tets
+
+    nodes, cells = box_tets((0.4, 0.04, 0.02), (8, 2, 1))
+    x = nodes[cells].mean(axis=1)[:, 0]
+    folder = tmp_path_factory.mktemp("tet_bar")
+    meshio.write(folder / "bar.inp", meshio.Mesh(
+        nodes, [("tetra", cells)], cell_sets={"left": [np.flatnonzero(x < 0.2)], "right": [np.flatnonzero(x > 0.2)]},
+        point_sets={"clamped": np.flatnonzero(np.isclose(nodes[:, 0], 0.0))}), file_format="abaqus")
+    tip = [0.4, 0.04, 0.02]
+    (folder / "model.toml").write_text("\n".join([
+        'mesh = "bar.inp"', "[damping]", "a = 5.0", "b = 2e-5",
+        "[[materials]]", "E = 2e11", "nu = 0.3", "rho = 7800.0",
+        "[[segments]]", 'set = "left"', "[[supports]]", 'nodes = "clamped"',
+        "[[sensors]]", f"point = {tip}", 'direction = "y"', "[[sensors]]", f"point = {tip}", 'direction = "z"',
+        "[[excitations]]", f"point = {tip}", "direction = [0.0, 1.0, 1.0]", ""]))
+    return read_model(folder / "model.toml")
+
+
+def test_a_model_given_as_matrices_gets_the_nodal_effects_and_refuses_the_cell_ones(cantilever):
+    lib = {e.kind: e for e in E.build_library(cantilever)}
+    assert set(lib) == {"segment_mass", "point_mass", "grounded_spring", "damping", "grounded_spring_x",
+                        "grounded_spring_y", "sensor_mass", "sensor_gain"}
+    table = cantilever.dof_table
+    clamped = {0, 1, 2, 78, 79, 80, 156, 157, 158}
+    assert len(lib["point_mass"].locations()) == np.unique(table[:, 0]).size - len(clamped)
+    assert "node 0" not in lib["point_mass"].locations() and "node 233" in lib["point_mass"].locations()
+    t = lib["point_mass"].terms(np.zeros(4), "node 233", np.array([0.3]))
+    for c in range(3):  # the node's three translations, found through the DOF table
+        v = (table[:, 1] == c).astype(float)[cantilever.free_dofs]
+        assert v @ (t.mass @ v) == pytest.approx(0.3, rel=1e-14)
+    (row,), _ = lib["grounded_spring_y"].terms(np.zeros(4), "node 233", np.array([1e5])).stiffness.nonzero()
+    assert tuple(table[cantilever.free_dofs[row]]) == (233, 1)
+    # The sensors' nodes come from the output vectors (the model file's sensor nodes).
+    assert lib["sensor_mass"].nodes.tolist() == [173, 188, 203, 218, 233]
+    assert lib["point_mass"].describe("node 233") == {"node": 233}
+    assert "node 232" in lib["point_mass"].neighbours("node 233")  # coupled through K
+    with pytest.raises(ValueError, match="'patch' does not apply to the model .*model.toml: it needs a mesh"):
+        E.build_library(cantilever, ["patch"])
+    with pytest.raises(ValueError, match="has no mesh"):
+        E.ElementBand(cantilever, {"some cells": np.arange(3)})
+
+
+def test_bands_on_a_tetrahedral_model_file_split_into_segments_and_the_fixed_remainder(tet_bar):
+    alpha = np.array([-0.3])
+    everything = E.ElementBand(tet_bar, {"all": np.arange(tet_bar.mesh.n_cells)})
+    K = tet_bar.stiffness(alpha)  # the reader's assembly: the independent reference
+    assert abs(everything.terms(alpha, "all", np.array([0.5])).stiffness - 0.5 * K).max() <= 1e-12 * abs(K).max()
+    lib = {e.kind: e for e in E.build_library(tet_bar)}
+    # "left" is a whole segment (its factor is alpha_1): only "right", the remainder, is a cell-set effect.
+    assert lib["cell_set"].locations() == ["set right"]
+    K0 = tet_bar.stiffness_segments.remainder()
+    right = lib["cell_set"].terms(alpha, "set right", np.array([-0.4])).stiffness
+    assert abs(right + 0.4 * K0).max() <= 1e-12 * abs(K0).max()
+    assert abs(lib["cell_set"].alpha_derivative(alpha, "set right", np.array([-0.4]), 0).stiffness).max() == 0
+    patches = lib["patch"].bands
+    assert patches and all(label.endswith((" r1", " r2")) for label in patches)
+
+
+@pytest.mark.parametrize(("model_name", "kind", "step"), [
+    ("cantilever", "point_mass", 1e-3), ("cantilever", "grounded_spring_y", 1e2), ("cantilever", "sensor_mass", 1e-3),
+    ("cantilever", "sensor_gain", 1e-3), ("cantilever", "damping", 1e-2),
+    ("tet_bar", "patch", 1e-3), ("tet_bar", "cell_set", 1e-3), ("tet_bar", "point_mass", 1e-3),
+])
+def test_linearised_sensitivities_on_any_model_match_differences_of_the_direct_solver(request, model_name, kind,
+                                                                                     step):
+    """The load is not the sum of the output vectors here (tip y + z/2, or along (0, 1, 1)): the
+    linearisation solves for the load and the sensors separately."""
+    model = request.getfixturevalue(model_name)
+    lib = {e.kind: e for e in E.build_library(model)}
+    effect = lib[kind]
+    location = effect.locations()[len(effect.locations()) // 2] if kind != "damping" else "a"
+    alpha = np.full(model.n_segments, 0.1)
+    freqs = np.array([20.0, 90.0, 300.0]) if model_name == "cantilever" else np.array([200.0, 900.0, 3000.0])
+    carried = [E.Applied(lib["sensor_gain"], "sensor 2", np.array([0.05]))]
+    lin = E.LinearisedResponse(model, alpha, freqs, carried)
+    assert np.allclose(lin.Z, E.extended_frf(model, alpha, freqs), rtol=1e-8)  # the gain is not in Z
+    analytic = lin.effect_derivatives(effect, location)[:, 0]
+    lo = 0.0 if kind in ("point_mass", "grounded_spring_y", "sensor_mass") else -step
+    plus, minus = (E.extended_frf(model, alpha, freqs, carried + [E.Applied(effect, location, [v])], method="direct")
+                   for v in (step, lo))
+    fd = (np.log(np.abs(plus)) - np.log(np.abs(minus))).ravel() / (step - lo)
+    assert np.max(np.abs(analytic - fd)) <= (1e-4 if lo < 0 else 5e-3) * np.max(np.abs(fd))

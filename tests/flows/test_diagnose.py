@@ -14,6 +14,9 @@ from flows import update
 from flows.config import REPO, UpdateConfig
 
 DATA = REPO / "data" / "effects"
+# The flow's plumbing needs the true effect and two rivals to check (the choice among every
+# registered effect is tests/fe_core/test_closure.py's): a small library keeps the three closures cheap.
+OPTIONS = dict(noise=0.005, effects=["point_mass", "grounded_spring", "segment_mass"])
 CLOSURE_KEYS = {"effect", "error_before", "error_after", "parameters_before", "parameters_after", "candidates",
                 "residual_tables", "per_sensor_error_before", "per_sensor_error_after", "decision"}
 
@@ -24,8 +27,8 @@ def diagnosed(tmp_path_factory, reduced_settings_frozen, prefect_harness):
     config = UpdateConfig(run_id="pm", runs_dir=str(runs), measured=str(DATA / "point_mass.csv"),
                           **dict(reduced_settings_frozen))
     update.update_flow(config)
-    summary = dg.diagnose("pm", runs, noise=0.005)
-    again = dg.diagnose("pm", runs, noise=0.005)
+    summary = dg.diagnose("pm", runs, **OPTIONS)
+    again = dg.diagnose("pm", runs, **OPTIONS)
     return runs / "pm", summary, again
 
 
@@ -52,6 +55,12 @@ def test_the_closure_of_a_reduced_run_names_the_point_mass_and_writes_its_tables
     after = pd.read_parquet(closure / "residual_after.parquet")
     assert after["residual"].abs().mean() == pytest.approx(on_disk["error_after"], rel=1e-9)
     assert (closure / "residuals.png").stat().st_size > 10_000
+    # Issue 18: the verdict, the effects in the order added, and the FRF of both models.
+    assert on_disk["verdict"] == "explained" and [e["type"] for e in on_disk["effects"]] == ["point_mass"]
+    assert on_disk["effects"][0]["value"] == pytest.approx(effect["value"], rel=1e-12)
+    frf = pd.read_parquet(closure / on_disk["frf_table"])
+    rel = (frf["extended"] - frf["measured"]).abs() / frf["measured"]
+    assert rel.mean() == pytest.approx(on_disk["error_after"], rel=1e-9)
     ranks = pd.read_parquet(closure / on_disk["tables"]["candidates"])
     assert ranks["rank"].tolist() == list(range(1, len(ranks) + 1)) and ranks["checked"].iloc[0]
 
@@ -74,7 +83,7 @@ def test_a_closure_killed_during_its_checks_redoes_only_the_missing_ones(diagnos
     (closure / "step=check" / "checks.parquet").unlink()
     checks[-1].unlink()
     kept = {p: p.stat().st_mtime_ns for p in checks[:-1]}
-    resumed = dg.diagnose("pm", root.parent, noise=0.005)
+    resumed = dg.diagnose("pm", root.parent, **OPTIONS)
     assert {p: p.stat().st_mtime_ns for p in checks[:-1]} == kept
     assert checks[-1].exists()
     assert resumed["effect"]["location"] == summary["effect"]["location"]
@@ -107,3 +116,32 @@ def test_update_help_lists_the_close_loop_options(capsys):
     out = capsys.readouterr().out
     for flag in ("--close-loop", "--noise", "--effects", "--restarts"):
         assert flag in out
+
+
+@pytest.mark.slow
+def test_a_model_given_as_matrices_is_diagnosed_and_effects_needing_a_mesh_are_refused(reduced_config,
+                                                                                      prefect_harness, capsys):
+    """Issue 15: the closure on a model file without a mesh (scikit-fem's cantilever as matrices, its own
+    FRF with 0.5 % noise): nodal effects from the DOF table, no patch, and the verdict noise."""
+    from fe_core.closure import VERDICTS
+
+    example = REPO / "data" / "examples" / "cantilever_matrices"
+    config = reduced_config.replace(run_id="cantilever", model=str(example / "model.toml"),
+                                    measured=str(example / "measured.csv"), max_iterations=2, max_fe_evaluations=19,
+                                    polish_max_fe=7)
+    update.update_flow(config)
+    runs = Path(config.runs_dir)
+    assert dg.main(["--run-id", "cantilever", "--runs-dir", str(runs), "--effects", "point_mass,patch"]) == 2
+    err = capsys.readouterr().err
+    assert "'patch' does not apply to the model" in err and "needs a mesh" in err
+    assert not (runs / "cantilever" / "closure").exists()  # refused before any work
+    summary = dg.diagnose("cantilever", runs, noise=0.005)
+    assert summary["verdict"] in VERDICTS and summary["verdict"] == "noise" and summary["effects"] == []
+    truth = json.loads((example / "truth.json").read_text())["alpha"]
+    before = [summary["parameters_before"][f"alpha_{i}"] for i in range(1, 5)]
+    assert np.max(np.abs(np.array(before) - truth)) < 0.01  # the alpha-only refit is the truth
+    kinds = {c["type"] for c in summary["candidates"]}
+    assert "patch" not in kinds and "joint_band" not in kinds
+    table = np.loadtxt(example / "dofs.csv", delimiter=",", skiprows=1, dtype=str)
+    nodes = {int(n) for n in table[:, 0]}
+    assert all(int(c["location"].split()[1]) in nodes for c in summary["candidates"] if c["type"] == "point_mass")

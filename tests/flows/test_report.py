@@ -169,7 +169,13 @@ def _add_closure_and_a_new_stage(root: Path) -> None:
     folder.mkdir()
     before.to_parquet(folder / "residual_before.parquet")
     after.to_parquet(folder / "residual_after.parquet")
+    amp = pd.DataFrame([{"frequency_hz": f, "sensor": s, "measured": 1e-5 / f, "alpha_only": 1.05e-5 / f,
+                         "extended": 1.001e-5 / f} for f in freqs for s in range(1, 7)])
+    amp.to_parquet(folder / "frf_closure.parquet")
     closure = {
+        "verdict": "explained", "frf_table": "frf_closure.parquet",
+        "effects": [{"step": 1, "type": "point_mass", "location": "node 412", "value": 0.05, "unit": "kg",
+                     "explained": 0.97}],
         "decision": "added point_mass at node 412: residual before is structure",
         "effect": {"type": "point_mass", "location": "node 412", "value": 0.05, "unit": "kg"},
         "error_before": 0.05, "error_after": 0.006,
@@ -221,7 +227,8 @@ def test_closure_results_and_unknown_stages_are_reported_and_the_frf_cache_is_re
 
     monkeypatch.setattr("tasks.stages.load_model", no_fe)
     page = Path(report.report_flow(str(root)))
-    text = check_report(page, SINGLE_FIGURES | {"closure_residuals.png", "closure_candidates.png"})
+    text = check_report(page, SINGLE_FIGURES | {"closure_residuals.png", "closure_candidates.png", "closure_frf.png"})
+    assert "Verdict: explained" in text
     assert "Close the loop" in text and "point_mass @ node 412" in text and "Polish-stage points" in text
     assert "<td>5%</td>" in text and "<td>0.6%</td>" in text  # overall errors before and after
     assert "future-stage" in text
