@@ -14,13 +14,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "MODELS"]
+__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "MODELS", "OUTPUTS"]
 
 REPO = Path(__file__).resolve().parents[1]
 TRAINERS = ("sao", "pso", "gradient")
 STRATEGIES = ("adaptive", "conventional")
 MODELS = ("three_plate",)
 FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
+OUTPUTS = ("full", "reduced", "auto")  # tasks.stages.reduced_outputs
 
 
 class ConfigError(ValueError):
@@ -105,6 +106,12 @@ class UpdateConfig:
         Free disk space the run folder needs before any work starts, MB;
         0 (default) = twice the run's estimated output
         (:func:`flows.preflight.expected_output_mb`).
+    outputs : {"auto", "full", "reduced"}
+        How the MRGP emulates the k responses: ``full`` (the paper's k x k
+        ``Q``), ``reduced`` (a reduced output basis, :mod:`mrgp_core.reduced`)
+        or ``auto`` (default): reduced when k > 200
+        (:data:`tasks.stages.AUTO_REDUCED_ABOVE`), so the benchmark's k = 72
+        keeps the full MRGP.
     """
 
     run_id: str | None = None
@@ -136,6 +143,7 @@ class UpdateConfig:
     polish_stall_rtol: float = 0.01
     true_parameters: list[float] | None = field(default=None)
     min_free_mb: float = 0.0
+    outputs: str = "auto"
 
     def __post_init__(self) -> None:
         self.validate("config")
@@ -189,6 +197,8 @@ class UpdateConfig:
             raise bad("polish_target", f"must be positive, got {self.polish_target}")
         if not 0 <= self.polish_stall_rtol < 1:
             raise bad("polish_stall_rtol", f"must be in [0, 1) (0 = no stagnation stop), got {self.polish_stall_rtol}")
+        if self.outputs not in OUTPUTS:
+            raise bad("outputs", f"unknown output model {self.outputs!r}; choose one of {', '.join(OUTPUTS)}")
         if self.run_id is not None and (not self.run_id or "/" in self.run_id or self.run_id.startswith(".")):
             raise bad("run_id", f"must be a plain folder name, got {self.run_id!r}")
 

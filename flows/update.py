@@ -45,7 +45,7 @@ import pandas as pd  # noqa: E402
 from prefect import flow  # noqa: E402
 
 from flows import preflight  # noqa: E402
-from flows.config import STRATEGIES, TRAINERS, ConfigError, UpdateConfig, load_config  # noqa: E402
+from flows.config import OUTPUTS, STRATEGIES, TRAINERS, ConfigError, UpdateConfig, load_config  # noqa: E402
 from mrgp_core import adaptive  # noqa: E402
 from tasks import fe_backends, stages  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
@@ -203,7 +203,7 @@ def _write_manifest(store: RunStore, config: UpdateConfig) -> None:
     old = store.read_manifest()
     cfg = config.to_dict()
     if old is not None:
-        changed = {k for k in cfg if old["config"].get(k) != cfg[k]} - RESUMABLE_CHANGES
+        changed = {k for k in cfg if old["config"].get(k, cfg[k]) != cfg[k]} - RESUMABLE_CHANGES  # as preflight
         if changed:
             raise ConfigError(
                 f"{store.manifest_path}: run {store.root.name!r} was started with other settings "
@@ -376,6 +376,9 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--polish-stall-rtol", type=float, metavar="R",
                    help="the polish also stops when its error improved by less than R (relative) over its last "
                         "3 Jacobians, e.g. at the noise of real data (default 0.01; 0 = off)")
+    p.add_argument("--outputs", choices=OUTPUTS,
+                   help="MRGP over all k responses (full), in a reduced output basis (reduced), or auto "
+                        "(default: reduced when k > 200)")
     from flows.diagnose import add_closure_arguments
 
     p.add_argument("--close-loop", action="store_true",
@@ -431,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
             threshold=args.threshold, max_iterations=args.max_iterations,
             max_fe_evaluations=args.max_fe_evaluations, q=args.q, w=args.w, s=args.s, z=args.z,
             polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target,
-            polish_stall_rtol=args.polish_stall_rtol, model=args.model,
+            polish_stall_rtol=args.polish_stall_rtol, model=args.model, outputs=args.outputs,
         )
         if config.run_id is None:
             stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
