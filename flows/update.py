@@ -430,7 +430,8 @@ def print_summary(summary: dict, file=sys.stdout) -> None:
         extra = f" {summary['parameter_errors'][name]:>9.4f}" if "parameter_errors" in summary else ""
         if iv:
             lo, hi = iv[name]
-            pm = f"{(hi - lo) / 2:>10.4f}" if lo is not None else f"{'inf':>10}"
+            half = None if lo is None else (hi - lo) / 2
+            pm = f"{'inf':>10}" if half is None else f"{half:>10.4f}" if half >= 1e-3 else f"{half:>10.1e}"
             extra += f" {summary['interval_details']['estimate'][name]:>10.4f} {pm}"
         print(f"{name:<10} {value:>9.4f}{extra}", file=file)
     if iv:
@@ -445,8 +446,8 @@ def interval_sentences(summary: dict) -> list[str]:
     d = summary["interval_details"]
     cost = summary["interval_cost"]
     lines = [f"95 % intervals: {summary['interval_method']} (Gauss-Newton) at the least-squares optimum of the log "
-             f"amplitudes, noise {summary['noise_sigma']:.3%} ({d['noise_source']}, {d['distribution']} quantile "
-             f"{d['quantile']:.3f}); cost {cost['fe_runs']} FE runs and {cost['jacobians']} exact Jacobians"]
+             f"amplitudes, noise {100 * summary['noise_sigma']:.3g} % ({d['noise_source']}, {d['distribution']} "
+             f"quantile {d['quantile']:.3f}); cost {cost['fe_runs']} FE runs and {cost['jacobians']} exact Jacobians"]
     if not cost["at_optimum"]:
         lines.append("warning: the Gauss-Newton steps did not settle at the optimum; the intervals are approximate")
     return lines + d["flags"]

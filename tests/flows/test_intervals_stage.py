@@ -43,7 +43,7 @@ def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_recompu
     out = io.StringIO()
     update.print_summary(summary, file=out)
     text = out.getvalue()
-    assert "+/- (95 %)" in text and "laplace" in text and "0.200% (given, normal" in text
+    assert "+/- (95 %)" in text and "laplace" in text and "noise 0.2 % (given, normal" in text
 
     # resume: read back; with another noise level: recomputed from the same start, widths scale with the noise
     stage = RunStore(root).stage_dir(summary["iterations"], INTERVALS_STAGE) / f"{INTERVALS_STAGE}.parquet"
