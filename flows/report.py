@@ -54,6 +54,7 @@ errors_task = task(sec.errors_section, name="error-figures", cache_policy=NO_CAC
 parameters_task = task(sec.parameters_section, name="parameter-figures", cache_policy=NO_CACHE)
 training_task = task(sec.training_section, name="training-figure", cache_policy=NO_CACHE)
 closure_task = task(sec.closure_section, name="closure-figures", cache_policy=NO_CACHE)
+intervals_task = task(sec.intervals_section, name="interval-figures", cache_policy=NO_CACHE)
 repeats_task = task(sec.repeats_section, name="repeats-figures", cache_policy=NO_CACHE)
 page_task = task(write_page, name="html-page", cache_policy=NO_CACHE)
 
@@ -77,7 +78,8 @@ def report_flow(run_root: str, out_dir: str | None = None) -> str:
                  f"{root.name}/repeat=<i>."] + sec.run_intro(best)[1:2]
     else:
         data = load_run_task(root)
-        parts = [frf_task(data, out), errors_task(data, out), parameters_task(data, out), training_task(data, out)]
+        parts = [frf_task(data, out), errors_task(data, out), parameters_task(data, out),
+                 intervals_task(data, out), training_task(data, out)]
         closure = closure_task(data, out)
         parts.append(sec.stages_section(data))
         title = f"Run report: {root.name}"

@@ -67,3 +67,23 @@ def test_noise_key_is_validated_and_reaches_the_config(tmp_path):
     bad.write_text("noise = 1.5\n")
     with pytest.raises(ConfigError, match=r"bad.toml: key 'noise': must be a relative amplitude noise in \(0, 1\)"):
         load_config(bad)
+
+
+def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(tmp_path, rng):
+    from types import SimpleNamespace
+
+    from fe_core.intervals import laplace_intervals
+    from tasks.report.sections import intervals_section
+
+    X = rng.normal(size=(40, 3))
+    X[:, 2] = 0.02 * X[:, 2]  # alpha_3 barely seen: a wide interval
+    iv = laplace_intervals(0.01 * rng.normal(size=40), X, [0.1, 0.999, -0.2], noise=0.01, lower=-0.999, upper=1.0)
+    summary = {**iv.to_summary(), "interval_cost": {"fe_runs": 1, "jacobians": 1}}
+    data = SimpleNamespace(summary=summary, true_parameters=np.array([0.1, 0.999, -0.2]), config={})
+    section = intervals_section(data, tmp_path)
+    assert (tmp_path / "intervals.png").stat().st_size > 10_000
+    table = section.tables[0][1]
+    assert list(table["contains truth"]) == [True, True, True]
+    assert any("alpha_3 is not pinned down" in p for p in section.paragraphs)
+    assert any("alpha_2's 95% interval" in p and "crosses a bound" in p for p in section.paragraphs)
+    assert intervals_section(SimpleNamespace(summary={"parameters": {}}, config={}), tmp_path) is None
