@@ -255,6 +255,28 @@ def laplace_intervals(residual, jacobian, estimate, names=None, noise: float | N
     )
 
 
+def _log_problem(model, freqs_hz, measured_amplitude, lower, upper):
+    """Checked inputs: ``(freqs (p,), lower (m,), upper (m,), residual)``; ``residual(alpha)``: log residual (p n,)."""
+    freqs = np.asarray(freqs_hz, float)
+    u = np.asarray(measured_amplitude, float)
+    if u.shape != (freqs.size, model.n_sensors):
+        raise ValueError(f"measured amplitude has shape {u.shape}, expected (frequencies, sensors) = "
+                         f"({freqs.size}, {model.n_sensors})")
+    if not np.all(np.isfinite(u) & (u > 0)):
+        raise ValueError("measured amplitudes must be finite and positive (the residual is logarithmic)")
+    m = model.n_segments
+    lo = np.broadcast_to(np.asarray(lower, float), (m,)).copy()
+    hi = np.broadcast_to(np.asarray(upper, float), (m,)).copy()
+    if np.any(lo <= -1.0) or np.any(lo >= hi):
+        raise ValueError(f"the box [{lower}, {upper}] must lie inside (-1, inf) with lower < upper")
+    log_u = np.log(u).ravel()
+
+    def residual(a):
+        return np.log(np.abs(model.frf(a, freqs))).ravel() - log_u
+
+    return freqs, lo, hi, residual
+
+
 @dataclass(frozen=True)
 class LogFit:
     """A least-squares fit of log-amplitudes on the FE model (:func:`fit_log_amplitudes`).
@@ -292,7 +314,7 @@ def fit_log_amplitudes(model, freqs_hz, measured_amplitude, alpha0, lower, upper
     (:func:`fe_core.sensitivity.log_amplitude_jacobian`, one complex LU per
     frequency: about 0.65 s on the benchmark) or, with ``search_jacobian =
     "2-point"``, forward differences of step 1e-6 (m Krylov FRFs, about 0.16 s
-    there; the same optimum, since only the step direction depends on it).
+    there; the same optimum to the accuracy of the differences).
     The returned Jacobian is always the exact one at the optimum.
     A local search: start it in the basin (the update's result).
 
@@ -318,25 +340,13 @@ def fit_log_amplitudes(model, freqs_hz, measured_amplitude, alpha0, lower, upper
     """
     from .sensitivity import log_amplitude_jacobian
 
-    freqs = np.asarray(freqs_hz, float)
-    u = np.asarray(measured_amplitude, float)
-    if u.shape != (freqs.size, model.n_sensors):
-        raise ValueError(f"measured amplitude has shape {u.shape}, expected (frequencies, sensors) = "
-                         f"({freqs.size}, {model.n_sensors})")
-    if not np.all(np.isfinite(u) & (u > 0)):
-        raise ValueError("measured amplitudes must be finite and positive (the residual is logarithmic)")
-    m = model.n_segments
-    lo = np.broadcast_to(np.asarray(lower, float), (m,)).copy()
-    hi = np.broadcast_to(np.asarray(upper, float), (m,)).copy()
-    if np.any(lo <= -1.0) or np.any(lo >= hi):
-        raise ValueError(f"the box [{lower}, {upper}] must lie inside (-1, inf) with lower < upper")
-    log_u = np.log(u).ravel()
+    freqs, lo, hi, log_residual = _log_problem(model, freqs_hz, measured_amplitude, lower, upper)
     counts = {"fe": 0, "jac": 0}
     cache: dict[bytes, np.ndarray] = {}
 
     def fun(a):
         counts["fe"] += 1
-        return np.log(np.abs(model.frf(a, freqs))).ravel() - log_u
+        return log_residual(a)
 
     def jac(a):
         key = np.asarray(a, float).tobytes()
@@ -428,23 +438,9 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     """
     from .sensitivity import log_amplitude_jacobian
 
-    freqs = np.asarray(freqs_hz, float)
-    u = np.asarray(measured_amplitude, float)
-    if u.shape != (freqs.size, model.n_sensors):
-        raise ValueError(f"measured amplitude has shape {u.shape}, expected (frequencies, sensors) = "
-                         f"({freqs.size}, {model.n_sensors})")
-    if not np.all(np.isfinite(u) & (u > 0)):
-        raise ValueError("measured amplitudes must be finite and positive (the residual is logarithmic)")
     if max_jacobians < 1:
         raise ValueError(f"max_jacobians must be at least 1, got {max_jacobians}")
-    m = model.n_segments
-    lo = np.broadcast_to(np.asarray(lower, float), (m,))
-    hi = np.broadcast_to(np.asarray(upper, float), (m,))
-    log_u = np.log(u).ravel()
-
-    def residual(a):
-        return np.log(np.abs(model.frf(a, freqs))).ravel() - log_u
-
+    freqs, lo, hi, residual = _log_problem(model, freqs_hz, measured_amplitude, lower, upper)
     start = np.clip(np.asarray(alpha0, float), lo, hi)
     a, r = start, residual(start)
     J = log_amplitude_jacobian(model, a, freqs)
