@@ -417,12 +417,8 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
 
     Parameters
     ----------
-    model : ParametricModel
-    freqs_hz : array_like, shape (p,), Hz
-    measured_amplitude : array_like, shape (p, n), m/N, all > 0
-    alpha0 : array_like, shape (m,)
-    lower, upper : float or array_like (m,)
-        The search box (``lower > -1``).
+    model, freqs_hz, measured_amplitude, alpha0, lower, upper
+        As in :func:`fit_log_amplitudes`.
     noise : float, optional
         Relative amplitude noise (standard deviation); estimated when None.
     level, width_threshold : float
