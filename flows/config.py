@@ -102,6 +102,15 @@ class UpdateConfig:
     true_parameters : list of float or None
         Known true values (synthetic data), only for reporting errors;
         each must be > -1.
+    intervals : bool
+        After the polish, 95 % intervals and the covariance of the
+        parameters (:mod:`tasks.intervals`: Gauss-Newton steps to the
+        log-amplitude least-squares optimum, exact adjoint Jacobian, at most
+        3 Jacobians and 3 FE runs), written to ``summary.json``.
+    noise : float or None
+        Relative noise of the measured amplitudes (standard deviation, e.g.
+        0.01 = 1 %) for the intervals; None (default) estimates it from the
+        residual at the least-squares optimum.
     min_free_mb : float
         Free disk space the run folder needs before any work starts, MB;
         0 (default) = twice the run's estimated output
@@ -144,6 +153,8 @@ class UpdateConfig:
     true_parameters: list[float] | None = field(default=None)
     min_free_mb: float = 0.0
     outputs: str = "auto"
+    intervals: bool = True
+    noise: float | None = None
 
     def __post_init__(self) -> None:
         self.validate("config")
@@ -199,6 +210,8 @@ class UpdateConfig:
             raise bad("polish_stall_rtol", f"must be in [0, 1) (0 = no stagnation stop), got {self.polish_stall_rtol}")
         if self.outputs not in OUTPUTS:
             raise bad("outputs", f"unknown output model {self.outputs!r}; choose one of {', '.join(OUTPUTS)}")
+        if self.noise is not None and not (isinstance(self.noise, (int, float)) and 0 < self.noise < 1):
+            raise bad("noise", f"must be a relative amplitude noise in (0, 1), e.g. 0.01 = 1 %, got {self.noise!r}")
         if self.run_id is not None and (not self.run_id or "/" in self.run_id or self.run_id.startswith(".")):
             raise bad("run_id", f"must be a plain folder name, got {self.run_id!r}")
 
@@ -232,7 +245,7 @@ for _f in dataclasses.fields(UpdateConfig):
         _TYPES[_f.name] = (bool,)
     elif _f.type in ("int", int):
         _TYPES[_f.name] = (int,)
-    elif _f.type in ("float", float):
+    elif _f.type in ("float", float, "float | None"):
         _TYPES[_f.name] = (int, float)
     else:
         _TYPES[_f.name] = (str,)

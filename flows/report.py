@@ -58,6 +58,7 @@ parameters_task = task(sec.parameters_section, name="parameter-figures", cache_p
 training_task = task(sec.training_section, name="training-figure", cache_policy=NO_CACHE)
 closure_task = task(sec.closure_section, name="closure-figures", cache_policy=NO_CACHE)
 mesh_task = task(mesh_section, name="mesh-figures", cache_policy=NO_CACHE)
+intervals_task = task(sec.intervals_section, name="interval-figures", cache_policy=NO_CACHE)
 repeats_task = task(sec.repeats_section, name="repeats-figures", cache_policy=NO_CACHE)
 page_task = task(write_page, name="html-page", cache_policy=NO_CACHE)
 
@@ -82,7 +83,7 @@ def report_flow(run_root: str, out_dir: str | None = None) -> str:
     else:
         data = load_run_task(root)
         parts = [frf_task(data, out), mesh_task(data, out), errors_task(data, out), parameters_task(data, out),
-                 training_task(data, out)]
+                 intervals_task(data, out), training_task(data, out)]
         closure = closure_task(data, out)
         parts.append(sec.stages_section(data))
         title = f"Run report: {root.name}"

@@ -48,6 +48,7 @@ from flows import preflight  # noqa: E402
 from flows.config import OUTPUTS, STRATEGIES, TRAINERS, ConfigError, UpdateConfig, load_config  # noqa: E402
 from mrgp_core import adaptive  # noqa: E402
 from tasks import fe_backends, stages  # noqa: E402
+from tasks.intervals import intervals_task  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
 from tasks.model_vtu import model_vtu_task  # noqa: E402
 from tasks.polish import POLISH_STAGE, polish_results, polish_task  # noqa: E402
@@ -58,7 +59,9 @@ __all__ = ["update_flow", "iteration_flow", "run_update", "main", "rerun_stage"]
 
 #: Config keys that may change between a run and its resume.
 # (where FE runs execute does not change their results: fe_backend, dask_address).
-RESUMABLE_CHANGES = {"n_jobs", "run_id", "runs_dir", "repeats", "min_free_mb", "fe_backend", "dask_address"}
+# (intervals and noise change only the intervals stage, computed again when noise changed.)
+RESUMABLE_CHANGES = {"n_jobs", "run_id", "runs_dir", "repeats", "min_free_mb", "fe_backend", "dask_address",
+                     "intervals", "noise"}
 
 
 # -- the flows ------------------------------------------------------------------------------------
@@ -176,9 +179,24 @@ def _single_run(config: UpdateConfig, store: RunStore, measured, t0: float) -> d
         print(f"polish: {info['status']} after {info['n']} FE runs, overall error "
               f"{info['error_before']:.4%} -> {info['error_after']:.4%}")
     summary = _summary(config, store, iteration, last, measured, time.perf_counter() - t0)
+    if uses_polish(config) and config.intervals:
+        summary.update(_interval_fields(config, store, iteration, measured, summary))
     model_vtu_task(root, config.model, summary["parameters"])  # <run>/model.vtu for ParaView, before the summary
     atomic_write_json(store.root / "summary.json", summary)
     return summary
+
+
+def _interval_fields(config, store, iteration, measured, summary) -> dict:
+    """95 % intervals at the least-squares optimum near the run's result (tasks.intervals), for summary.json."""
+    start = np.array(list(summary["parameters"].values()))
+    info = intervals_task(str(store.root), config, iteration, measured.frequencies_hz, measured.amplitude, start)
+    fields = {k: info[k] for k in ("intervals", "covariance", "interval_method", "noise_sigma", "interval_details",
+                                   "interval_cost")}
+    if config.true_parameters is not None:
+        truth = dict(zip(summary["parameters"], config.true_parameters))
+        fields["intervals_contain_truth"] = {n: lo is not None and lo <= truth[n] <= hi
+                                             for n, (lo, hi) in info["intervals"].items()}
+    return fields
 
 
 def uses_polish(config: UpdateConfig) -> bool:
@@ -379,7 +397,10 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--outputs", choices=OUTPUTS,
                    help="MRGP over all k responses (full), in a reduced output basis (reduced), or auto "
                         "(default: reduced when k > 200)")
-    from flows.diagnose import add_closure_arguments
+    p.add_argument("--intervals", action=argparse.BooleanOptionalAction, default=None,
+                   help="after the polish, 95 %% intervals and the covariance of the parameters (default on; "
+                        "their noise level: --noise, else estimated from the residual)")
+    from flows.diagnose import add_closure_arguments  # --noise, also the 95 % parameter intervals' noise level
 
     p.add_argument("--close-loop", action="store_true",
                    help="after the update, trace the residual to a missing effect, add it and update again "
@@ -407,13 +428,34 @@ def print_summary(summary: dict, file=sys.stdout) -> None:
           f"{'converged' if summary['converged'] else 'NOT converged'} after {summary['iterations']} iterations, "
           f"{summary['fe_evaluations']} FE runs, {summary['wall_seconds']:.1f} s", file=file)
     print(f"overall error: {summary['overall_error']:.4%}", file=file)
-    print(f"{'parameter':<10} {'value':>9}" + (f" {'|error|':>9}" if "parameter_errors" in summary else ""),
-          file=file)
+    iv = summary.get("intervals")
+    print(f"{'parameter':<10} {'value':>9}" + (f" {'|error|':>9}" if "parameter_errors" in summary else "")
+          + (f" {'LS optimum':>10} {'+/- (95 %)':>10}" if iv else ""), file=file)
     for name, value in summary["parameters"].items():
         extra = f" {summary['parameter_errors'][name]:>9.4f}" if "parameter_errors" in summary else ""
+        if iv:
+            lo, hi = iv[name]
+            half = None if lo is None else (hi - lo) / 2
+            pm = f"{'inf':>10}" if half is None else f"{half:>10.4f}" if half >= 1e-3 else f"{half:>10.1e}"
+            extra += f" {summary['interval_details']['estimate'][name]:>10.4f} {pm}"
         print(f"{name:<10} {value:>9.4f}{extra}", file=file)
+    if iv:
+        for line in interval_sentences(summary):
+            print(line, file=file)
     print("per-sensor error: " + ", ".join(f"{k.split('_')[-1]}: {v:.3%}"
                                            for k, v in summary["per_sensor_error"].items()), file=file)
+
+
+def interval_sentences(summary: dict) -> list[str]:
+    """How the intervals were made, and a sentence per parameter the data do not pin down or that meets a bound."""
+    d = summary["interval_details"]
+    cost = summary["interval_cost"]
+    lines = [f"95 % intervals: {summary['interval_method']} (Gauss-Newton) at the least-squares optimum of the log "
+             f"amplitudes, noise {100 * summary['noise_sigma']:.3g} % ({d['noise_source']}, {d['distribution']} "
+             f"quantile {d['quantile']:.3f}); cost {cost['fe_runs']} FE runs and {cost['jacobians']} exact Jacobians"]
+    if not cost["at_optimum"]:
+        lines.append("warning: the Gauss-Newton steps did not settle at the optimum; the intervals are approximate")
+    return lines + d["flags"]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -435,6 +477,7 @@ def main(argv: list[str] | None = None) -> int:
             max_fe_evaluations=args.max_fe_evaluations, q=args.q, w=args.w, s=args.s, z=args.z,
             polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target,
             polish_stall_rtol=args.polish_stall_rtol, model=args.model, outputs=args.outputs,
+            intervals=args.intervals, noise=args.noise,
         )
         if config.run_id is None:
             stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")

@@ -38,6 +38,7 @@ __all__ = [
     "plot_correlation",
     "plot_correlation_heatmap",
     "plot_singular_values",
+    "plot_intervals",
 ]
 
 DPI = 110
@@ -660,4 +661,62 @@ def plot_singular_values(results: dict[str, object], path: Path) -> Path:
     ax2.grid(True, axis="y", which="both", alpha=0.25)
     ax2.legend(fontsize=8, ncols=2, loc="upper left")
     ax2.set_title("Which parameters the sensors pin down (below the line)", fontsize=10)
+    return _save(fig, path)
+
+
+def plot_intervals(names: list[str], estimate, std, low, high, correlation, path: Path, truth=None,
+                   bounds: tuple[float, float] | None = None, title: str = "") -> Path:
+    """Marginal posteriors (Laplace: normal, mean ``estimate``, sd ``std``) with their 95 % intervals,
+    and the pairwise correlations of the parameter estimates.
+
+    Parameters
+    ----------
+    names : list of str, length m
+    estimate, std, low, high : array_like, shape (m,)
+        ``std`` may hold inf (a parameter the data cannot see: no curve drawn).
+    correlation : array_like, shape (m, m)
+    truth : array_like (m,), optional
+    bounds : (lower, upper), optional
+        The search box, drawn as grey lines where it falls inside a panel.
+    """
+    m = len(names)
+    est, sd, lo, hi = (np.asarray(v, float) for v in (estimate, std, low, high))
+    corr = np.asarray(correlation, float)
+    ncols = min(m, 3)
+    nrows = -(-m // ncols)
+    fig = Figure(figsize=(4.0 * ncols + 4.6, 2.5 * nrows + 0.6), layout="constrained")
+    grid = fig.add_gridspec(nrows, ncols + 2)
+    for i, name in enumerate(names):
+        ax = fig.add_subplot(grid[i // ncols, i % ncols])
+        if np.isfinite(sd[i]) and sd[i] > 0:
+            x = np.linspace(est[i] - 4 * sd[i], est[i] + 4 * sd[i], 201)
+            ax.plot(x, np.exp(-0.5 * ((x - est[i]) / sd[i]) ** 2) / (sd[i] * np.sqrt(2 * np.pi)), color="C0")
+            ax.axvspan(lo[i], hi[i], color="C0", alpha=0.15, label="95 % interval")
+            if bounds is not None:
+                for b in bounds:
+                    if x[0] <= b <= x[-1]:
+                        ax.axvline(b, color="0.4", lw=1.5, label="search box")
+        else:
+            ax.text(0.5, 0.5, "not seen by the data", ha="center", va="center", transform=ax.transAxes)
+        ax.axvline(est[i], color="C0", lw=1)
+        if truth is not None:
+            ax.axvline(truth[i], label="true", **TRUE_STYLE)
+        ax.set_title(f"{_param_label(name)} = {est[i]:.4g} +/- {(hi[i] - lo[i]) / 2:.2g}", fontsize=9.5)
+        ax.set_yticks([])
+        if i == 0:
+            ax.legend(fontsize=7.5, loc="upper right")
+    ax = fig.add_subplot(grid[:, ncols:])
+    im = ax.imshow(corr, cmap="RdBu_r", vmin=-1, vmax=1)
+    labels = [_param_label(n) for n in names]
+    ax.set_xticks(range(m), labels, rotation=90)
+    ax.set_yticks(range(m), labels)
+    for a in range(m):
+        for b in range(m):
+            if np.isfinite(corr[a, b]):
+                ax.text(b, a, f"{corr[a, b]:.2f}", ha="center", va="center", fontsize=7.5,
+                        color="w" if abs(corr[a, b]) > 0.6 else "k")
+    ax.set_title("correlation of the estimates", fontsize=10)
+    fig.colorbar(im, ax=ax, shrink=0.7)
+    if title:
+        fig.suptitle(title, fontsize=11)
     return _save(fig, path)

@@ -25,6 +25,7 @@ __all__ = [
     "stages_section",
     "closure_section",
     "repeats_section",
+    "intervals_section",
     "run_intro",
 ]
 
@@ -154,6 +155,36 @@ def parameters_section(data: RunData, out: Path) -> Section:
     return Section(title="Parameters (Figures 6-8)", tables=tables, figures=figs,
                    paragraphs=["Dashed red lines are the true values (manifest true_parameters)."]
                    if truth is not None else ["The true parameters are not known for this data."])
+
+
+def intervals_section(data: RunData, out: Path) -> Section | None:
+    """Marginal posteriors, 95 % intervals and correlations from ``summary.json`` (:mod:`tasks.intervals`)."""
+    s = data.summary or {}
+    if "intervals" not in s:
+        return None
+    d, names = s["interval_details"], list(s["intervals"])
+
+    def arr(values):
+        return np.array([np.inf if v is None else v for v in values], float)
+
+    est = arr(d["estimate"][n] for n in names)
+    std = arr(d["std"][n] for n in names)
+    low = arr(s["intervals"][n][0] if s["intervals"][n][0] is not None else -np.inf for n in names)
+    high = arr(s["intervals"][n][1] if s["intervals"][n][1] is not None else np.inf for n in names)
+    corr = np.array([[np.nan if v is None else v for v in row] for row in d["correlation"]], float)
+    truth = data.true_parameters
+    fig = figures.plot_intervals(names, est, std, low, high, corr, out / "intervals.png", truth, _bounds(data))
+    table = pd.DataFrame({"parameter": names, "estimate": est, "low (95 %)": low, "high (95 %)": high, "std": std})
+    if truth is not None:
+        table["true"] = truth
+        table["contains truth"] = (low <= truth) & (truth <= high)
+    cost = s.get("interval_cost", {})
+    paragraphs = [f"Laplace (Gauss-Newton) approximation at the least-squares optimum of the log amplitudes, "
+                  f"noise {100 * s['noise_sigma']:.3g} % ({d['noise_source']}; {d['distribution']} quantile "
+                  f"{d['quantile']:.3f}); cost {cost.get('fe_runs', '?')} FE runs and {cost.get('jacobians', '?')} "
+                  "exact Jacobians. The coverage of these intervals is checked in docs/coverage.md.", *d["flags"]]
+    return Section(title="How sure: parameter intervals", paragraphs=paragraphs,
+                   tables=[("95 % intervals", table)], figures=[(fig, "Marginal posteriors and correlations")])
 
 
 # -- Figure 9 -------------------------------------------------------------------------------------

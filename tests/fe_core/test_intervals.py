@@ -1,0 +1,128 @@
+"""Laplace intervals (fe_core.intervals) against linear regression, where they are exact, and the FE fit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ
+from fe_core.intervals import fit_log_amplitudes, laplace_intervals, parameter_intervals
+
+
+def _linear_fit(X, y):
+    beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    return beta, X @ beta - y  # residual model - data, Jacobian X
+
+
+def test_simple_regression_matches_scipy_linregress(rng):
+    x = rng.uniform(0, 10, 40)
+    y = 1.5 - 0.7 * x + 0.3 * rng.normal(size=40)
+    X = np.column_stack([np.ones_like(x), x])
+    beta, r = _linear_fit(X, y)
+    iv = laplace_intervals(r, X, beta, names=["intercept", "slope"])
+    ref = stats.linregress(x, y)
+    np.testing.assert_allclose(iv.estimate, [ref.intercept, ref.slope], rtol=1e-10)
+    np.testing.assert_allclose(iv.std, [ref.intercept_stderr, ref.stderr], rtol=1e-10)
+    t = stats.t.ppf(0.975, 38)
+    assert iv.distribution == "student-t" and iv.dof == 38 and iv.quantile == pytest.approx(t, rel=1e-12)
+    assert iv.low[1] == pytest.approx(ref.slope - t * ref.stderr, rel=1e-10)
+    assert iv.high[1] == pytest.approx(ref.slope + t * ref.stderr, rel=1e-10)
+    assert iv.noise_sigma == pytest.approx(np.sqrt(r @ r / 38), rel=1e-12) and iv.noise_source == "estimated"
+
+
+def test_given_noise_gives_sigma2_inverse_normal_matrix_and_normal_quantile(rng):
+    X = rng.normal(size=(30, 4))
+    y = X @ [1.0, -2.0, 0.5, 0.0] + 0.1 * rng.normal(size=30)
+    beta, r = _linear_fit(X, y)
+    iv = laplace_intervals(r, X, beta, noise=0.1, level=0.9)
+    cov = 0.01 * np.linalg.inv(X.T @ X)
+    np.testing.assert_allclose(iv.covariance, cov, rtol=1e-10)
+    np.testing.assert_allclose(iv.correlation, cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov))), atol=1e-12)
+    assert iv.distribution == "normal" and iv.quantile == pytest.approx(stats.norm.ppf(0.95), rel=1e-12)
+    np.testing.assert_allclose(iv.high - iv.low, 2 * stats.norm.ppf(0.95) * np.sqrt(np.diag(cov)), rtol=1e-10)
+
+
+def test_linear_model_intervals_cover_at_their_level(rng):
+    """Exact for a linear model: coverage of 2000 replicates within 4 binomial standard errors of 0.95."""
+    X = np.column_stack([np.ones(12), np.linspace(-1, 1, 12), np.linspace(-1, 1, 12) ** 2])
+    truth = np.array([0.3, -1.0, 2.0])
+    n = 2000
+    covered = np.zeros((n, 3), bool)
+    for k in range(n):
+        beta, r = _linear_fit(X, X @ truth + 0.05 * rng.normal(size=12))
+        covered[k] = laplace_intervals(r, X, beta).contains(truth)
+    se = np.sqrt(0.95 * 0.05 / n)
+    assert np.all(np.abs(covered.mean(axis=0) - 0.95) < 4 * se)
+
+
+def test_unseen_and_wide_parameters_and_bounds_are_flagged(rng):
+    X = rng.normal(size=(20, 3))
+    X[:, 2] = X[:, 1]  # the data see only alpha_2 + alpha_3
+    r = 0.01 * rng.normal(size=20)
+    iv = laplace_intervals(r, X, [0.95, 0.1, 0.1], noise=0.05, lower=-0.999, upper=1.0, width_threshold=0.2)
+    assert np.isinf(iv.std[1:]).all() and np.isfinite(iv.std[0])
+    assert list(iv.unpinned) == [False, True, True]
+    assert iv.near_bound[0] == (iv.high[0] > 1.0)
+    text = " ".join(iv.flag_lines())
+    assert "alpha_2 is not pinned down" in text and "alpha_3 is not pinned down" in text and "unbounded" in text
+    summary = iv.to_summary()
+    assert summary["intervals"]["alpha_2"] == [None, None] and summary["interval_method"] == "laplace"
+    assert summary["interval_details"]["unpinned"] == ["alpha_2", "alpha_3"]
+
+    wide = laplace_intervals(r, 0.1 * X[:, :2], [0.0, 0.0], noise=0.05, width_threshold=0.2)
+    assert np.all(wide.high - wide.low > 0.2) and wide.unpinned.all()
+    assert "wide (threshold 0.2)" in wide.flag_lines()[0]
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"noise": 0.0}, "noise must be a positive"),
+    ({"noise": float("nan")}, "noise must be a positive"),
+    ({"level": 1.0}, "level"),
+    ({"names": ["a"]}, "1 names for 2 parameters"),
+])
+def test_bad_input_is_refused(kwargs, match):
+    X = np.eye(4)[:, :2]
+    with pytest.raises(ValueError, match=match):
+        laplace_intervals(np.ones(4), X, [0.0, 0.0], **kwargs)
+    with pytest.raises(ValueError, match="jacobian must be"):
+        laplace_intervals(np.ones(4), X.T, [0.0, 0.0])
+    with pytest.raises(ValueError, match="cannot estimate the noise"):
+        laplace_intervals(np.ones(2), np.eye(2), [0.0, 0.0])
+
+
+@pytest.mark.slow
+def test_fe_fit_recovers_noise_free_truth_and_its_jacobian_matches_central_differences(benchmark_model):
+    freqs = MEASUREMENT_FREQUENCIES_HZ[[0, 3, 6, 9]]  # 24 amplitudes for 6 parameters: cheaper, still determined
+    u = np.abs(benchmark_model.frf(ALPHA_ACTUAL, freqs, method="direct"))
+    fit = fit_log_amplitudes(benchmark_model, freqs, u, ALPHA_ACTUAL + 0.01, -0.999, 1.0)
+    np.testing.assert_allclose(fit.alpha, ALPHA_ACTUAL, atol=1e-6)
+    assert np.max(np.abs(fit.residual)) < 1e-7 and fit.jacobians >= 1
+
+    def residual(a):
+        return np.log(np.abs(benchmark_model.frf(a, freqs))).ravel() - np.log(u).ravel()
+
+    h = 1e-4  # Krylov FRF to ~1e-10: the difference quotient is good to ~1e-6, its truncation error ~1e-8
+    fd = np.column_stack([(residual(fit.alpha + h * e) - residual(fit.alpha - h * e)) / (2 * h)
+                          for e in np.eye(fit.alpha.size)])
+    np.testing.assert_allclose(fit.jacobian, fd, atol=1e-5 * np.abs(fd).max())
+    # noise-free data with a small given noise level: tiny intervals around the truth (0.01 % noise on
+    # 24 amplitudes: widths up to ~1e-3; with the estimated noise, the round-off residual, far smaller)
+    iv = laplace_intervals(fit.residual, fit.jacobian, fit.alpha, noise=1e-4)
+    assert iv.contains(ALPHA_ACTUAL).all() and np.max(iv.high - iv.low) < 2e-3
+    assert np.max(laplace_intervals(fit.residual, fit.jacobian, fit.alpha).high - fit.alpha) < 1e-5
+
+
+@pytest.mark.slow
+def test_gauss_newton_steps_from_a_nearby_start_reach_the_truth_of_noise_free_data(benchmark_model):
+    freqs = MEASUREMENT_FREQUENCIES_HZ[[0, 3, 6, 9]]
+    u = np.abs(benchmark_model.frf(ALPHA_ACTUAL, freqs, method="direct"))
+    start = ALPHA_ACTUAL + np.array([0.004, -0.01, 0.01, 0.0, 0.01, -0.004])
+    refined = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=1e-4, max_jacobians=4)
+    iv = refined.intervals
+    np.testing.assert_allclose(iv.estimate, ALPHA_ACTUAL, atol=1e-5)
+    assert refined.at_optimum and refined.jacobians >= 2 and refined.fe_runs == refined.jacobians
+    assert iv.contains(ALPHA_ACTUAL).all() and np.max(iv.high - iv.low) < 2e-3 and not iv.unpinned.any()
+    # one step was not enough from this start with a budget of one Jacobian
+    once = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=1e-4, max_jacobians=1)
+    assert not once.at_optimum and once.jacobians == 1 and once.fe_runs == 1

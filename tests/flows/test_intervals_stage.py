@@ -1,0 +1,89 @@
+"""The intervals stage after the polish: summary.json fields, the printed +/- column, resume and --noise."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from fe_core.benchmark import ALPHA_ACTUAL
+from flows import update
+from flows.config import ConfigError, UpdateConfig, load_config
+from tasks.intervals import INTERVALS_STAGE
+from tasks.runstore import RunStore
+
+
+def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_recomputes_them(reduced_config,
+                                                                                          prefect_harness):
+    config = reduced_config.replace(intervals=True, noise=0.002, true_parameters=ALPHA_ACTUAL.tolist())
+    summary = update.update_flow(config)
+    root = Path(config.runs_dir) / config.run_id
+    on_disk = json.loads((root / "summary.json").read_text())
+    names = list(summary["parameters"])
+    for key in ("intervals", "covariance", "interval_method", "noise_sigma"):
+        assert on_disk[key] == summary[key]
+    assert summary["interval_method"] == "laplace" and summary["noise_sigma"] == 0.002
+    cov = np.array(summary["covariance"], float)
+    assert cov.shape == (6, 6) and np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) > 0)
+    est = np.array([summary["interval_details"]["estimate"][n] for n in names])
+    low, high = np.array([summary["intervals"][n] for n in names]).T
+    z = stats.norm.ppf(0.975)  # noise given: normal quantile
+    np.testing.assert_allclose(low, est - z * np.sqrt(np.diag(cov)), rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(high, est + z * np.sqrt(np.diag(cov)), rtol=1e-12, atol=1e-15)
+    cost = summary["interval_cost"]
+    assert 1 <= cost["jacobians"] <= 3 and 1 <= cost["fe_runs"] <= 3
+    assert set(summary["intervals_contain_truth"]) == set(names)
+    # the stored table agrees with the summary
+    table = RunStore(root).read_table(summary["iterations"], INTERVALS_STAGE)
+    np.testing.assert_allclose(table[[f"cov_{n}" for n in names]].to_numpy(), cov, rtol=1e-12)
+    out = io.StringIO()
+    update.print_summary(summary, file=out)
+    text = out.getvalue()
+    assert "+/- (95 %)" in text and "laplace" in text and "noise 0.2 % (given, normal" in text
+
+    # resume: read back; with another noise level: recomputed from the same start, widths scale with the noise
+    stage = RunStore(root).stage_dir(summary["iterations"], INTERVALS_STAGE) / f"{INTERVALS_STAGE}.parquet"
+    mtime = stage.stat().st_mtime_ns
+    again = update.update_flow(config)
+    assert again["intervals"] == summary["intervals"] and stage.stat().st_mtime_ns == mtime
+    noisier = update.update_flow(config.replace(noise=0.004))
+    assert noisier["noise_sigma"] == 0.004
+    np.testing.assert_allclose(np.array(noisier["covariance"]), 4 * cov, rtol=1e-9)
+
+
+def test_noise_key_is_validated_and_reaches_the_config(tmp_path):
+    assert load_config(None, noise=0.005).noise == 0.005
+    assert UpdateConfig().noise is None and UpdateConfig().intervals
+    with pytest.raises(ConfigError, match="command line: key 'noise'"):
+        load_config(None, noise=0.0)
+    bad = tmp_path / "bad.toml"
+    bad.write_text('noise = "1 %"\n')
+    with pytest.raises(ConfigError, match="bad.toml: key 'noise' must be int or float"):
+        load_config(bad)
+    bad.write_text("noise = 1.5\n")
+    with pytest.raises(ConfigError, match=r"bad.toml: key 'noise': must be a relative amplitude noise in \(0, 1\)"):
+        load_config(bad)
+
+
+def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(tmp_path, rng):
+    from types import SimpleNamespace
+
+    from fe_core.intervals import laplace_intervals
+    from tasks.report.sections import intervals_section
+
+    X = rng.normal(size=(40, 3))
+    X[:, 2] = 0.02 * X[:, 2]  # alpha_3 barely seen: a wide interval
+    iv = laplace_intervals(0.01 * rng.normal(size=40), X, [0.1, 0.999, -0.2], noise=0.01, lower=-0.999, upper=1.0)
+    summary = {**iv.to_summary(), "interval_cost": {"fe_runs": 1, "jacobians": 1}}
+    data = SimpleNamespace(summary=summary, true_parameters=np.array([0.1, 0.999, -0.2]), config={})
+    section = intervals_section(data, tmp_path)
+    assert (tmp_path / "intervals.png").stat().st_size > 10_000
+    table = section.tables[0][1]
+    assert list(table["contains truth"]) == [True, True, True]
+    assert any("alpha_3 is not pinned down" in p for p in section.paragraphs)
+    assert any("alpha_2's 95% interval" in p and "crosses a bound" in p for p in section.paragraphs)
+    assert intervals_section(SimpleNamespace(summary={"parameters": {}}, config={}), tmp_path) is None
