@@ -18,7 +18,7 @@ __all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES
 
 REPO = Path(__file__).resolve().parents[1]
 TRAINERS = ("sao", "pso", "gradient")
-STRATEGIES = ("adaptive", "conventional")
+STRATEGIES = ("hybrid", "adaptive", "conventional")
 MODELS = ("three_plate",)
 FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
 OUTPUTS = ("full", "reduced", "auto")  # tasks.stages.reduced_outputs
@@ -43,9 +43,18 @@ class UpdateConfig:
         FE model: a name (``three_plate``, the benchmark) or the path of a model
         file ``model.toml`` (relative to the repository when not absolute; see
         :mod:`fe_core.io.model_toml`). Parameter names and count come from the model.
-    strategy : {"adaptive", "conventional"}
-        ``conventional`` is Section 3.4's baseline: ``conventional_samples``
-        uniform FE runs, one MRGP, the best of ``w`` predictions.
+    strategy : {"hybrid", "adaptive", "conventional"}
+        ``hybrid`` (default, :mod:`flows.hybrid`): Gauss-Newton with exact
+        Jacobians from the nominal model; when what is left is not noise,
+        global cycles (``s`` space-filling FE runs, an MRGP emulator over
+        ``w`` candidates, ``starts`` parallel Gauss-Newton runs); its budget
+        ``max_fe_evaluations`` counts FE-run equivalents (an FE run with its
+        Jacobian costs :data:`tasks.hybrid.JACOBIAN_COST`), its target is
+        ``polish_target``, its noise level ``noise`` (or estimated).
+        ``adaptive`` is the paper's MRGP loop (with ``polish = false``
+        exactly its procedure); ``conventional`` is Section 3.4's baseline:
+        ``conventional_samples`` uniform FE runs, one MRGP, the best of ``w``
+        predictions.
     trainer : {"sao", "pso", "gradient"}
         MRGP hyper-parameter trainer.
     seed : int
@@ -121,13 +130,16 @@ class UpdateConfig:
         or ``auto`` (default): reduced when k > 200
         (:data:`tasks.stages.AUTO_REDUCED_ABOVE`), so the benchmark's k = 72
         keeps the full MRGP.
+    starts : int
+        Parallel Gauss-Newton runs of a global cycle of the hybrid strategy,
+        started from the emulator's best distinct candidates.
     """
 
     run_id: str | None = None
     runs_dir: str = "data/runs"
     measured: str = "data/benchmark/measured.csv"
     model: str = "three_plate"
-    strategy: str = "adaptive"
+    strategy: str = "hybrid"
     trainer: str = "gradient"
     seed: int = 0
     n_jobs: int = 2
@@ -155,6 +167,7 @@ class UpdateConfig:
     outputs: str = "auto"
     intervals: bool = True
     noise: float | None = None
+    starts: int = 6
 
     def __post_init__(self) -> None:
         self.validate("config")
@@ -163,7 +176,8 @@ class UpdateConfig:
         def bad(key: str, why: str) -> ConfigError:
             return ConfigError(f"{source}: key '{key}': {why}")
 
-        for key in ("q", "w", "s", "z", "max_iterations", "max_fe_evaluations", "repeats", "conventional_samples"):
+        for key in ("q", "w", "s", "z", "max_iterations", "max_fe_evaluations", "repeats", "conventional_samples",
+                    "starts"):
             if getattr(self, key) < 1:
                 raise bad(key, f"must be at least 1, got {getattr(self, key)}")
         if self.n_jobs == 0 or self.n_jobs < -1:
