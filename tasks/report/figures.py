@@ -83,6 +83,11 @@ def _bottom_labels_only(axes, n: int, ncols: int) -> None:
             ax.set_xlabel("")
 
 
+def _measured_style(n_points: int) -> dict:
+    """Squares for a few measured lines, small dots for a test's hundreds or thousands."""
+    return MEASURED_STYLE if n_points <= 100 else dict(MEASURED_STYLE, marker=".", ms=2.5, mfc="C3")
+
+
 def _param_label(name: str) -> str:
     return name.replace("alpha_", "alpha ")
 
@@ -113,7 +118,7 @@ def plot_frf_overview(dense: pd.DataFrame, measured: pd.DataFrame, path: Path,
             if not c.empty:
                 ax.semilogy(c["frequency_hz"], c["amplitude"], **style)
         m = measured[measured["sensor"] == s]
-        ax.semilogy(m["frequency_hz"], m["amplitude"], **MEASURED_STYLE)
+        ax.semilogy(m["frequency_hz"], m["amplitude"], **_measured_style(len(m)))
         ax.set_title(f"sensor {s}", fontsize=10)
         ax.set_ylabel("|Z| (m/N)")
         ax.grid(True, which="major", alpha=0.3)
@@ -143,7 +148,7 @@ def plot_frf_zoom(dense: pd.DataFrame, measured: pd.DataFrame, path: Path,
                 if not c.empty:
                     ax.semilogy(c["frequency_hz"], c["amplitude"], **style)
             m = measured[(measured["sensor"] == s) & measured["frequency_hz"].between(lo, hi)]
-            ax.semilogy(m["frequency_hz"], m["amplitude"], **MEASURED_STYLE)
+            ax.semilogy(m["frequency_hz"], m["amplitude"], **_measured_style(len(m)))
             ax.set_xlim(lo, hi)
             ax.grid(True, which="both", alpha=0.25)
             if j == 0:
