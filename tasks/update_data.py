@@ -129,11 +129,13 @@ class UpdateData:
     def residuals(self, Z: np.ndarray) -> np.ndarray:
         """Residual vector(s) of model FRFs ``Z`` (..., p, n) complex -> (..., k)."""
         line, channel = self.cells
-        z = np.asarray(Z)[..., line, channel]
+        # C order, as the legacy (r, p, n) -> (r, p n) reshape: numpy's sums (Eq. 6b) depend on the layout
+        # in the last bit, and the legacy path must stay bit for bit what it was.
+        z = np.ascontiguousarray(np.asarray(Z)[..., line, channel])
         if self.residual == "complex":
             return adaptive.complex_relative_residuals(z, self.complex_frf[line, channel])
         u = self.amplitude[line, channel]
-        return (np.abs(z) - u) / u
+        return (_modulus(z) - u) / u
 
     def residual_columns(self, Z: np.ndarray) -> dict:
         """Long residual rows of one FE run ``Z`` (p, n): the kept values, frequency-major.
@@ -146,7 +148,7 @@ class UpdateData:
         z = np.asarray(Z)[line, channel]
         u = self.amplitude[line, channel]
         out = {"frequency_hz": self.frequencies_hz[line], "sensor": self.sensors[channel].astype(np.int64),
-               "residual": (np.abs(z) - u) / u}
+               "residual": (_modulus(z) - u) / u}
         if self.residual == "complex":
             r = adaptive.complex_relative_residuals(z, self.complex_frf[line, channel])
             out.update(residual_real=r[: line.size], residual_imag=r[line.size:])
@@ -215,6 +217,12 @@ class UpdateData:
                    f"of {s['values_in_windows']} values dropped{' (' + str(s['lines_dropped']) + ' lines left empty)' if s['lines_dropped'] else ''}")
         out.append(f"residual: {self.residual}, k = {self.n_values} values")
         return out
+
+
+def _modulus(z: np.ndarray) -> np.ndarray:
+    """``|z|`` as the errors stage always computed it (``hypot``; numpy's complex ``abs`` may differ in the last
+    bit), so the legacy path gives the same residuals, bit for bit, as before channels existed."""
+    return np.hypot(z.real, z.imag)
 
 
 def _match(label: str, names: list[str], tests: list, what: str, table: str, source: str, place: str):

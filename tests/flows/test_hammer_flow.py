@@ -87,3 +87,33 @@ def test_the_hammer_test_selects_its_two_resonances():
     assert len(d.selection["windows"]) == 2
     for (lo, hi), f in zip(d.selection["windows"], freqs):
         assert lo < f < hi
+
+
+@pytest.mark.slow
+def test_two_references_at_once_run_through_the_flow(reduced_settings, prefect_harness, tmp_path):
+    """MIMO: three responses under the hammer (UFF-style node labels) and three under the combined load (names),
+    made with the direct solver at the actual alpha; the run evaluates all six channels per FE run and skips the
+    intervals (one reference needed) with the reason."""
+    from tasks.io.measured import MeasuredFRF
+
+    model = load_model("three_plate")
+    freqs = np.array([100.0, 106.0, 110.0, 112.0, 114.0, 118.0, 280.0, 287.0, 291.0, 295.0, 300.0])
+    responses, references = np.array([1, 3, 5, 0, 2, 4]), np.array([1, 1, 1, 0, 0, 0])
+    Z = model.frf_channels(ALPHA_ACTUAL, freqs, responses, references, method="direct")
+    measured = MeasuredFRF(freqs, np.arange(1, 7), np.abs(Z), Z, "mimo", responses=("2:+z", "4:+z", "6:+z", "s1",
+                           "s3", "s5"), references=("5:+z", "5:+z", "5:+z", None, None, None))
+    path = write_measured(tmp_path / "mimo.csv", measured)
+    config = UpdateConfig(run_id="mimo", runs_dir=str(tmp_path / "runs"), measured=str(path),
+                          **{**reduced_settings, "intervals": True})
+    summary = update.update_flow(config)
+    info = json.loads((tmp_path / "runs" / "mimo" / "manifest.json").read_text())["measured_data"]
+    assert [c["excitation"] for c in info["channels"]] == ["hammer"] * 3 + ["combined"] * 3
+    assert [c["sensor"] for c in info["channels"]] == ["s2", "s4", "s6", "s1", "s3", "s5"]
+    assert "2 references" in summary["intervals_skipped"] and "intervals" not in summary
+    assert len(summary["per_sensor_error"]) == 6
+    fe = pd.read_parquet(tmp_path / "runs" / "mimo" / "iteration=1" / "stage=fe" / "fe.parquet")
+    first = fe[fe["sample_id"] == fe["sample_id"].min()].sort_values(["frequency_hz", "sensor"])
+    alpha = first[[f"alpha_{i}" for i in range(1, 7)]].to_numpy()[0]
+    expected = model.frf_channels(alpha, freqs, responses, references, method="direct")
+    got = (first["real"].to_numpy() + 1j * first["imag"].to_numpy()).reshape(expected.shape)
+    assert np.max(np.abs(got - expected) / np.abs(expected)) <= 1e-9  # the FE core's Krylov-vs-direct promise
