@@ -212,9 +212,10 @@ class UpdateData:
         if flipped:
             out.append(f"{self.source}: sign flipped (direction opposite to the model's) for {', '.join(flipped)}")
         windows = ", ".join(f"{lo:.4g}-{hi:.4g} Hz" for lo, hi in s["windows"])
+        empty = f" ({s['lines_dropped']} lines left empty)" if s["lines_dropped"] else ""
         out.append(f"lines: {s['mode']}{' (' + windows + ')' if windows else ''}: {s['lines_selected']} of "
                    f"{s['lines_in_file']} lines; coherence below {s['min_coherence']:g}: {s['coherence_dropped']} "
-                   f"of {s['values_in_windows']} values dropped{' (' + str(s['lines_dropped']) + ' lines left empty)' if s['lines_dropped'] else ''}")
+                   f"of {s['values_in_windows']} values dropped{empty}")
         out.append(f"residual: {self.residual}, k = {self.n_values} values")
         return out
 

@@ -589,8 +589,9 @@ def _unique_test_dofs(spec: _Spec, dofs: list, what: str) -> None:
             continue
         key = (dof[0], abs(dof[1]))
         if key in seen:
-            raise spec.error(f"{what}[{k}].test_node", f"test node {dof[0]} direction {'xyz'[abs(dof[1]) - 1]} is "
-                                                       f"also that of {what}[{seen[key]}]; one {what[:-1]} per test DOF")
+            axis = "xyz"[abs(dof[1]) - 1]
+            raise spec.error(f"{what}[{k}].test_node", f"test node {dof[0]} direction {axis} is also that of "
+                                                       f"{what}[{seen[key]}]; one {what[:-1]} per test DOF")
         seen[key] = k
 
 
