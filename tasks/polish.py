@@ -216,7 +216,7 @@ def _residuals(fe: pd.DataFrame, measured_amplitude: np.ndarray, data=None) -> t
     Z = (fe["real"].to_numpy() + 1j * fe["imag"].to_numpy()).reshape(measured_amplitude.shape)
     if data is not None:
         return data.residuals(Z), Z
-    return adaptive.relative_residuals(np.abs(Z)[None], measured_amplitude)[0], Z
+    return adaptive.relative_residuals(np.hypot(Z.real, Z.imag)[None], measured_amplitude)[0], Z
 
 
 def polish_results(store: RunStore, iteration: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:

@@ -68,8 +68,11 @@ def frf_section(data: RunData, out: Path, label: str = "") -> Section:
     model_name = data.config.get("model", "three_plate")
     dense = dense_frf(model_name, {"initial": initial, "updated": updated}, grid, out / CACHE / "frf_dense.parquet",
                       channels=_run_channels(data, model_name))
-    fig1 = figures.plot_frf_overview(dense, data.measured, out / "frf_overview.png", windows)
-    fig2 = figures.plot_frf_zoom(dense, data.measured, out / "frf_zoom.png", windows)
+    info = data.manifest.get("measured_data") or {}
+    labels = None if info.get("form", "legacy").startswith("legacy") else {
+        j + 1: f"{c['label']} ({c['sensor']} / {c['excitation']})" for j, c in enumerate(info["channels"])}
+    fig1 = figures.plot_frf_overview(dense, data.measured, out / "frf_overview.png", windows, labels=labels)
+    fig2 = figures.plot_frf_zoom(dense, data.measured, out / "frf_zoom.png", windows, labels=labels)
     # Residuals of both models at the measured points (the dense grid holds them exactly).
     maps, rows = {}, []
     for name in ("initial", "updated"):
@@ -103,7 +106,8 @@ def frf_section(data: RunData, out: Path, label: str = "") -> Section:
 
 def _run_channels(data: RunData, model_name: str):
     """The run's measured channels on the model (None: its sensors under its default excitation)."""
-    if not data.manifest.get("measured_data"):
+    info = data.manifest.get("measured_data")
+    if not info or info["form"].startswith("legacy"):  # the model's own FRF: no model needed to say so
         return None
     from tasks.report.lines import channels_of_run
     from tasks.stages import load_model
