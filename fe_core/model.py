@@ -127,6 +127,14 @@ class ParametricModel:
         mesh cells at alpha = 0, DOFs as :func:`fe_core.assembly.cell_dofs` (model
         extensions that stiffen a set of cells need it; built from ``material`` and
         ``formulation`` when None).
+    excitation_loads : ndarray, shape (n_free, n_excitations), N, or None
+        Every excitation of the model file, one column each (``load`` is the column of
+        ``excitation_name``); ``load`` alone when None. Measured channels with other
+        references use them (:meth:`frf_channels`).
+    excitation_names : list of str
+    sensor_test_dofs, excitation_test_dofs : list of (int, int) or None
+        Per sensor / excitation: the test's node id and signed UFF58 direction code
+        (``test_node``, ``test_direction`` of the model file), None where not given.
     """
 
     mesh: Mesh | None
@@ -152,6 +160,10 @@ class ParametricModel:
     dof_table: np.ndarray | None = None
     cell_segment: np.ndarray | None = None
     cell_stiffness: Callable[[np.ndarray], np.ndarray] | None = None
+    excitation_loads: np.ndarray | None = None
+    excitation_names: list[str] = field(default_factory=list)
+    sensor_test_dofs: list = field(default_factory=list)
+    excitation_test_dofs: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if self.n_total_dofs is None:
@@ -172,6 +184,15 @@ class ParametricModel:
         self.load = np.asarray(self.load, dtype=float)
         if not self.sensor_names:
             self.sensor_names = [f"sensor {j + 1}" for j in range(self.outputs.shape[1])]
+        if self.excitation_loads is None:
+            self.excitation_loads = self.load[:, None].copy()
+            self.excitation_names = [self.excitation_name]
+        self.excitation_loads = np.asarray(self.excitation_loads, dtype=float)
+        if self.excitation_loads.shape != (self.free_dofs.size, len(self.excitation_names)):
+            raise ValueError(f"excitation_loads must have shape (n_free, {len(self.excitation_names)}), "
+                             f"got {self.excitation_loads.shape}")
+        self.sensor_test_dofs = list(self.sensor_test_dofs) or [None] * self.outputs.shape[1]
+        self.excitation_test_dofs = list(self.excitation_test_dofs) or [None] * len(self.excitation_names)
         # The DOFs the outputs read, and how each sensor combines them.
         coo = self.outputs.tocoo()
         self._out_rows = np.unique(coo.row)
@@ -273,6 +294,40 @@ class ParametricModel:
             The measured quantity is its modulus.
         """
         return self._solve(alpha, freqs_hz, gamma, method, self.combined_load())[:, :, 0]
+
+    def frf_channels(self, alpha, freqs_hz, responses, references, gamma=None, method: str = "krylov") -> np.ndarray:
+        """Receptance of (response sensor, reference excitation) channels.
+
+        One solve with one load column per distinct reference (the Krylov
+        space is built for all of them at once), then the channels are picked.
+
+        Parameters
+        ----------
+        alpha, freqs_hz, gamma, method
+            As in :meth:`frf`.
+        responses : array_like of int, shape (n_channels,)
+            0-based sensor of each channel.
+        references : array_like of int, shape (n_channels,)
+            0-based excitation (column of :attr:`excitation_loads`) of each channel.
+
+        Returns
+        -------
+        ndarray, shape (p, n_channels), complex, m/N
+            Column j is the response at sensor ``responses[j]`` to a unit
+            ``excitation_loads[:, references[j]]``; for every sensor under the
+            default excitation it equals :meth:`frf`.
+        """
+        responses = np.asarray(responses, dtype=int)
+        references = np.asarray(references, dtype=int)
+        if responses.shape != references.shape or responses.ndim != 1:
+            raise ValueError("responses and references must be 1-D and of one length (one entry per channel)")
+        if np.any((responses < 0) | (responses >= self.n_sensors)):
+            raise ValueError(f"responses must be sensor indices 0..{self.n_sensors - 1}")
+        if np.any((references < 0) | (references >= self.excitation_loads.shape[1])):
+            raise ValueError(f"references must be excitation indices 0..{self.excitation_loads.shape[1] - 1}")
+        used, column = np.unique(references, return_inverse=True)
+        Z = self._solve(alpha, freqs_hz, gamma, method, self.excitation_loads[:, used])
+        return Z[:, responses, column]
 
     def frf_matrix(self, alpha, freqs_hz, gamma=None, method: str = "krylov") -> np.ndarray:
         """Sensor-by-sensor receptance matrix, one load case per sensor.

@@ -142,27 +142,38 @@ def param_columns(m: int) -> list[str]:
 
 
 # -- FE evaluation (runs in joblib worker processes) ---------------------------------------------
-def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz: np.ndarray) -> pd.DataFrame:
-    """One FE run: the complex FRF at the sensors as a long table.
+def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz: np.ndarray,
+                    channels: tuple[np.ndarray, np.ndarray] | None = None) -> pd.DataFrame:
+    """One FE run: the complex FRF of the measured channels as a long table.
 
     A failed evaluation (for instance a singular system) does not raise: it
     returns rows with NaN responses, ``status = "failed"`` and the reason, so
     the run records it, excludes the sample and goes on.
 
+    ``channels`` = ``(responses, references)`` (0-based model sensor and
+    excitation of each measured channel, :attr:`tasks.update_data.UpdateData.channels`)
+    gives those channels through one solve with a load column per reference
+    (:meth:`fe_core.model.ParametricModel.frf_channels`); None gives the
+    model's sensors under its default excitation (``model.frf``).
+
     Returns
     -------
     DataFrame
         Columns ``sample_id, sensor, frequency_hz, real, imag, status, message, seconds, pid``;
-        one row per (frequency, sensor), frequency-major.
+        one row per (frequency, channel), frequency-major; ``sensor`` is the
+        channel number (1-based; the sensor when ``channels`` is None).
     """
     t0 = time.perf_counter()
     model = load_model(model_name)
-    n, p = model.n_sensors, len(freqs_hz)
+    n, p = (model.n_sensors if channels is None else len(channels[0])), len(freqs_hz)
     delay = float(os.environ.get(FE_DELAY_ENV, "0") or 0)
     if delay > 0:  # fault-injection tests need FE runs slow enough to be interrupted
         time.sleep(delay)
     try:
-        Z = model.frf(np.asarray(alpha, dtype=float), freqs_hz)
+        if channels is None:
+            Z = model.frf(np.asarray(alpha, dtype=float), freqs_hz)
+        else:
+            Z = model.frf_channels(np.asarray(alpha, dtype=float), freqs_hz, channels[0], channels[1])
         if not np.all(np.isfinite(Z)):
             raise FloatingPointError("the FRF has non-finite values")
         status, message = "ok", ""
@@ -205,13 +216,26 @@ def training_data(store: RunStore, iteration: int) -> tuple[np.ndarray, np.ndarr
         ok = errs[errs["status"] == "ok"]
         cols = [c for c in samples.columns if c.startswith("alpha_")]
         merged = samples.merge(ok[["sample_id", "overall_error"]], on="sample_id")
-        wide = res.pivot_table(index="sample_id", columns=["frequency_hz", "sensor"], values="residual")
-        wide = wide.sort_index(axis=1)  # frequency-major, sensors fastest (Eq. 5)
         ids.append(merged["sample_id"].to_numpy())
         X.append(merged[cols].to_numpy())
-        Y.append(wide.loc[merged["sample_id"]].to_numpy())
+        Y.append(residual_matrix(res, merged["sample_id"]))
         E.append(merged["overall_error"].to_numpy())
     return np.concatenate(ids), np.vstack(X), np.vstack(Y), np.concatenate(E)
+
+
+def residual_matrix(res: pd.DataFrame, sample_ids) -> np.ndarray:
+    """Residual vectors (rows in the order of ``sample_ids``) from a long residual table.
+
+    Columns frequency-major, channels fastest (Eq. 5); with complex residuals
+    (columns ``residual_real``, ``residual_imag``) all real parts, then all
+    imaginary parts (:meth:`tasks.update_data.UpdateData.residuals`).
+    """
+    parts = ["residual_real", "residual_imag"] if "residual_real" in res.columns else ["residual"]
+    out = []
+    for value in parts:
+        wide = res.pivot_table(index="sample_id", columns=["frequency_hz", "sensor"], values=value)
+        out.append(wide.sort_index(axis=1).loc[sample_ids].to_numpy())
+    return np.hstack(out)
 
 
 def _finish(store: RunStore, iteration: int, stage: str, names: list[str], info: dict) -> None:
@@ -313,14 +337,14 @@ def samples_task(root: str, config, iteration: int, m: int) -> int:
 
 
 @task(name="fe", task_run_name="iteration-{iteration}-fe", cache_policy=NO_CACHE)
-def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray) -> int:
+def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray, channels=None) -> int:
     """FE runs of the iteration's samples in parallel (joblib: loky processes or a Dask cluster).
 
     Each result is written as soon as it arrives, so a crash loses at most
     the runs in flight; on resume, samples with a result on disk are not run
     again. A lost worker costs only its runs in flight: they are submitted
-    again (:func:`tasks.fe_backends.run_unordered`). Returns the number of FE
-    runs made by this call.
+    again (:func:`tasks.fe_backends.run_unordered`). ``channels``: as in
+    :func:`evaluate_sample`. Returns the number of FE runs made by this call.
     """
     store = RunStore(root)
     logger = _logger()
@@ -328,7 +352,8 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray) -> int:
         return 0
     samples = store.read_table(iteration, "samples")
     cols = [c for c in samples.columns if c.startswith("alpha_")]
-    check = _sample_check(samples, cols, len(freqs_hz) * load_model(config.model).n_sensors)
+    n = load_model(config.model).n_sensors if channels is None else len(channels[0])
+    check = _sample_check(samples, cols, len(freqs_hz) * n)
     done = store.finished_samples(iteration, check)
     _reconcile_log(store, iteration, done)
     todo = samples[~samples["sample_id"].isin(list(done))]
@@ -341,7 +366,7 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray) -> int:
         logger.info("iteration %d, stage fe: %d of %d FE results found on disk", iteration, len(done), len(samples))
     total, count = len(samples), len(done)
     jobs = {
-        int(sid): delayed(evaluate_sample)(config.model, int(sid), x, freqs_hz)
+        int(sid): delayed(evaluate_sample)(config.model, int(sid), x, freqs_hz, channels)
         for sid, x in zip(todo["sample_id"], todo[cols].to_numpy())
     }
     ran = 0
@@ -395,14 +420,21 @@ def _reconcile_log(store: RunStore, iteration: int, done: dict[int, Path]) -> No
 
 
 @task(name="errors", task_run_name="iteration-{iteration}-errors", cache_policy=NO_CACHE)
-def errors_task(root: str, config, iteration: int, measured_amplitude: np.ndarray) -> dict:
-    """Residuals (Eq. 5), overall (Eq. 6b) and per-sensor (Eq. 15) errors of the iteration's FE runs."""
+def errors_task(root: str, config, iteration: int, measured_amplitude: np.ndarray, data=None) -> dict:
+    """Residuals (Eq. 5), overall (Eq. 6b) and per-sensor (Eq. 15) errors of the iteration's FE runs.
+
+    With ``data`` (:class:`tasks.update_data.UpdateData`) the residual is the run's
+    (amplitude or complex) over the kept values, the errors per channel.
+    """
     store = RunStore(root)
     if not _done(store, iteration, "errors"):
         fe = store.read_table(iteration, "fe")
         p, n = measured_amplitude.shape
         status = fe.groupby("sample_id", sort=True)["status"].first()
         ids = status.index.to_numpy()
+        if data is not None:
+            _fit_errors(store, iteration, fe, ids, status, data)
+            return store.stage_info(iteration, "errors")
         amp = np.hypot(fe["real"].to_numpy(), fe["imag"].to_numpy()).reshape(len(ids), p, n)
         res = adaptive.relative_residuals(amp, measured_amplitude)  # (r, p*n)
         overall = adaptive.overall_error(res)
@@ -428,6 +460,32 @@ def errors_task(root: str, config, iteration: int, measured_amplitude: np.ndarra
         _finish(store, iteration, "errors", ["errors", "residuals"],
                      {"best": float(ok.min()) if len(ok) else float("inf"), "failed": int(failed.sum())})
     return store.stage_info(iteration, "errors")
+
+
+def _fit_errors(store: RunStore, iteration: int, fe: pd.DataFrame, ids: np.ndarray, status: pd.Series, data) -> None:
+    """The errors stage on the run's :class:`tasks.update_data.UpdateData` (channels, kept values, residual)."""
+    p, n = data.amplitude.shape
+    Z = (fe["real"].to_numpy() + 1j * fe["imag"].to_numpy()).reshape(len(ids), p, n)
+    res = data.residuals(Z)  # (r, k)
+    errors = pd.DataFrame({"sample_id": ids, "iteration": np.int64(iteration),
+                           "overall_error": adaptive.overall_error(res), "status": status.to_numpy()})
+    for j, e in enumerate(data.channel_errors(res).T):
+        errors[f"error_sensor_{j + 1}"] = e
+    failed = errors["status"] != "ok"
+    if failed.any():
+        messages = fe[fe["status"] != "ok"].groupby("sample_id")["message"].first()
+        for sid, msg in messages.items():
+            _logger().warning("iteration %d: FE run of sample %d failed and is excluded: %s", iteration, sid, msg)
+    parts = []
+    for sid, z in zip(ids, Z):
+        columns = data.residual_columns(z)
+        parts.append(pd.DataFrame({"sample_id": np.full(columns["residual"].size, sid, dtype=np.int64), **columns}))
+    store.write_table(iteration, "errors", "errors", errors)
+    store.write_table(iteration, "errors", "residuals", pd.concat(parts, ignore_index=True))
+    ok = errors.loc[~failed, "overall_error"]
+    _finish(store, iteration, "errors", ["errors", "residuals"],
+            {"best": float(ok.min()) if len(ok) else float("inf"), "failed": int(failed.sum()),
+             "residual": data.residual, "values": data.n_values})
 
 
 @task(name="distribution", task_run_name="iteration-{iteration}-distribution", cache_policy=NO_CACHE)

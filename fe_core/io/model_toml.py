@@ -34,11 +34,14 @@ file. Every refusal is a :class:`ModelFileError` naming the file and the key::
     name = "s1"
     point = [0.0359, 0.02, 0.01]       # or node = 17
     direction = "z"                    # x, y, z or a vector [nx, ny, nz]
+    test_node = 1                      # optional: the test's node id (UFF58 response/reference node)
+    test_direction = "+z"              # optional: the test's direction code (default: direction if x, y, z)
 
     [[excitations]]
     name = "combined"
     dofs = [{ point = [0.0359, 0.02, 0.01], direction = "z", weight = 1.0 }, ...]
                                        # or point / node, direction, weight directly
+                                       # test_node / test_direction as for sensors (both needed with dofs)
 
 A matrices model replaces ``mesh`` by::
 
@@ -400,7 +403,7 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
     def dof_of(node: int, component: int) -> int:
         return int(position[DOFS_PER_NODE * node + component])
 
-    outputs, load, names, placements, exc_name = _sensors_and_excitation(spec, locator, dof_of, free.size)
+    outputs, load, names, placements, exc_name, extra = _sensors_and_excitation(spec, locator, dof_of, free.size)
     mesh.nodes = mesh.nodes * length  # the model's mesh is in m
     model = ParametricModel(
         mesh=mesh, free_dofs=free,
@@ -412,7 +415,7 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
         outputs=outputs, load=load, sensor_names=names, excitation_name=exc_name, n_total_dofs=n_total,
         parameter_bounds=bounds, source=str(spec.path), remainder_mass=rest_mass, placements=placements,
         cell_segment=owner,
-        cell_stiffness=_cell_stiffness_of(family, coords, materials, material_of, options),
+        cell_stiffness=_cell_stiffness_of(family, coords, materials, material_of, options), **extra,
     )
     log.info("%s: %d %s cells, %d nodes, %d free DOFs, %d segments, %d remainder cells", spec.path, n_cells,
              mf.cell_type, n_nodes, free.size, len(seg_names), rest.size)
@@ -519,9 +522,11 @@ def _check_rigid_body_modes(spec: _Spec, nodes: np.ndarray, fixed: np.ndarray) -
                                  f"({'; '.join(free)}); fix more directions or nodes")
 
 
-def _dof_entries(spec: _Spec, locator: _Locator, table: dict, where: str, dof_of, weighted: bool) -> tuple:
-    """(free-DOF indices, weights, placement text) of one sensor or excitation point."""
+def _dof_entries(spec: _Spec, locator: _Locator, table: dict, where: str, dof_of, weighted: bool,
+                 test_keys: bool = False) -> tuple:
+    """(free-DOF indices, weights, placement text, direction) of one sensor or excitation point."""
     allowed = {"node", "point", "direction", "name"} | ({"weight"} if weighted else set())
+    allowed |= TEST_KEYS if test_keys else set()
     _keys(spec, table, allowed, where)
     node, placed = locator.node(table, where)
     if "direction" not in table:
@@ -536,53 +541,115 @@ def _dof_entries(spec: _Spec, locator: _Locator, table: dict, where: str, dof_of
                                     "in the DOF table); a sensor or excitation must be on a free DOF")
         rows.append(row)
         values.append(weight * direction[c])
-    return rows, values, placed
+    return rows, values, placed, direction
+
+
+#: Keys that tie a sensor or an excitation to the test's geometry (UFF58 nodes and directions).
+TEST_KEYS = {"test_node", "test_direction"}
+_TEST_DIRECTIONS = {"x": 1, "y": 2, "z": 3}
+
+
+def _test_dof(spec: _Spec, table: dict, where: str, direction: np.ndarray | None) -> tuple[int, int] | None:
+    """``(test node, signed UFF58 direction code)`` of a sensor or excitation, or None without ``test_node``.
+
+    ``test_direction`` (``"+z"``, ``"-x"``, or a code 1..3 with a sign) is the direction the test system
+    calls this DOF; by default the model direction itself when it is x, y or z.
+    """
+    if "test_node" not in table:
+        if "test_direction" in table:
+            raise spec.error(f"{where}.test_direction", "needs test_node (the test's node id)")
+        return None
+    node = _get(spec, table, "test_node", where, (int,))
+    if node < 1:
+        raise spec.error(f"{where}.test_node", f"must be a node id >= 1 (UFF58 node 0 means 'none'), got {node}")
+    value = table.get("test_direction")
+    if value is None:
+        axis = None if direction is None else np.flatnonzero(np.abs(direction) > 1e-12)
+        if axis is None or axis.size != 1:
+            raise spec.error(f"{where}.test_direction", "is needed when the direction is not x, y or z: the test "
+                                                       "system's direction of this DOF, e.g. \"+z\" in its local "
+                                                       "system")
+        code = int(axis[0]) + 1
+        return node, code if direction[axis[0]] > 0 else -code
+    if isinstance(value, int) and not isinstance(value, bool) and 1 <= abs(value) <= 3:
+        return node, value
+    if isinstance(value, str):
+        text = value.strip().lower()
+        sign = -1 if text.startswith("-") else 1
+        axis = text.lstrip("+-")
+        if axis in _TEST_DIRECTIONS:
+            return node, sign * _TEST_DIRECTIONS[axis]
+    raise spec.error(f"{where}.test_direction", f"must be +x, -x, +y, -y, +z, -z (or +-1, +-2, +-3), got {value!r}")
+
+
+def _unique_test_dofs(spec: _Spec, dofs: list, what: str) -> None:
+    seen = {}
+    for k, dof in enumerate(dofs):
+        if dof is None:
+            continue
+        key = (dof[0], abs(dof[1]))
+        if key in seen:
+            axis = "xyz"[abs(dof[1]) - 1]
+            raise spec.error(f"{what}[{k}].test_node", f"test node {dof[0]} direction {axis} is also that of "
+                                                       f"{what}[{seen[key]}]; one {what[:-1]} per test DOF")
+        seen[key] = k
 
 
 def _sensors_and_excitation(spec: _Spec, locator: _Locator, dof_of, n_free: int):
     sensors = _tables(spec, "sensors")
-    cols, rows, vals, names, placements = [], [], [], [], []
+    cols, rows, vals, names, placements, sensor_tests = [], [], [], [], [], []
     for j, tab in enumerate(sensors):
         where = f"sensors[{j}]"
         name = _get(spec, tab, "name", where, (str,), f"sensor {j + 1}")
         if name in names:
             raise spec.error(f"{where}.name", f"sensor name {name!r} is used twice")
-        r, v, placed = _dof_entries(spec, locator, tab, where, dof_of, weighted=False)
+        r, v, placed, direction = _dof_entries(spec, locator, tab, where, dof_of, weighted=False, test_keys=True)
         rows += r
         vals += v
         cols += [j] * len(r)
         names.append(name)
+        sensor_tests.append(_test_dof(spec, tab, where, direction))
         placements.append(f"sensor {j + 1} {name!r}: {placed}")
     outputs = sp.csr_matrix((vals, (rows, cols)), shape=(n_free, len(sensors)))
+    _unique_test_dofs(spec, sensor_tests, "sensors")
 
     excitations = _tables(spec, "excitations")
-    exc_names = []
+    exc_names, exc_tests = [], []
     loads = []
     for k, tab in enumerate(excitations):
         where = f"excitations[{k}]"
-        exc_names.append(_get(spec, tab, "name", where, (str,), f"excitation {k + 1}"))
+        name = _get(spec, tab, "name", where, (str,), f"excitation {k + 1}")
+        if name in exc_names:
+            raise spec.error(f"{where}.name", f"excitation name {name!r} is used twice")
+        exc_names.append(name)
         entries = tab.get("dofs")
         if entries is None:
             entries, base = [tab], where
         elif not (isinstance(entries, list) and entries and all(isinstance(e, dict) for e in entries)):
             raise spec.error(f"{where}.dofs", "must be a non-empty array of tables {node|point, direction, weight}")
         else:
-            _keys(spec, tab, {"name", "dofs"}, where)
+            _keys(spec, tab, {"name", "dofs"} | TEST_KEYS, where)
             base = f"{where}.dofs"
         F = np.zeros(n_free)
+        single = entries is not tab.get("dofs")
+        direction = None
         for e, entry in enumerate(entries):
-            at = base if entries is not tab.get("dofs") else f"{base}[{e}]"
-            r, v, placed = _dof_entries(spec, locator, entry, at, dof_of, weighted=True)
+            at = base if single else f"{base}[{e}]"
+            r, v, placed, direction = _dof_entries(spec, locator, entry, at, dof_of, weighted=True, test_keys=single)
             np.add.at(F, r, v)
             placements.append(f"excitation {exc_names[-1]!r}: {placed}")
+        exc_tests.append(_test_dof(spec, tab, where, direction if single else None))
         loads.append(F)
+    _unique_test_dofs(spec, exc_tests, "excitations")
     chosen = _get(spec, spec.data, "excitation", "", (str,), exc_names[0] if len(exc_names) == 1 else None)
     if chosen is None:
         raise spec.error("excitation", f"{len(exc_names)} excitations ({', '.join(exc_names)}): name the one "
                                        "that drives the measured FRF")
     if chosen not in exc_names:
         raise spec.error("excitation", f"no excitation {chosen!r} (excitations: {', '.join(exc_names)})")
-    return outputs, loads[exc_names.index(chosen)], names, placements, chosen
+    extra = dict(excitation_loads=np.column_stack(loads), excitation_names=exc_names, sensor_test_dofs=sensor_tests,
+                 excitation_test_dofs=exc_tests)
+    return outputs, loads[exc_names.index(chosen)], names, placements, chosen, extra
 
 
 def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> ParametricModel:
@@ -659,7 +726,7 @@ def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
         r = key_of.get((node, component), -1)
         return int(position[r]) if r >= 0 else -1
 
-    outputs, load, snames, placements, exc_name = _sensors_and_excitation(spec, locator, dof_of, free.size)
+    outputs, load, snames, placements, exc_name, extra = _sensors_and_excitation(spec, locator, dof_of, free.size)
     return ParametricModel(
         mesh=None, free_dofs=free,
         stiffness_segments=SegmentedMatrix.from_matrices([restrict(K) for K in K_full], restrict(K0)),
@@ -667,7 +734,7 @@ def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
         segment_names=names, damping=damping, segment_masses=masses, outputs=outputs, load=load,
         sensor_names=snames, excitation_name=exc_name, n_total_dofs=n, parameter_bounds=bounds,
         source=str(spec.path), remainder_mass=float(ux @ (M0 @ ux)) if M0 is not None else 0.0,
-        placements=placements, dof_table=table,
+        placements=placements, dof_table=table, **extra,
     )
 
 

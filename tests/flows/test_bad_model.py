@@ -147,6 +147,23 @@ CASES = [
     ("unknown direction", lambda t: _mesh_case(t, toml=BENCH_TOML.replace('direction = "z"', 'direction = "w"', 1)),
      BENCH_M, ["{model}", "key 'sensors[0].direction'", "'w'"]),
     ("not TOML", lambda t: _mesh_case(t, toml="units = = 3\n"), BENCH_M, ["{model}", "not valid TOML"]),
+    ("test direction without a test node", lambda t: _mesh_case(t, toml=BENCH_TOML.replace(
+        "test_node = 2  #", 'test_direction = "+z"  #', 1)), BENCH_M,
+     ["{model}", "key 'sensors[1].test_direction'", "needs test_node"]),
+    ("test node 0", lambda t: _mesh_case(t, toml=BENCH_TOML.replace("test_node = 3  #", "test_node = 0  #", 1)),
+     BENCH_M, ["{model}", "key 'sensors[2].test_node'", ">= 1"]),
+    ("one test DOF for two sensors", lambda t: _mesh_case(t, toml=BENCH_TOML.replace(
+        "test_node = 4  #", "test_node = 3  #", 1)), BENCH_M,
+     ["{model}", "key 'sensors[3].test_node'", "test node 3 direction z is also that of sensors[2]"]),
+    ("unknown test direction", lambda t: _mesh_case(t, toml=BENCH_TOML.replace(
+        "test_node = 5\n", 'test_node = 5\ntest_direction = "up"\n', 1)), BENCH_M,
+     ["{model}", "key 'excitations[1].test_direction'", "'up'"]),
+    ("vector direction without a test direction", lambda t: _mesh_case(t, toml=BENCH_TOML.replace(
+        'direction = "z"\ntest_node = 1', 'direction = [0.0, 0.6, 0.8]\ntest_node = 1', 1)), BENCH_M,
+     ["{model}", "key 'sensors[0].test_direction'", "not x, y or z"]),
+    ("two excitations of one name", lambda t: _mesh_case(t, toml=BENCH_TOML.replace('name = "hammer"',
+                                                                                    'name = "combined"')),
+     BENCH_M, ["{model}", "key 'excitations[1].name'", "used twice"]),
     ("missing mesh file", lambda t: _mesh_case(t, toml=BENCH_TOML.replace("three_plate.inp", "nowhere.msh")), BENCH_M,
      ["{model}", "key 'mesh'", "nowhere.msh", "does not exist"]),
 ]
