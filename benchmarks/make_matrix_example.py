@@ -14,7 +14,8 @@ pushes the tip along y and z at once (weights 1 and 0.5).
 ``measured.csv`` is scikit-fem's own FRF (one direct complex solve per frequency with
 scipy, independent of this project's Krylov solver and model reader) at the true
 factors ``ALPHA_TRUE`` with 0.5 % multiplicative noise, at 0.9-1.1 times the first three
-modes that the sensors see.
+modes that the sensors see. ``measured_point_mass.csv`` is the same with a point mass that
+the model file does not declare (``POINT_MASS``), for ``--close-loop`` to find.
 """
 
 from __future__ import annotations
@@ -39,6 +40,10 @@ ALPHA_TRUE = np.array([-0.15, 0.1, -0.1, 0.15])
 BOUNDS = (-0.5, 0.5)
 NOISE = 0.005
 SEED = 7
+#: The undeclared effect of ``measured_point_mass.csv``: a point mass (an instrument bolted on, 1.9 % of the
+#: beam's 31.4 kg) on the top centre line at x = 0.68 m, inside seg4; the model file does not declare it.
+POINT_MASS = {"point": (0.68, 0.04, 0.05), "mass": 0.6}
+POINT_MASS_SEED = 11
 
 
 def skfem_model(n_x: int = 25, n_y: int = 2, n_z: int = 2) -> dict:
@@ -85,12 +90,16 @@ def skfem_model(n_x: int = 25, n_y: int = 2, n_z: int = 2) -> dict:
             "tip": tip, "sensor_nodes": [node_at(x, WIDTH, HEIGHT) for x in SENSOR_X]}
 
 
-def skfem_frf(fem: dict, alpha, freqs_hz) -> np.ndarray:
-    """scikit-fem + scipy: receptance at the sensors, (p, 5) complex, m/N, one direct solve per frequency."""
+def skfem_frf(fem: dict, alpha, freqs_hz, gamma=None) -> np.ndarray:
+    """scikit-fem + scipy: receptance at the sensors, (p, 5) complex, m/N, one direct solve per frequency.
+
+    ``gamma`` (shape (4,), optional) scales the segments' mass matrices by ``1 + gamma_i``.
+    """
     from skfem import condense
 
     K = sum((1 + a) * Ki for a, Ki in zip(alpha, fem["K"][:-1])) + fem["K"][-1]
-    M = sum(fem["M"])
+    M = (sum(fem["M"]) if gamma is None
+         else sum((1 + g) * Mi for g, Mi in zip(np.asarray(gamma, float), fem["M"][:-1])) + fem["M"][-1])
     a, b = DAMPING
     out = []
     for f in np.asarray(freqs_hz, float):
@@ -145,6 +154,17 @@ def write_files(fem: dict, out: Path) -> None:
     (out / "model.toml").write_text("\n".join(lines))
 
 
+def with_point_mass(fem: dict, point, mass: float) -> tuple[dict, int]:
+    """scikit-fem's model with ``mass`` (kg) on u_x, u_y, u_z of the node nearest ``point`` (added to the
+    remainder's mass matrix, so the segments' matrices, which the model file holds, stay as exported).
+    Returns the model and the node (scikit-fem's vertex index, the DOF table's node id)."""
+    p = fem["mesh"].p
+    node = int(np.argmin(np.linalg.norm(p.T - np.asarray(point, float), axis=1)))
+    dofs = fem["basis"].nodal_dofs[:, node]
+    extra = sp.csr_matrix((np.full(3, float(mass)), (dofs, dofs)), shape=fem["M"][-1].shape)
+    return {**fem, "M": fem["M"][:-1] + [fem["M"][-1] + extra]}, node
+
+
 def measurement_frequencies(fem: dict) -> np.ndarray:
     """Five frequencies, 0.9 to 1.1 times each of the first three bending modes in y (the sensors'
     direction) at the truth, Hz. (A window of +-4 % without the peak left a wrong basin, at 24 %
@@ -176,8 +196,22 @@ def main() -> int:
     write_measured(OUT / "measured.csv", MeasuredFRF(freqs, list(range(1, Z.shape[1] + 1)), amp, None,
                                                       f"scikit-fem direct FRF at alpha {ALPHA_TRUE.tolist()}, "
                                                       f"{NOISE:.1%} noise, seed {SEED}"))
-    (OUT / "truth.json").write_text(json.dumps({"alpha": ALPHA_TRUE.tolist(), "noise": NOISE, "seed": SEED,
-                                                "frequencies_hz": freqs.tolist()}, indent=1) + "\n")
+    # The same structure carrying a point mass the model file does not declare, measured at its own peaks.
+    fem_pm, node = with_point_mass(fem, POINT_MASS["point"], POINT_MASS["mass"])
+    freqs_pm = measurement_frequencies(fem_pm)
+    Z = skfem_frf(fem_pm, ALPHA_TRUE, freqs_pm)
+    rng = np.random.default_rng(POINT_MASS_SEED)
+    amp = np.abs(Z) * (1 + NOISE * rng.standard_normal(Z.shape))
+    write_measured(OUT / "measured_point_mass.csv", MeasuredFRF(
+        freqs_pm, list(range(1, Z.shape[1] + 1)), amp, None,
+        f"scikit-fem direct FRF at alpha {ALPHA_TRUE.tolist()} with an undeclared {POINT_MASS['mass']} kg point "
+        f"mass at node {node}, {NOISE:.1%} noise, seed {POINT_MASS_SEED}"))
+    (OUT / "truth.json").write_text(json.dumps({
+        "alpha": ALPHA_TRUE.tolist(), "noise": NOISE, "seed": SEED, "frequencies_hz": freqs.tolist(),
+        "point_mass": {"file": "measured_point_mass.csv", "node": node,
+                       "xyz_m": fem["mesh"].p[:, node].round(12).tolist(), "mass_kg": POINT_MASS["mass"],
+                       "alpha": ALPHA_TRUE.tolist(), "noise": NOISE, "seed": POINT_MASS_SEED,
+                       "frequencies_hz": freqs_pm.tolist()}}, indent=1) + "\n")
     print(f"wrote {OUT}: {len(fem['K']) - 1} segments + remainder, {fem['basis'].N} DOFs, frequencies {freqs}")
     return 0
 

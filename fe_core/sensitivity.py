@@ -31,7 +31,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .frf import hz_to_rad
-from .model import ParametricModel, check_parameters
+from .model import ParametricModel
 
 __all__ = [
     "pearson_correlation",
@@ -97,43 +97,47 @@ def pearson_correlation(X, Y) -> np.ndarray:
 
 
 def frf_jacobian(model: ParametricModel, alpha, freqs_hz) -> tuple[np.ndarray, np.ndarray]:
-    """The receptance at the sensors and its exact derivative with respect to alpha.
+    """The receptance at the sensors and its exact derivative with respect to the parameters.
 
-    The dynamic stiffness ``D(w) = K(alpha) - w^2 M + j w (a M + b K(alpha))``
-    depends on ``alpha_i`` through ``dD/dalpha_i = (1 + j w b) K_i``, so with
-    ``h = D^-1 F`` (the response to the combined load) and ``g_s = D^-1 l_s``
-    (the adjoint for sensor s, ``l_s`` its output vector; D is complex symmetric)::
+    The dynamic stiffness ``D(w) = K(alpha) - w^2 M(gamma) + j w (a M(gamma) + b K(alpha))``
+    depends on ``alpha_i`` through ``dD/dalpha_i = (1 + j w b) K_i`` and on an updated mass
+    factor through ``dD/dgamma_i = (-w^2 + j w a) M_i``, so with ``h = D^-1 F`` (the response
+    to the combined load) and ``g_s = D^-1 l_s`` (the adjoint for sensor s, ``l_s`` its output
+    vector; D is complex symmetric)::
 
-        dZ_s / dalpha_i = -(1 + j w b) g_s^T K_i h
+        dZ_s / dalpha_i = -(1 + j w b) g_s^T K_i h,    dZ_s / dgamma_i = -(-w^2 + j w a) g_s^T M_i h
 
     One complex sparse LU per frequency, with 1 + n_sensors right-hand sides.
 
     Parameters
     ----------
     model : ParametricModel
-    alpha : array_like, shape (m,)
+    alpha : array_like, shape (n_parameters,)
+        The parameter vector (:meth:`ParametricModel.factors`): alpha, then the updated gammas
+        when the model has any.
     freqs_hz : array_like, shape (p,), Hz
 
     Returns
     -------
     Z : ndarray, shape (p, n_sensors), complex, m/N
-        Same as ``model.frf(alpha, freqs_hz)``.
-    dZ : ndarray, shape (p, n_sensors, m), complex, m/N per unit alpha
+        Same as ``model.frf(alpha, freqs_hz, gamma)``.
+    dZ : ndarray, shape (p, n_sensors, n_parameters), complex, m/N per unit parameter
     """
-    alpha = check_parameters(alpha, model.n_segments, "alpha")
+    alpha, gamma = model.factors(alpha)
     freqs = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
     if freqs.ndim != 1 or freqs.size == 0 or np.any(~np.isfinite(freqs)) or np.any(freqs <= 0):
         raise ValueError(f"frequencies must be a non-empty 1-D array of positive values in Hz, got {freqs_hz!r}")
     K = sp.csc_matrix(model.stiffness(alpha))
-    M = sp.csc_matrix(model.mass())
+    M = sp.csc_matrix(model.mass(gamma))
     a, b = model.damping
     segments = [model.stiffness_segments.segment(i) for i in range(model.n_segments)]
+    masses = [model.mass_segments.segment(int(j)) for j in model.mass_parameters]
     n_s = model.n_sensors
     rhs = np.zeros((model.n_dofs, 1 + n_s), dtype=complex)
     rhs[:, 0] = model.combined_load()
     rhs[:, 1:] = model.sensor_loads()  # adjoint loads: the output vectors
     Z = np.empty((freqs.size, n_s), dtype=complex)
-    dZ = np.empty((freqs.size, n_s, model.n_segments), dtype=complex)
+    dZ = np.empty((freqs.size, n_s, model.n_parameters), dtype=complex)
     for f, w in enumerate(hz_to_rad(freqs)):
         D = (K - w**2 * M + 1j * w * (a * M + b * K)).tocsc()
         sol = spla.splu(D).solve(rhs)
@@ -141,6 +145,8 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz) -> tuple[np.ndarray, n
         Z[f] = model.read_outputs(h)
         for i, Ki in enumerate(segments):
             dZ[f, :, i] = -(1.0 + 1j * w * b) * (G.T @ (Ki @ h))
+        for k, Mj in enumerate(masses):
+            dZ[f, :, len(segments) + k] = -(-w**2 + 1j * w * a) * (G.T @ (Mj @ h))
     return Z, dZ
 
 

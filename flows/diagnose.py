@@ -79,6 +79,12 @@ def run_folder(run_id: str, runs_dir: str | Path = "data/runs") -> tuple[Path, d
     return root, summary, manifest
 
 
+#: Why a run that updated mass factors is not closed (the closure's fits and effects are alpha-based).
+MASS_FACTORS_REFUSED = ("the run updates mass factors ({names}); the closure refits the stiffness factors alpha only "
+                        "(its segment_mass effect is how it tests a segment's mass), so it would drop them: close "
+                        "the loop on a run whose model file updates stiffness only")
+
+
 @flow(name="diagnose", flow_run_name="diagnose-{run_id}", log_prints=True)
 def diagnose_flow(run_id: str, closure_root: str, settings: dict, run_info: dict) -> dict:
     """The closure of one run as four tasks; returns the content of ``closure.json``."""
@@ -101,6 +107,9 @@ def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closu
     measured_path = Path(measured or cfg.get("measured", "data/benchmark/measured.csv"))
     measured_path = measured_path if measured_path.is_absolute() else REPO / measured_path
     read_measured(measured_path)  # refuse bad data before any work
+    gammas = [k for k in summary["parameters"] if k.startswith("gamma_")]
+    if gammas:
+        raise DiagnoseError(f"{root / 'summary.json'}: {MASS_FACTORS_REFUSED.format(names=', '.join(gammas))}")
     names = [f"alpha_{i + 1}" for i in range(len(summary["parameters"]))]
     try:
         alpha = [float(summary["parameters"][n]) for n in names]

@@ -84,7 +84,7 @@ def _bottom_labels_only(axes, n: int, ncols: int) -> None:
 
 
 def _param_label(name: str) -> str:
-    return name.replace("alpha_", "alpha ")
+    return name.replace("alpha_", "alpha ").replace("gamma_", "gamma ")
 
 
 # -- Figure 3: FRF amplitude ----------------------------------------------------------------------

@@ -61,23 +61,27 @@ def zoom_windows(freqs_hz) -> list[tuple[float, float]]:
     return out
 
 
-def dense_frf(model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndarray, cache: Path) -> pd.DataFrame:
+def dense_frf(model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndarray, cache: Path,
+              names: list[str] | None = None) -> pd.DataFrame:
     """FRF amplitude of each named parameter vector at every frequency, from the cache when valid.
 
     Parameters
     ----------
     model_name : str
         As in the run's manifest (``three_plate``).
-    vectors : dict of str to ndarray, shape (m,)
-        Curve name -> alpha, e.g. ``{"initial": zeros, "updated": alpha}``.
+    vectors : dict of str to ndarray, shape (n_parameters,)
+        Curve name -> parameter vector, e.g. ``{"initial": zeros, "updated": alpha}``.
     freqs_hz : ndarray
     cache : Path
         Parquet file; rewritten when a curve is missing or differs.
+    names : list of str, optional
+        The parameters' names (the run's sample columns: ``alpha_*``, then ``gamma_*``); ``alpha_1 ..``
+        by default.
 
     Returns
     -------
     DataFrame
-        ``curve, frequency_hz, sensor, real, imag, amplitude`` plus the curve's ``alpha_*``.
+        ``curve, frequency_hz, sensor, real, imag, amplitude`` plus the curve's parameters (``alpha_*``, ``gamma_*``).
     """
     from tasks.stages import load_model  # the run's FE model by name
 
@@ -92,11 +96,11 @@ def dense_frf(model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndar
     model = None
     for name, alpha in vectors.items():
         alpha = np.asarray(alpha, dtype=float)
-        cols = [f"alpha_{i + 1}" for i in range(alpha.size)]
+        cols = list(names) if names is not None else [f"alpha_{i + 1}" for i in range(alpha.size)]
         hit = _cached_curve(cached, model_name, name, alpha, cols, freqs_hz)
         if hit is None:
             model = model or load_model(model_name)
-            Z = model.frf(alpha, freqs_hz)  # (p, n_sensors), m/N
+            Z = model.parameter_frf(alpha, freqs_hz)  # (p, n_sensors), m/N
             p, n = Z.shape
             hit = pd.DataFrame({
                 "model": model_name,

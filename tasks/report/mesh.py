@@ -226,10 +226,8 @@ def mesh_section(data, out: Path) -> Section:
     if model.mesh is None:
         return Section(title=title, notes=[f"No mesh pictures: the model {name} is given as matrices (no node "
                                            "coordinates or cells to draw), and no model.vtu is written for it."])
-    _, alpha, _ = data.best()
-    params = dict(zip(data.names, alpha))
-    params.update({k: v for k, v in (data.summary or {}).get("parameters", {}).items() if k.startswith("gamma_")})
-    alpha, gamma = factors_from_parameters(params, model.n_segments)
+    _, theta, _ = data.best()
+    alpha, gamma = factors_from_parameters(dict(zip(data.names, theta)), model)
     view = MeshView(model)
     fig1 = plot_mesh_segments(model, out / SEGMENTS_PNG, view)
     fig2 = plot_mesh_factors(model, alpha, out / FACTORS_PNG, gamma, view)

@@ -66,7 +66,7 @@ def frf_section(data: RunData, out: Path, label: str = "") -> Section:
     grid = dense_frequencies(freqs)
     windows = zoom_windows(freqs)
     dense = dense_frf(data.config.get("model", "three_plate"), {"initial": initial, "updated": updated}, grid,
-                      out / CACHE / "frf_dense.parquet")
+                      out / CACHE / "frf_dense.parquet", names)
     fig1 = figures.plot_frf_overview(dense, data.measured, out / "frf_overview.png", windows)
     fig2 = figures.plot_frf_zoom(dense, data.measured, out / "frf_zoom.png", windows)
     # Residuals of both models at the measured points (the dense grid holds them exactly).
