@@ -154,10 +154,11 @@ def plot_mesh_segments(model, path: Path, view: MeshView | None = None, title: s
     return _save(fig, path)
 
 
-def plot_mesh_factors(model, alpha, path: Path, gamma=None, view: MeshView | None = None) -> Path:
+def plot_mesh_factors(model, alpha, path: Path, gamma=None, view: MeshView | None = None,
+                      title: str | None = None) -> Path:
     """The updated stiffness factors (and mass factors) as colours on the surface, with a colour bar.
 
-    alpha, gamma : array_like, shape (n_segments,); the fixed remainder is grey.
+    alpha, gamma : array_like, shape (n_segments,); the fixed remainder is grey. ``title``: above the panels.
     """
     view = view or MeshView(model)
     factors = {"alpha (stiffness factor)": np.asarray(alpha, float)}
@@ -181,7 +182,9 @@ def plot_mesh_factors(model, alpha, path: Path, gamma=None, view: MeshView | Non
         for v in values:
             bar.ax.axhline(v, color="k", lw=0.8)
         _segment_labels(ax, view, seg, [f"{s + 1}: {v:+.3f}" for s, v in enumerate(values)])
-    fig.subplots_adjust(left=0.0, right=0.97, bottom=0.03, top=0.93, wspace=0.05)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.subplots_adjust(left=0.0, right=0.97, bottom=0.03, top=0.9 if title else 0.93, wspace=0.05)
     return _save(fig, path)
 
 
