@@ -13,8 +13,8 @@ the foot is contact, which a linear model leaves out.
 
 Six sensors (``SENSORS``, placed by ``python -m benchmarks.bracket_sensors``) look at the web
 in x, y and z and at both ribs along their hypotenuse's normal and the right one in y (the
-first modes rock the bracket about the bolt line in x, sway it in y and twist it); one hammer hit at the web's free vertical edge, along (1, 1, 0)/sqrt(2),
-drives the symmetric (x) and antisymmetric (y, twist) mode families at once.
+first modes rock the bracket about the bolt line in x, sway it in y and twist it); one hammer
+hit at the web's free vertical edge, along (1, 1, 0)/sqrt(2), drives the symmetric (x) and antisymmetric (y, twist) mode families at once.
 
 ``measured.csv`` is the FRF of the **fine** mesh (``make_mesh.py --fine``, 105,114 DOFs,
 regenerated here when missing; an independent discretisation: other element size,

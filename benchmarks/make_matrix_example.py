@@ -223,10 +223,11 @@ def main() -> int:
     # The model file that updates seg3's mass factor too, and a measurement with that segment heavier.
     seg = MASS_FACTOR["segment"]
     text = (OUT / "model.toml").read_text().replace(
-        f'name = "seg{seg}"\n', f'name = "seg{seg}"\nupdate = ["stiffness", "mass"]   # and gamma_{seg}, its mass factor\n'
-        f'mass_bounds = {list(MASS_FACTOR["bounds"])}\n')
+        f'name = "seg{seg}"\n', f'name = "seg{seg}"\nupdate = ["stiffness", "mass"]   # and gamma_{seg}, its mass '
+        f'factor\nmass_bounds = {list(MASS_FACTOR["bounds"])}\n')
     (OUT / "model_mass.toml").write_text(text.replace(
-        "# A steel cantilever exported", f"# The cantilever with seg{seg}'s mass factor updated too. A steel cantilever exported"))
+        "# A steel cantilever exported",
+        f"# The cantilever with seg{seg}'s mass factor updated too. A steel cantilever exported"))
     gamma = np.zeros(len(fem["M"]) - 1)
     gamma[seg - 1] = MASS_FACTOR["gamma"]
     freqs_mass = measurement_frequencies(fem, gamma)

@@ -122,7 +122,8 @@ def bracket_run_factors(run_id: str, runs_dir: Path) -> dict:
     title = (f"The L-bracket's updated stiffness factors (run {run_id}, overall error {summary['overall_error']:.2%}); "
              f"truth {', '.join(f'{t:+.2f}' for t in truth)}")
     view = MeshView(model)
-    plot_mesh_segments(model, DOCS / "mesh-bracket.png", view, "The L-bracket (tet10): segments, sensors and excitation")
+    plot_mesh_segments(model, DOCS / "mesh-bracket.png", view,
+                       "The L-bracket (tet10): segments, sensors and excitation")
     plot_mesh_factors(model, alpha, DOCS / "mesh-bracket-factors.png", gamma, view, title=title)
     return {"run": run_id, "alpha": alpha.round(4).tolist(), "truth": truth, "overall_error": summary["overall_error"]}
 
