@@ -116,6 +116,12 @@ def closure_measurements(path: Path, model_name: str, selection: dict) -> tuple[
 _SELECTION_KEYS = ("lines", "line_windows", "resonance_widen", "min_coherence")
 
 
+#: Why a run that updated mass factors is not closed (the closure's fits and effects are alpha-based).
+MASS_FACTORS_REFUSED = ("the run updates mass factors ({names}); the closure refits the stiffness factors alpha only "
+                        "(its segment_mass effect is how it tests a segment's mass), so it would drop them: close "
+                        "the loop on a run whose model file updates stiffness only")
+
+
 @flow(name="diagnose", flow_run_name="diagnose-{run_id}", log_prints=True)
 def diagnose_flow(run_id: str, closure_root: str, settings: dict, run_info: dict) -> dict:
     """The closure of one run as four tasks; returns the content of ``closure.json``."""
@@ -139,6 +145,9 @@ def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closu
     measured_path = measured_path if measured_path.is_absolute() else REPO / measured_path
     selection = {k: cfg[k] for k in _SELECTION_KEYS if k in cfg}
     closure_measurements(measured_path, cfg.get("model", "three_plate"), selection)  # refuse bad data first
+    gammas = [k for k in summary["parameters"] if k.startswith("gamma_")]
+    if gammas:
+        raise DiagnoseError(f"{root / 'summary.json'}: {MASS_FACTORS_REFUSED.format(names=', '.join(gammas))}")
     names = [f"alpha_{i + 1}" for i in range(len(summary["parameters"]))]
     try:
         alpha = [float(summary["parameters"][n]) for n in names]

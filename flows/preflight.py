@@ -95,9 +95,10 @@ def check_inputs(config: UpdateConfig, measured, model) -> None:
         check_band(config, measured, model)
     if config.true_parameters is not None:
         truth = np.asarray(config.true_parameters, float)
-        if truth.shape != (model.n_segments,):
+        if truth.shape != (model.n_parameters,):
             raise ConfigError(f"config: key 'true_parameters': the model {config.model!r} has "
-                              f"{model.n_segments} parameters, got {truth.size}")
+                              f"{model.n_parameters} parameters ({', '.join(model.parameter_names)}), "
+                              f"got {truth.size}")
 
 
 #: The measured band is "far outside" the model's modes beyond this factor (a mesh in mm with SI

@@ -127,7 +127,7 @@ def check_before_run(config: UpdateConfig):
     root = config.resolve(config.runs_dir) / config.run_id
     preflight.check_resume(config, root, RESUMABLE_CHANGES)
     required = config.min_free_mb or 2 * preflight.expected_output_mb(
-        config, max(data.amplitude.size, data.n_values), model.n_segments)
+        config, max(data.amplitude.size, data.n_values), model.n_parameters)
     preflight.check_disk(config, root, required)
     if config.fe_backend == "dask":  # an unreachable cluster is refused before any work, not in iteration 1
         try:
@@ -187,7 +187,7 @@ def _run_locked(config: UpdateConfig, root: Path, measured, t0: float) -> dict:
 def _single_run(config: UpdateConfig, store: RunStore, measured: UpdateData, t0: float) -> dict:
     _write_manifest(store, config, measured)
     model = stages.load_model(config.model)
-    m = model.n_segments
+    m = model.n_parameters
     if measured.channels is None and measured.amplitude.shape[1] != model.n_sensors:
         raise MeasuredDataError(f"{measured.source}: {measured.amplitude.shape[1]} sensors, "
                                 f"but the model {config.model!r} has {model.n_sensors}")
@@ -317,7 +317,7 @@ def _summary(config, store, iterations, last, measured, wall) -> dict:
         ids, X, Y, E = (np.concatenate([a, b]) for a, b in zip((ids, X, Y, E), polished))
         best = int(np.argmin(E))
     per_sensor = measured.channel_errors(Y[best])
-    names = [f"alpha_{i + 1}" for i in range(X.shape[1])]
+    names = stages.parameter_names(config)
     summary = {
         "parameters": dict(zip(names, map(float, X[best]))),
         "overall_error": float(E[best]),
@@ -402,7 +402,7 @@ def rerun_stage(run_root: Path, iteration: int, stage: str, trainer: str | None 
     trainer = trainer or config.trainer
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     name = f"{stage}.rerun-{trainer}-{stamp}"
-    m = stages.load_model(config.model).n_segments
+    m = stages.load_model(config.model).n_parameters
     if stage == "train":
         stages.train_task.fn(str(store.root), config, iteration, trainer=trainer, output_stage=name)
     else:
@@ -567,6 +567,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         # Refuse bad inputs, a run in use, or a full / read-only disk before any work.
         check_before_run(config)
+        if args.close_loop:
+            from flows.diagnose import MASS_FACTORS_REFUSED
+
+            gammas = [n for n in stages.load_model(config.model).parameter_names if n.startswith("gamma_")]
+            if gammas:
+                raise ConfigError(f"--close-loop: {config.model}: "
+                                  f"{MASS_FACTORS_REFUSED.format(names=', '.join(gammas))}")
         lock = RunLock(config.resolve(config.runs_dir) / config.run_id).acquire()
         if lock.stale_owner:
             owner = lock.stale_owner

@@ -33,7 +33,7 @@ INTERVALS_STAGE = "intervals"
 @task(name="intervals", task_run_name="iteration-{iteration}-intervals", cache_policy=NO_CACHE)
 def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measured_amplitude: np.ndarray,
                    start, data=None) -> dict:
-    """Intervals near ``start`` (shape (m,), the run's best parameters); returns the stage record's info.
+    """Intervals near ``start`` (shape (n_parameters,), the run's best parameters); returns the stage record's info.
 
     The info holds the ``summary.json`` fields (``intervals``, ``covariance``,
     ``interval_method``, ``noise_sigma``, ``interval_details``) and the cost
@@ -63,7 +63,7 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
             return {"skipped": str(exc)}
         lines = data.complete_lines
         freqs_hz, measured_amplitude = data.frequencies_hz[lines], data.amplitude[lines]
-    m = model.n_segments
+    m = model.n_parameters
     lower, upper = stages.parameter_box(config, m)
     lower = np.maximum(lower, polish_lower_bound(-1.0))
     t0 = time.perf_counter()
@@ -71,7 +71,7 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
                                   noise=config.noise)
     seconds = time.perf_counter() - t0
     iv = refined.intervals
-    cols = stages.param_columns(m)
+    cols = model.parameter_names
     table = pd.DataFrame({"parameter": cols, "start": refined.start, "estimate": iv.estimate, "low": iv.low,
                           "high": iv.high, "std": iv.std, "unpinned": iv.unpinned, "near_bound": iv.near_bound})
     for j, c in enumerate(cols):

@@ -93,7 +93,7 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
         return store.stage_info(iteration, POLISH_STAGE)
     ids, X, Y, E = stages.training_data(store, iteration)
     m = X.shape[1]
-    cols = stages.param_columns(m)
+    cols = stages.parameter_names(config)
     p, n = measured_amplitude.shape
     best = int(np.argmin(E))
     lower, upper = stages.parameter_box(config, m)
@@ -226,6 +226,6 @@ def polish_results(store: RunStore, iteration: int) -> tuple[np.ndarray, np.ndar
     table = store.read_table(iteration, POLISH_STAGE)
     table = table[table["status"] == "ok"]
     res = store.read_table(iteration, POLISH_STAGE, "residuals")
-    cols = [c for c in table.columns if c.startswith("alpha_")]
+    cols = stages.parameter_columns(table)
     ids = table["sample_id"].to_numpy()
     return ids, table[cols].to_numpy(), stages.residual_matrix(res, ids), table["overall_error"].to_numpy()

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import time
 from pathlib import Path
 
@@ -128,7 +129,8 @@ def _model_from_file(name: str):
 
 
 def parameter_box(config, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """The search box, shape (m,) each: the model file's per-segment bounds where given, else lower/upper."""
+    """The search box, shape (m,) each: the model file's bounds (of alpha, and of gamma where the mass is
+    updated) where given, else lower/upper."""
     lower, upper = np.full(m, float(config.lower)), np.full(m, float(config.upper))
     bounds = getattr(load_model(config.model), "parameter_bounds", None)
     if bounds is not None:
@@ -137,14 +139,28 @@ def parameter_box(config, m: int) -> tuple[np.ndarray, np.ndarray]:
     return lower, upper
 
 
-def param_columns(m: int) -> list[str]:
-    return [f"alpha_{i + 1}" for i in range(m)]
+def parameter_names(config) -> list[str]:
+    """The run's parameters, the columns of its sample tables: ``alpha_1 .. alpha_m`` and, for segments
+    whose mass factor the model file updates, ``gamma_j`` (:attr:`fe_core.ParametricModel.parameter_names`)."""
+    return load_model(config.model).parameter_names
+
+
+#: A parameter column of a run's tables (samples, FE results, polish, candidates).
+PARAMETER_COLUMN = re.compile(r"(alpha|gamma)_\d+")
+
+
+def parameter_columns(table: pd.DataFrame) -> list[str]:
+    """The parameter columns of a stored table, in the order written (the model's parameter order)."""
+    return [c for c in table.columns if PARAMETER_COLUMN.fullmatch(str(c))]
 
 
 # -- FE evaluation (runs in joblib worker processes) ---------------------------------------------
 def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz: np.ndarray,
                     channels: tuple[np.ndarray, np.ndarray] | None = None) -> pd.DataFrame:
     """One FE run: the complex FRF of the measured channels as a long table.
+
+    ``alpha`` is the parameter vector, shape (n_parameters,): the stiffness factors and, when the
+    model file updates masses, the mass factors (:meth:`fe_core.ParametricModel.factors`).
 
     A failed evaluation (for instance a singular system) does not raise: it
     returns rows with NaN responses, ``status = "failed"`` and the reason, so
@@ -170,10 +186,7 @@ def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz
     if delay > 0:  # fault-injection tests need FE runs slow enough to be interrupted
         time.sleep(delay)
     try:
-        if channels is None:
-            Z = model.frf(np.asarray(alpha, dtype=float), freqs_hz)
-        else:
-            Z = model.frf_channels(np.asarray(alpha, dtype=float), freqs_hz, channels[0], channels[1])
+        Z = model.parameter_frf(np.asarray(alpha, dtype=float), freqs_hz, channels)
         if not np.all(np.isfinite(Z)):
             raise FloatingPointError("the FRF has non-finite values")
         status, message = "ok", ""
@@ -214,7 +227,7 @@ def training_data(store: RunStore, iteration: int) -> tuple[np.ndarray, np.ndarr
         errs = store.read_table(k, "errors", "errors")
         res = store.read_table(k, "errors", "residuals")
         ok = errs[errs["status"] == "ok"]
-        cols = [c for c in samples.columns if c.startswith("alpha_")]
+        cols = parameter_columns(samples)
         merged = samples.merge(ok[["sample_id", "overall_error"]], on="sample_id")
         ids.append(merged["sample_id"].to_numpy())
         X.append(merged[cols].to_numpy())
@@ -319,7 +332,7 @@ def samples_task(root: str, config, iteration: int, m: int) -> int:
     """The FE batch of an iteration: uniform samples first, then the previous selection."""
     store = RunStore(root)
     if not _done(store, iteration, "samples"):
-        cols = param_columns(m)
+        cols = parameter_names(config)
         if iteration == 1:
             n = config.conventional_samples if config.strategy == "conventional" else config.q
             lower, upper = parameter_box(config, m)
@@ -351,7 +364,7 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray, channels=No
     if _done(store, iteration, "fe"):
         return 0
     samples = store.read_table(iteration, "samples")
-    cols = [c for c in samples.columns if c.startswith("alpha_")]
+    cols = parameter_columns(samples)
     n = load_model(config.model).n_sensors if channels is None else len(channels[0])
     check = _sample_check(samples, cols, len(freqs_hz) * n)
     done = store.finished_samples(iteration, check)
@@ -360,7 +373,7 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray, channels=No
     for sid, x in zip(todo["sample_id"], todo[cols].to_numpy()):
         # The model refuses these (the run records the failure and goes on); sampling should never make one.
         if np.any(~np.isfinite(x)) or np.any(x <= -1.0):
-            logger.warning("iteration %d: sample %d is outside the valid domain (alpha > -1): %s",
+            logger.warning("iteration %d: sample %d is outside the valid domain (factors > -1): %s",
                            iteration, sid, x)
     if done:
         logger.info("iteration %d, stage fe: %d of %d FE results found on disk", iteration, len(done), len(samples))
@@ -502,7 +515,7 @@ def distribution_task(root: str, config, iteration: int, m: int) -> dict:
             dist = adaptive.fit_distribution(X, E, config.z, config.std_floor)
             kind, mean, std = "normal", dist.mean, dist.std
         d_min = adaptive.default_min_distance(dist, lower, upper, config.min_distance_factor)
-        df = pd.DataFrame({"parameter": param_columns(m), "mean": mean, "std": std})
+        df = pd.DataFrame({"parameter": parameter_names(config), "mean": mean, "std": std})
         store.write_table(iteration, "distribution", "distribution", df)
         _finish(store, iteration, "distribution", ["distribution"], {"kind": kind, "min_distance": d_min})
     return store.stage_info(iteration, "distribution")
@@ -557,7 +570,7 @@ def predict_task(root: str, config, iteration: int, m: int, train_stage: str = "
         t0 = time.perf_counter()
         predicted = predict_overall_error(X, Y, dict(zip(hp["name"], hp["value"])), C, outputs=outputs)
         seconds = time.perf_counter() - t0
-        df = pd.DataFrame(C, columns=param_columns(m))
+        df = pd.DataFrame(C, columns=parameter_names(config))
         df.insert(0, "candidate_id", np.arange(len(df), dtype=np.int64))
         df["predicted_error"] = predicted
         store.write_table(iteration, output_stage, "candidates", df)
@@ -573,7 +586,7 @@ def select_task(root: str, config, iteration: int, m: int, s: int | None = None)
     if not _done(store, iteration, "select"):
         s = s or config.s
         cand = store.read_table(iteration, "predict", "candidates")
-        cols = param_columns(m)
+        cols = parameter_names(config)
         ids, X, _, _ = training_data(store, iteration)
         d_min = float(store.stage_info(iteration, "distribution")["min_distance"])
         chosen = adaptive.select_diverse(cand[cols].to_numpy(), cand["predicted_error"].to_numpy(), s, d_min,

@@ -25,6 +25,8 @@ file. Every refusal is a :class:`ModelFileError` naming the file and the key::
     [[segments]]                       # stiffness factor alpha_i of a cell set, in this order
     set = "segment1"
     bounds = [-1.0, 1.0]               # optional (default: the run's lower/upper)
+    update = ["stiffness", "mass"]     # optional: also its mass factor gamma_i (default ["stiffness"])
+    mass_bounds = [-0.5, 0.5]          # optional, with "mass": gamma_i's box
 
     [[supports]]                       # a node set (or a cell set's nodes) and the fixed directions
     nodes = "clamped"                  # or a list of node indices
@@ -271,24 +273,48 @@ def read_model_toml(path: str | Path) -> ParametricModel:
     return _matrices_model(spec, units, (a, b))
 
 
-def _segments_bounds(spec: _Spec, tables: list[dict], names: list[str]) -> np.ndarray | None:
-    bounds = np.tile([-np.inf, np.inf], (len(tables), 1))
-    given = False
+def _bounds(spec: _Spec, value: Any, key: str, segment: str, symbol: str) -> tuple[float, float]:
+    if not (isinstance(value, list) and len(value) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+        raise spec.error(key, f"must be [lower, upper], got {value!r}")
+    lo, hi = map(float, value)
+    what = "stiffness" if symbol == "alpha" else "mass"
+    if not (-1.0 <= lo < hi and np.isfinite(hi)):
+        raise spec.error(key, f"segment {segment!r}: need -1 <= lower < upper ({symbol} > -1 keeps the {what} "
+                              f"positive), got {value!r}")
+    return lo, hi
+
+
+#: What a segment's ``update`` may list: its stiffness factor alpha (always) and its mass factor gamma.
+UPDATES = ("stiffness", "mass")
+
+
+def _segment_parameters(spec: _Spec, tables: list[dict], names: list[str]) -> tuple[np.ndarray, np.ndarray | None]:
+    """The segments whose mass factor is updated (``update = ["stiffness", "mass"]``), and the parameter
+    bounds, shape (n_parameters, 2) in the model's parameter order (alphas, then the gammas), +-inf where
+    none is given, or None when no segment gives any."""
+    mass, alpha_bounds, gamma_bounds = [], [], []
     for i, seg in enumerate(tables):
         where = f"segments[{i}]"
-        if "bounds" not in seg:
-            continue
-        value = seg["bounds"]
-        if not (isinstance(value, list) and len(value) == 2
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
-            raise spec.error(f"{where}.bounds", f"must be [lower, upper], got {value!r}")
-        lo, hi = map(float, value)
-        if not (-1.0 <= lo < hi and np.isfinite(hi)):
-            raise spec.error(f"{where}.bounds", f"segment {names[i]!r}: need -1 <= lower < upper (alpha > -1 keeps "
-                                                f"the stiffness positive), got {value!r}")
-        bounds[i] = lo, hi
-        given = True
-    return bounds if given else None
+        update = seg.get("update", ["stiffness"])
+        if not (isinstance(update, list) and all(isinstance(u, str) for u in update)) \
+                or set(update) - set(UPDATES) or len(set(update)) != len(update):
+            raise spec.error(f"{where}.update", f"must be a list of distinct {' and '.join(UPDATES)}, got {update!r}")
+        if "stiffness" not in update:
+            raise spec.error(f"{where}.update", f"segment {names[i]!r}: a segment's stiffness factor alpha is "
+                                                "always updated; list \"stiffness\" (a cell set whose stiffness is "
+                                                "fixed belongs to no segment)")
+        alpha_bounds.append(_bounds(spec, seg["bounds"], f"{where}.bounds", names[i], "alpha") if "bounds" in seg
+                            else (-np.inf, np.inf))
+        if "mass" in update:
+            mass.append(i)
+            gamma_bounds.append(_bounds(spec, seg["mass_bounds"], f"{where}.mass_bounds", names[i], "gamma")
+                                if "mass_bounds" in seg else (-np.inf, np.inf))
+        elif "mass_bounds" in seg:
+            raise spec.error(f"{where}.mass_bounds", f"segment {names[i]!r}: its mass factor is not updated; "
+                                                     'add update = ["stiffness", "mass"] or remove mass_bounds')
+    bounds = np.array(alpha_bounds + gamma_bounds, dtype=float)
+    return np.array(mass, dtype=int), bounds if np.isfinite(bounds).any() else None
 
 
 def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> ParametricModel:
@@ -351,7 +377,7 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
     seg_names = []
     for i, seg in enumerate(seg_tables):
         where = f"segments[{i}]"
-        _keys(spec, seg, {"set", "bounds", "name"}, where)
+        _keys(spec, seg, {"set", "bounds", "name", "update", "mass_bounds"}, where)
         name = _get(spec, seg, "set", where, (str,))
         cells = cell_set(name, f"{where}.set")
         taken = cells[owner[cells] >= 0]
@@ -361,7 +387,7 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
                                              f"{other!r} (e.g. cell {taken[0]}); a cell belongs to one segment")
         owner[cells] = i
         seg_names.append(_get(spec, seg, "name", where, (str,), name))
-    bounds = _segments_bounds(spec, seg_tables, seg_names)
+    mass_parameters, bounds = _segment_parameters(spec, seg_tables, seg_names)
 
     # Element matrices and assembly.
     coords = mesh.nodes[mesh.cells] * length
@@ -415,7 +441,8 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
         outputs=outputs, load=load, sensor_names=names, excitation_name=exc_name, n_total_dofs=n_total,
         parameter_bounds=bounds, source=str(spec.path), remainder_mass=rest_mass, placements=placements,
         cell_segment=owner,
-        cell_stiffness=_cell_stiffness_of(family, coords, materials, material_of, options), **extra,
+        cell_stiffness=_cell_stiffness_of(family, coords, materials, material_of, options),
+        mass_parameters=mass_parameters, **extra,
     )
     log.info("%s: %d %s cells, %d nodes, %d free DOFs, %d segments, %d remainder cells", spec.path, n_cells,
              mf.cell_type, n_nodes, free.size, len(seg_names), rest.size)
@@ -687,13 +714,13 @@ def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
     K_full, M_full, names = [], [], []
     for i, seg in enumerate(seg_tables):
         where = f"segments[{i}]"
-        _keys(spec, seg, {"name", "stiffness", "mass", "bounds"}, where)
+        _keys(spec, seg, {"name", "stiffness", "mass", "bounds", "update", "mass_bounds"}, where)
         names.append(_get(spec, seg, "name", where, (str,)))
         K_full.append(matrix(f"{where}.stiffness", _get(spec, seg, "stiffness", where, (str,))))
         M_full.append(matrix(f"{where}.mass", _get(spec, seg, "mass", where, (str,))))
     K0 = matrix("matrices.stiffness", mat["stiffness"]) if "stiffness" in mat else None
     M0 = matrix("matrices.mass", mat["mass"]) if "mass" in mat else None
-    bounds = _segments_bounds(spec, seg_tables, names)
+    mass_parameters, bounds = _segment_parameters(spec, seg_tables, names)
 
     key_of = {(int(nd), int(c)): r for r, (nd, c) in enumerate(table)}
     fixed = []
@@ -734,7 +761,7 @@ def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
         segment_names=names, damping=damping, segment_masses=masses, outputs=outputs, load=load,
         sensor_names=snames, excitation_name=exc_name, n_total_dofs=n, parameter_bounds=bounds,
         source=str(spec.path), remainder_mass=float(ux @ (M0 @ ux)) if M0 is not None else 0.0,
-        placements=placements, dof_table=table, **extra,
+        placements=placements, dof_table=table, mass_parameters=mass_parameters, **extra,
     )
 
 

@@ -89,7 +89,7 @@ def _measured_style(n_points: int) -> dict:
 
 
 def _param_label(name: str) -> str:
-    return name.replace("alpha_", "alpha ")
+    return name.replace("alpha_", "alpha ").replace("gamma_", "gamma ")
 
 
 # -- Figure 3: FRF amplitude ----------------------------------------------------------------------

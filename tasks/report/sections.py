@@ -67,7 +67,7 @@ def frf_section(data: RunData, out: Path, label: str = "") -> Section:
     windows = zoom_windows(freqs)
     model_name = data.config.get("model", "three_plate")
     dense = dense_frf(model_name, {"initial": initial, "updated": updated}, grid, out / CACHE / "frf_dense.parquet",
-                      channels=_run_channels(data, model_name))
+                      channels=_run_channels(data, model_name), names=names)
     info = data.manifest.get("measured_data") or {}
     labels = None if info.get("form", "legacy").startswith("legacy") else {
         j + 1: f"{c['label']} ({c['sensor']} / {c['excitation']})" for j, c in enumerate(info["channels"])}
