@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 from prefect import flow
 
-from mrgp_core import adaptive
 from tasks import hybrid as tasks
 from tasks import stages
 from tasks.runstore import RunStore
@@ -22,31 +21,31 @@ __all__ = ["cycle_flow", "run_hybrid", "hybrid_summary"]
 
 
 @flow(name="cycle", flow_run_name="cycle-{iteration}", log_prints=True)
-def cycle_flow(root: str, config, iteration: int, freqs_hz: np.ndarray, measured_amplitude: np.ndarray,
-               start: list, minima: list) -> dict:
-    """One cycle: the local (cycle 1) or global stage, then the check."""
+def cycle_flow(root: str, config, iteration: int, data, start: list, minima: list) -> dict:
+    """One cycle: the local (cycle 1) or global stage, then the check; ``data`` the run's UpdateData."""
     if iteration == 1:
-        phase = tasks.local_task(root, config, iteration, freqs_hz, measured_amplitude, start)
+        phase = tasks.local_task(root, config, iteration, data, start)
     else:
-        phase = tasks.global_task(root, config, iteration, freqs_hz, measured_amplitude, minima)
-    verdict = tasks.check_task(root, config, iteration, freqs_hz, measured_amplitude)
+        phase = tasks.global_task(root, config, iteration, data, minima)
+    verdict = tasks.check_task(root, config, iteration, data)
     print(f"cycle {iteration}: {'local' if iteration == 1 else 'global'} {phase['status']}, best overall error "
           f"{phase['best_error']:.4%} after {phase['evaluations']} FE runs ({phase['jacobians']} with Jacobian) in "
           f"{phase['rounds']} rounds; check: {'floor' if verdict['at_floor'] else 'structure'}")
     return {"phase": phase, "check": verdict}
 
 
-def run_hybrid(config, store: RunStore, measured, m: int) -> tuple[int, dict]:
-    """All cycles of one run; returns (last cycle, its result)."""
+def run_hybrid(config, store: RunStore, data, m: int) -> tuple[int, dict]:
+    """All cycles of one run (``data``: the run's :class:`tasks.update_data.UpdateData`); returns (last cycle,
+    its result)."""
     root = str(store.root)
-    start = [0.0] * m  # the nominal model: every alpha_i = 0
+    start = [0.0] * m  # the nominal model: every factor 0
     lower, upper = stages.parameter_box(config, m)
     start = list(np.clip(start, np.maximum(lower, -1.0 + 1e-3), upper))
     minima: list = []
     iteration = 0
     while True:
         iteration += 1
-        last = cycle_flow(root, config, iteration, measured.frequencies_hz, measured.amplitude, start, minima)
+        last = cycle_flow(root, config, iteration, data, start, minima)
         minima += [mn["x"] for mn in last["phase"]["minima"]]
         used = tasks.spent(store, iteration)
         if last["check"]["at_floor"] or not last["phase"]["minima"] or last["phase"]["status"] == "budget":
@@ -60,13 +59,10 @@ def hybrid_summary(config, store: RunStore, iterations: int, last: dict, measure
     runs, responses = tasks.all_runs(store, iterations)
     ok = runs[runs["status"] == "ok"]
     best = ok.loc[ok["overall_error"].idxmin()]
-    m = len([c for c in runs.columns if c.startswith("alpha_")])
-    names = stages.param_columns(m)
-    part = responses[responses["sample_id"] == best["sample_id"]].sort_values(["frequency_hz", "sensor"],
-                                                                              kind="stable")
-    amp = np.hypot(part["real"].to_numpy(), part["imag"].to_numpy()).reshape(measured.amplitude.shape)
-    res = adaptive.relative_residuals(amp[None], measured.amplitude)[0]
-    per_sensor = adaptive.per_sensor_error(res, measured.amplitude.shape[1])
+    names = stages.parameter_names(config)
+    p, n = measured.amplitude.shape
+    Z, _ = tasks._grid(responses[responses["sample_id"] == best["sample_id"]], p, n, len(names))
+    per_sensor = measured.channel_errors(measured.residuals(Z))
     used = tasks.spent(store, iterations)
     verdict = last["check"]
     summary = {
@@ -77,6 +73,7 @@ def hybrid_summary(config, store: RunStore, iterations: int, last: dict, measure
         "jacobians": int(used["jacobians"]),
         "fe_equivalents": float(used["cost"]),
         "jacobian_cost": tasks.JACOBIAN_COST,
+        "residual": measured.residual,
         "rounds": int(used["rounds"]),
         "iterations": iterations,
         "converged": bool(verdict["at_floor"]),
@@ -93,3 +90,25 @@ def hybrid_summary(config, store: RunStore, iterations: int, last: dict, measure
         truth = np.asarray(config.true_parameters, float)
         summary["parameter_errors"] = {n: float(abs(best[n] - t)) for n, t in zip(names, truth)}
     return summary
+
+
+def run_history(store: RunStore, iterations: int) -> list[dict]:
+    """Every FE run of a hybrid run in evaluation order: ``round`` (counted over the whole run), ``x``,
+    ``error`` (overall error, inf for a failed run), ``jacobian``, ``cost`` (FE-run equivalents)."""
+    runs, _ = tasks.all_runs(store, iterations)
+    out, offset = [], 0
+    names = stages.parameter_names(_config_of(store))
+    for (k, stage), g in runs.groupby(["iteration", "stage"], sort=True):
+        for row in g.sort_values("sample_id").itertuples(index=False):
+            d = row._asdict()
+            out.append({"round": offset + int(d["round"]), "x": np.array([d[n] for n in names], float),
+                        "error": float(d["overall_error"]) if d["status"] == "ok" else float("inf"),
+                        "jacobian": bool(d["jacobian"]), "cost": float(d["cost"])})
+        offset += int(store.stage_info(int(k), stage)["rounds"])
+    return out
+
+
+def _config_of(store: RunStore):
+    from flows.config import UpdateConfig
+
+    return UpdateConfig(**store.read_manifest()["config"])

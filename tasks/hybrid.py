@@ -29,7 +29,9 @@ from joblib import delayed
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from mrgp_core.strategies.hybrid import BudgetSpent, HybridOptions, Ledger, check, global_phase, local_phase
+from mrgp_core import adaptive
+from mrgp_core.strategies.hybrid import (BudgetSpent, HybridOptions, Layout, Ledger, Residual, check, global_phase,
+                                         local_phase)
 from tasks import stages
 from tasks.faults import kill_point
 from tasks.fe_backends import run_unordered
@@ -42,8 +44,10 @@ __all__ = ["HYBRID_STAGES", "LOCAL_STAGE", "GLOBAL_STAGE", "CHECK_STAGE", "hybri
 LOCAL_STAGE, GLOBAL_STAGE, CHECK_STAGE = "local", "global", "check"
 HYBRID_STAGES = (LOCAL_STAGE, GLOBAL_STAGE, CHECK_STAGE)
 
-#: Cost of an FE run with its exact Jacobian, in FE runs (CPU time ratio measured on the benchmark,
-#: ``python -m benchmarks.suite`` prints the ratio of each run; docs/suite.md).
+#: Cost of an FE run with its exact Jacobian, in FE runs: the CPU time ratio of
+#: ``fe_core.sensitivity.frf_jacobian`` (Krylov) to ``model.frf`` on the benchmark, 2.3 measured (one thread,
+#: load 10), rounded up; ``python -m benchmarks.suite`` measures it again in every run (docs/suite.md). Data with
+#: several references cost this once per reference.
 JACOBIAN_COST = 2.5
 
 #: Stored results are reused for requested points this close (max-norm, fraction of the box width).
@@ -63,21 +67,36 @@ def _box(config, m: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 # -- FE runs with Jacobians (in worker processes) -----------------------------------------------
-def evaluate_sample_jacobian(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz: np.ndarray) -> pd.DataFrame:
+def evaluate_sample_jacobian(model_name: str, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray,
+                             channels: tuple[np.ndarray, np.ndarray] | None = None) -> pd.DataFrame:
     """One FE run with the exact derivative of the receptance (:func:`fe_core.sensitivity.frf_jacobian`).
 
-    Columns of :func:`tasks.stages.evaluate_sample` plus ``dreal_<i>``, ``dimag_<i>`` (i = 1..m): the
-    derivative of ``real``/``imag`` with respect to ``alpha_i``. A failed run has NaN everywhere.
+    Columns of :func:`tasks.stages.evaluate_sample` plus ``dreal_<i>``, ``dimag_<i>`` (i = 1..m, the
+    parameter vector's order): the derivative of ``real``/``imag`` with respect to parameter i, and
+    ``cost`` (FE-run equivalents: :data:`JACOBIAN_COST` per reference of the channels). A failed run has
+    NaN everywhere.
     """
+    import dataclasses
+
     from fe_core.sensitivity import frf_jacobian
 
     t0 = time.perf_counter()
     model = stages.load_model(model_name)
-    alpha = np.asarray(alpha, float)
-    m = alpha.size
-    p, n = len(freqs_hz), model.n_sensors
+    theta = np.asarray(theta, float)
+    m = theta.size
+    p = len(freqs_hz)
+    n = model.n_sensors if channels is None else len(channels[0])
+    groups = [(np.arange(n), model)]
+    if channels is not None:  # one Jacobian per reference: the model seen through that reference's channels
+        responses, references = (np.asarray(c) for c in channels)
+        groups = [(np.flatnonzero(references == ref),
+                   dataclasses.replace(model, outputs=model.outputs[:, responses[references == ref]],
+                                       load=model.excitation_loads[:, ref].copy()))
+                  for ref in np.unique(references)]
+    Z, dZ = np.empty((p, n), complex), np.empty((p, n, m), complex)
     try:
-        Z, dZ = frf_jacobian(model, alpha, freqs_hz)
+        for cols, sub in groups:
+            Z[:, cols], dZ[:, cols, :] = frf_jacobian(sub, theta, freqs_hz)
         if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(dZ))):
             raise FloatingPointError("the FRF or its derivative has non-finite values")
         status, message = "ok", ""
@@ -89,7 +108,7 @@ def evaluate_sample_jacobian(model_name: str, sample_id: int, alpha: np.ndarray,
         "sensor": np.tile(np.arange(1, n + 1), p).astype(np.int64),
         "frequency_hz": np.repeat(np.asarray(freqs_hz, float), n),
         "real": Z.real.ravel(), "imag": Z.imag.ravel(), "status": status, "message": message,
-        "seconds": time.perf_counter() - t0, "pid": os.getpid(),
+        "seconds": time.perf_counter() - t0, "pid": os.getpid(), "cost": JACOBIAN_COST * len(groups),
     })
     for i in range(m):
         df[f"dreal_{i + 1}"] = dZ[:, :, i].real.ravel()
@@ -97,25 +116,34 @@ def evaluate_sample_jacobian(model_name: str, sample_id: int, alpha: np.ndarray,
     return df
 
 
-def _complex(df: pd.DataFrame, m: int) -> tuple[np.ndarray, np.ndarray | None]:
-    """(Z (p*n,), dZ (p*n, m) or None) of one stored FE result, frequency-major (Eq. 5 layout)."""
+def _grid(df: pd.DataFrame, p: int, n: int, m: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """(Z (p, n), dZ (p, n, m) or None) of one stored FE result (rows frequency-major, channels fastest)."""
     df = df.sort_values(["frequency_hz", "sensor"], kind="stable")
-    Z = df["real"].to_numpy() + 1j * df["imag"].to_numpy()
+    Z = (df["real"].to_numpy() + 1j * df["imag"].to_numpy()).reshape(p, n)
     if f"dreal_{m}" not in df.columns:
         return Z, None
-    dZ = np.column_stack([df[f"dreal_{i + 1}"].to_numpy() + 1j * df[f"dimag_{i + 1}"].to_numpy()
-                          for i in range(m)])
+    dZ = np.stack([(df[f"dreal_{i + 1}"].to_numpy() + 1j * df[f"dimag_{i + 1}"].to_numpy()).reshape(p, n)
+                   for i in range(m)], axis=-1)
     return Z, dZ
+
+
+def fitted(data) -> tuple[Residual, Layout]:
+    """The strategy's residual and layout of the run's data: the kept values (coherence), frequency-major."""
+    line, channel = data.cells
+    zeta = data.complex_frf[line, channel] if data.residual == "complex" else None
+    return Residual(data.amplitude[line, channel], zeta), Layout(np.asarray(data.frequencies_hz, float), line,
+                                                                  channel)
 
 
 class StageEvaluator:
     """``evaluate(points, jacobian)`` for one stage: runs FE in parallel, stores each result, replays on resume."""
 
-    def __init__(self, store: RunStore, config, iteration: int, stage: str, freqs_hz: np.ndarray, m: int,
-                 base: int, logger):
+    def __init__(self, store: RunStore, config, iteration: int, stage: str, data, m: int, base: int, logger):
         self.store, self.config, self.iteration, self.stage = store, config, iteration, stage
-        self.freqs, self.m, self.next, self.logger = freqs_hz, m, base, logger
-        self.cols = stages.param_columns(m)
+        self.data, self.m, self.next, self.logger = data, m, base, logger
+        self.freqs = np.asarray(data.frequencies_hz, float)
+        self.p, self.n = data.amplitude.shape
+        self.cols = stages.parameter_names(config)
         lower, upper = stages.parameter_box(config, m)
         self.tol = REPLAY_TOLERANCE * float(np.max(upper - lower))
         self.stored = {int(p.stem.split("=")[1]): p for p in sorted(store.stage_dir(iteration, stage).glob(
@@ -148,8 +176,8 @@ class StageEvaluator:
                 problem = f"computed for other parameters ({xs.tolist()}) than requested"
             elif jac and f"dreal_{self.m}" not in df.columns:
                 problem = "has no Jacobian, which the resumed stage asks for"
-            elif len(df) != len(self.freqs) * stages.load_model(self.config.model).n_sensors:
-                problem = f"{len(df)} rows"
+            elif len(df) != self.p * self.n:
+                problem = f"{len(df)} rows, expected {self.p * self.n}"
         except Exception as exc:  # noqa: BLE001 - any unreadable file is set aside
             problem = f"unreadable ({type(exc).__name__})"
         if problem:
@@ -177,7 +205,8 @@ class StageEvaluator:
                 todo.append((sid, np.asarray(x, float), jac))
         if todo:
             fn = {True: evaluate_sample_jacobian, False: stages.evaluate_sample}
-            jobs = {sid: delayed(fn[jac])(self.config.model, sid, x, self.freqs) for sid, x, jac in todo}
+            jobs = {sid: delayed(fn[jac])(self.config.model, sid, x, self.freqs, self.data.channels)
+                    for sid, x, jac in todo}
             alpha = {sid: x for sid, x, _ in todo}
             done = run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=self.config.fe_backend,
                                  n_jobs=self.config.n_jobs, dask_address=self.config.dask_address,
@@ -196,25 +225,32 @@ class StageEvaluator:
                 self.ran += 1
         self.logger.info("iteration %d, stage %s: round %d, %d FE runs (%d with Jacobian)", self.iteration,
                          self.stage, self.round, len(points), sum(map(bool, jacobian)))
+        line, channel = self.data.cells
         out = []
         for sid, jac in zip(ids, jacobian):
-            Z, dZ = _complex(self.results[sid], self.m)
-            out.append((Z, dZ if jac else None))
+            df = self.results[sid]
+            Z, dZ = _grid(df, self.p, self.n, self.m)
+            cost = float(df["cost"].iloc[0]) if jac and "cost" in df.columns else (JACOBIAN_COST if jac else 1.0)
+            out.append((Z[line, channel], dZ[line, channel] if jac else None, cost))
         return out
 
-    def write(self, u: np.ndarray, info: dict) -> dict:
+    def write(self, info: dict) -> dict:
         """Write ``runs`` and ``responses`` and finish the stage with ``info``."""
         for sid, path in self.stored.items():  # results the resumed stage never asked for (not expected)
             self._set_aside(sid, path, "not requested by the resumed stage")
         runs = pd.DataFrame(self.rows, columns=["sample_id", "round", "jacobian", *self.cols])
-        errors, status = [], []
-        for sid in runs["sample_id"]:
-            Z, _ = _complex(self.results[int(sid)], self.m)
+        errors, status, costs = [], [], []
+        for sid, jac in zip(runs["sample_id"], runs["jacobian"]):
+            df = self.results[int(sid)]
+            Z, _ = _grid(df, self.p, self.n, self.m)
             ok = bool(np.all(np.isfinite(Z)))
-            errors.append(float(np.mean(np.abs(np.abs(Z) / u - 1.0))) if ok else np.nan)
+            errors.append(float(adaptive.overall_error(self.data.residuals(Z))) if ok else np.nan)
             status.append("ok" if ok else "failed")
+            costs.append(float(df["cost"].iloc[0]) if jac and "cost" in df.columns else (JACOBIAN_COST if jac
+                                                                                          else 1.0))
         runs["overall_error"] = errors
         runs["status"] = status
+        runs["cost"] = costs
         runs = runs.astype({"sample_id": np.int64, "round": np.int64, "jacobian": bool})
         keep = ["sample_id", "sensor", "frequency_hz", "real", "imag", "status"]
         parts = [self.results[int(sid)][keep] for sid in runs["sample_id"]]
@@ -238,13 +274,12 @@ def _stage_list(store: RunStore, upto: int) -> list[tuple[int, str]]:
 
 
 def spent(store: RunStore, upto: int) -> dict:
-    """FE runs, Jacobians, rounds and FE-run equivalents of the finished FE stages of cycles 1..``upto``."""
-    total = {"evaluations": 0, "jacobians": 0, "rounds": 0}
+    """FE runs, Jacobians, rounds and FE-run equivalents (``cost``) of the finished FE stages of cycles 1..``upto``."""
+    total = {"evaluations": 0, "jacobians": 0, "rounds": 0, "cost": 0.0}
     for k, stage in _stage_list(store, upto):
         info = store.stage_info(k, stage)
         for key in total:
-            total[key] += int(info[key])
-    total["cost"] = total["evaluations"] + (JACOBIAN_COST - 1.0) * total["jacobians"]
+            total[key] += info[key]
     return total
 
 
@@ -263,17 +298,20 @@ def all_runs(store: RunStore, upto: int) -> tuple[pd.DataFrame, pd.DataFrame]:
             pd.concat(responses, ignore_index=True))
 
 
-def _ledger(store: RunStore, config, upto: int, evaluate, u: np.ndarray, m: int) -> Ledger:
+def _ledger(store: RunStore, config, upto: int, evaluate, data, m: int) -> Ledger:
     """A ledger holding the FE runs of cycles 1..``upto`` (for the emulator) and the budget they left."""
     options = hybrid_options(config, m)
     used = spent(store, upto)
-    ledger = Ledger(evaluate, u, options.max_cost - used["cost"], options.jacobian_cost)
+    residual, _ = fitted(data)
+    ledger = Ledger(evaluate, residual, options.max_cost - used["cost"], options.jacobian_cost)
     runs, responses = all_runs(store, upto)
     if len(runs):
+        line, channel = data.cells
+        p, n = data.amplitude.shape
         ok = runs[runs["status"] == "ok"]
-        for sid, x in zip(ok["sample_id"], ok[stages.param_columns(m)].to_numpy()):
-            part = responses[responses["sample_id"] == sid].sort_values(["frequency_hz", "sensor"], kind="stable")
-            ledger.responses.append((x, part["real"].to_numpy() + 1j * part["imag"].to_numpy()))
+        for sid, x in zip(ok["sample_id"], ok[stages.parameter_names(config)].to_numpy()):
+            Z, _ = _grid(responses[responses["sample_id"] == sid], p, n, m)
+            ledger.responses.append((x, Z[line, channel]))
     return ledger
 
 
@@ -283,25 +321,24 @@ def _minimum_info(minimum) -> dict:
 
 def _phase_info(ledger: Ledger, evaluator: StageEvaluator, minima: list, status: str, seconds: float) -> dict:
     return {"evaluations": ledger.evaluations, "jacobians": ledger.jacobians, "rounds": ledger.rounds,
+            "cost": ledger.cost,
             "ran_now": evaluator.ran, "status": status, "minima": [_minimum_info(mn) for mn in minima],
             "best_error": min([h[2] for h in ledger.history] or [float("inf")]), "seconds": seconds}
 
 
 # -- the tasks ---------------------------------------------------------------------------------------
 @task(name="local", task_run_name="iteration-{iteration}-local", cache_policy=NO_CACHE)
-def local_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measured_amplitude: np.ndarray,
-               start) -> dict:
+def local_task(root: str, config, iteration: int, data, start) -> dict:
     """Gauss-Newton with exact Jacobians from ``start`` (the nominal model), one FE run per round."""
     store = RunStore(root)
     logger = stages._logger()
     if stages._done(store, iteration, LOCAL_STAGE):
         return store.stage_info(iteration, LOCAL_STAGE)
     m = len(start)
-    u = np.asarray(measured_amplitude, float).ravel()
     options = hybrid_options(config, m)
     lower, upper = _box(config, m)
-    evaluator = StageEvaluator(store, config, iteration, LOCAL_STAGE, freqs_hz, m, _next_id(store, iteration), logger)
-    ledger = _ledger(store, config, iteration - 1, evaluator, u, m)
+    evaluator = StageEvaluator(store, config, iteration, LOCAL_STAGE, data, m, _next_id(store, iteration), logger)
+    ledger = _ledger(store, config, iteration - 1, evaluator, data, m)
     t0 = time.perf_counter()
     try:
         minimum = local_phase(ledger, np.asarray(start, float), lower, upper, options)
@@ -312,24 +349,21 @@ def local_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measured
     logger.info("iteration %d, stage local: %s after %d FE runs (%d with Jacobian) in %d rounds, best overall "
                 "error %.4g %%", iteration, status, ledger.evaluations, ledger.jacobians, ledger.rounds,
                 100 * info["best_error"])
-    return evaluator.write(u, info)
+    return evaluator.write(info)
 
 
 @task(name="global", task_run_name="iteration-{iteration}-global", cache_policy=NO_CACHE)
-def global_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measured_amplitude: np.ndarray,
-                minima) -> dict:
+def global_task(root: str, config, iteration: int, data, minima) -> dict:
     """One global cycle: space-filling round, emulator, parallel Gauss-Newton runs away from ``minima``."""
     store = RunStore(root)
     logger = stages._logger()
     if stages._done(store, iteration, GLOBAL_STAGE):
         return store.stage_info(iteration, GLOBAL_STAGE)
     m = len(minima[0])
-    u = np.asarray(measured_amplitude, float).ravel()
     options = hybrid_options(config, m)
     lower, upper = _box(config, m)
-    evaluator = StageEvaluator(store, config, iteration, GLOBAL_STAGE, freqs_hz, m, _next_id(store, iteration),
-                               logger)
-    ledger = _ledger(store, config, iteration - 1, evaluator, u, m)
+    evaluator = StageEvaluator(store, config, iteration, GLOBAL_STAGE, data, m, _next_id(store, iteration), logger)
+    ledger = _ledger(store, config, iteration - 1, evaluator, data, m)
     t0 = time.perf_counter()
     try:
         found = global_phase(ledger, lower, upper, [np.asarray(x, float) for x in minima], options, iteration - 1)
@@ -340,31 +374,32 @@ def global_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
     logger.info("iteration %d, stage global: %s after %d FE runs (%d with Jacobian) in %d rounds, best overall "
                 "error %.4g %%", iteration, status, ledger.evaluations, ledger.jacobians, ledger.rounds,
                 100 * info["best_error"])
-    return evaluator.write(u, info)
+    return evaluator.write(info)
 
 
 @task(name="check", task_run_name="iteration-{iteration}-check", cache_policy=NO_CACHE)
-def check_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measured_amplitude: np.ndarray) -> dict:
-    """Noise or structure at the best minimum of this cycle's stage (``fe_core.residual``)."""
+def check_task(root: str, config, iteration: int, data) -> dict:
+    """Noise or structure at the best minimum of this cycle's stage (:func:`mrgp_core.strategies.hybrid.check`)."""
     store = RunStore(root)
     if stages._done(store, iteration, CHECK_STAGE):
         return store.stage_info(iteration, CHECK_STAGE)
     stage = LOCAL_STAGE if store.is_finished(iteration, LOCAL_STAGE) else GLOBAL_STAGE
     info = store.stage_info(iteration, stage)
-    u = np.asarray(measured_amplitude, float).ravel()
-    m = len(info["minima"][0]["x"]) if info["minima"] else 0
     out = {"stage": stage, "at_floor": False, "reason": f"{stage} stage ended without a minimum ({info['status']})",
            "status": info["status"], "minimum": None}
     if info["minima"]:
         best = info["minima"][0]
+        m = len(best["x"])
         runs = store.read_table(iteration, stage, "runs")
         responses = store.read_table(iteration, stage, "responses")
         ok = runs[runs["status"] == "ok"]
-        X = ok[stages.param_columns(m)].to_numpy()
+        X = ok[stages.parameter_names(config)].to_numpy()
         sid = int(ok["sample_id"].to_numpy()[int(np.argmin(np.max(np.abs(X - np.array(best["x"])), axis=1)))])
-        part = responses[responses["sample_id"] == sid].sort_values(["frequency_hz", "sensor"], kind="stable")
-        Z = part["real"].to_numpy() + 1j * part["imag"].to_numpy()
-        verdict = check(Z, u, np.asarray(freqs_hz, float), m, hybrid_options(config, m))
+        p, n = data.amplitude.shape
+        Z, _ = _grid(responses[responses["sample_id"] == sid], p, n, m)
+        residual, layout = fitted(data)
+        line, channel = data.cells
+        verdict = check(Z[line, channel], residual, layout, m, hybrid_options(config, m))
         out.update({"at_floor": bool(verdict.at_floor or best["status"] == "target"), "reason": verdict.reason,
                     "rms": verdict.rms, "sigma": verdict.sigma if np.isfinite(verdict.sigma) else None,
                     "sigma_source": verdict.sigma_source, "p_chi2": verdict.p_chi2, "minimum": best})

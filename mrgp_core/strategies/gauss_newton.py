@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["MODELS", "composite_model", "residual_jacobian", "TrustRegionGN", "Step"]
+__all__ = ["MODELS", "Residual", "composite_model", "residual_jacobian", "TrustRegionGN", "Step"]
 
 MODELS = ("inverse", "receptance", "linear")
 
@@ -42,31 +42,63 @@ MIN_RADIUS = 1e-9
 MAX_RADIUS = 1.0
 
 
-def residual_jacobian(Z: np.ndarray, dZ: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """``d r / d alpha`` of ``r = |Z| / u - 1``, shape (k, m): ``|Z| / u Re(dZ / Z)``."""
-    return (np.abs(Z) / u)[:, None] * np.real(dZ / Z[:, None])
+class Residual:
+    """The residual of model receptances ``Z`` (shape (..., k), complex) against the measurement.
+
+    ``Residual(u)``: the paper's amplitude residual ``|Z| / u - 1`` (Eq. 5), shape (..., k).
+    ``Residual(u, zeta)``: with the measured complex FRF ``zeta`` (k,), the real and imaginary parts of
+    ``(Z - zeta) / |zeta|``, shape (..., 2 k) (:func:`mrgp_core.adaptive.complex_relative_residuals`).
+    """
+
+    def __init__(self, u: np.ndarray, zeta: np.ndarray | None = None):
+        self.u = np.asarray(u, float).ravel()
+        self.zeta = None if zeta is None else np.asarray(zeta, complex).ravel()
+
+    @property
+    def complex(self) -> bool:
+        return self.zeta is not None
+
+    def __call__(self, Z: np.ndarray) -> np.ndarray:
+        Z = np.asarray(Z)
+        if self.zeta is None:
+            return np.hypot(Z.real, Z.imag) / self.u - 1.0
+        r = (Z - self.zeta) / self.u
+        return np.concatenate([r.real, r.imag], axis=-1)
+
+    def error(self, Z: np.ndarray) -> float:
+        """Overall error (Eq. 6b: mean |residual|); inf for a failed run."""
+        r = self(Z)
+        return float(np.mean(np.abs(r))) if np.all(np.isfinite(r)) else np.inf
 
 
-def composite_model(Z: np.ndarray, dZ: np.ndarray, u: np.ndarray, model: str = "inverse") -> Callable:
-    """The local model ``s -> r(x + s)``, shape (k,) for a step s of shape (m,).
+def residual_jacobian(Z: np.ndarray, dZ: np.ndarray, residual: Residual) -> np.ndarray:
+    """``d r / d theta``, shape (k, m) (amplitude: ``|Z| / u Re(dZ / Z)``) or (2 k, m) (complex)."""
+    if residual.complex:
+        d = dZ / residual.u[:, None]
+        return np.vstack([d.real, d.imag])
+    return (np.abs(Z) / residual.u)[:, None] * np.real(dZ / Z[:, None])
+
+
+def composite_model(Z: np.ndarray, dZ: np.ndarray, residual, model: str = "inverse") -> Callable:
+    """The local model ``s -> r(x + s)`` for a step s of shape (m,).
 
     Parameters
     ----------
     Z : ndarray, shape (k,), complex, m/N
     dZ : ndarray, shape (k, m), complex, m/N per unit parameter
-    u : ndarray, shape (k,), m/N
-        Measured amplitudes.
+    residual : Residual, or ndarray shape (k,) of measured amplitudes (the amplitude residual)
     model : {"inverse", "receptance", "linear"}
     """
-    Z, dZ, u = np.asarray(Z), np.asarray(dZ), np.asarray(u, float)
+    residual = residual if isinstance(residual, Residual) else Residual(residual)
+    Z, dZ = np.asarray(Z), np.asarray(dZ)
     if model == "linear":
-        r0, J = np.abs(Z) / u - 1.0, residual_jacobian(Z, dZ, u)
+        r0, J = residual(Z), residual_jacobian(Z, dZ, residual)
         return lambda s: r0 + J @ s
     if model == "receptance":
-        return lambda s: np.abs(Z + dZ @ s) / u - 1.0
+        return lambda s: residual(Z + dZ @ s)
     if model == "inverse":
         g, dg = 1.0 / Z, -dZ / (Z**2)[:, None]
-        return lambda s: 1.0 / (u * np.abs(g + dg @ s)) - 1.0
+        return lambda s: residual(1.0 / (g + dg @ s))
     raise ValueError(f"unknown local model {model!r}; choose one of {', '.join(MODELS)}")
 
 
@@ -87,8 +119,7 @@ class TrustRegionGN:
     x : ndarray, shape (m,)
         Current centre.
     Z, dZ : its receptance (k,) and derivative (k, m).
-    u : ndarray, shape (k,)
-        Measured amplitudes.
+    u : Residual, or ndarray shape (k,) of measured amplitudes (the amplitude residual)
     lower, upper : ndarray, shape (m,)
         Search box.
     radius : float
@@ -118,22 +149,22 @@ class TrustRegionGN:
 
     def __post_init__(self) -> None:
         self.x = np.asarray(self.x, float).copy()
-        self.u = np.asarray(self.u, float)
+        self.u = self.u if isinstance(self.u, Residual) else Residual(self.u)
         self.lower, self.upper = np.asarray(self.lower, float), np.asarray(self.upper, float)
         self.f = self.objective(self.Z)
         self._pending: list[Step] = []
 
     @property
     def residuals(self) -> np.ndarray:
-        return np.abs(self.Z) / self.u - 1.0
+        return self.u(self.Z)
 
     @property
     def error(self) -> float:
         """Overall error (Eq. 6b) at the centre."""
-        return float(np.mean(np.abs(self.residuals)))
+        return self.u.error(self.Z)
 
     def objective(self, Z: np.ndarray) -> float:
-        r = np.abs(Z) / self.u - 1.0
+        r = self.u(Z)
         return float(r @ r) if np.all(np.isfinite(r)) else np.inf
 
     def propose(self, scale: float = 1.0) -> Step:
