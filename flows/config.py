@@ -14,12 +14,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "MODELS", "OUTPUTS", "LINES",
+__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "LOOPS", "MODELS", "OUTPUTS", "LINES",
            "RESIDUALS", "parse_windows"]
 
 REPO = Path(__file__).resolve().parents[1]
 TRAINERS = ("sao", "pso", "gradient")
 STRATEGIES = ("hybrid", "adaptive", "conventional")
+LOOPS = ("trust-region", "paper")  # the adaptive strategy's loop (tasks.trust_region)
 MODELS = ("three_plate",)
 FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
 OUTPUTS = ("full", "reduced", "auto")  # tasks.stages.reduced_outputs
@@ -152,6 +153,14 @@ class UpdateConfig:
     starts : int
         Parallel Gauss-Newton runs of a global cycle of the hybrid strategy,
         started from the emulator's best distinct candidates.
+    loop : {"trust-region", "paper"}
+        The adaptive strategy's loop. ``paper`` (default): Table 2's steps
+        (normal distribution of the best z samples, the MRGP on the relative
+        residuals, isotropic). ``trust-region`` (:mod:`tasks.trust_region`,
+        a change to the paper's loop): the nominal model among the first
+        samples, candidates in a region following the best sample, the MRGP
+        (one length scale per parameter) on the inverse receptance near it,
+        Gauss-Newton on its mean; same q, s, w and trainers.
     """
 
     run_id: str | None = None
@@ -192,6 +201,7 @@ class UpdateConfig:
     min_coherence: float = 0.9
     residuals: str = "auto"
     starts: int = 6
+    loop: str = "paper"
 
     def __post_init__(self) -> None:
         self.validate("config")
@@ -213,6 +223,8 @@ class UpdateConfig:
                                       "e.g. tcp://127.0.0.1:8786")
         if self.trainer not in TRAINERS:
             raise bad("trainer", f"unknown trainer {self.trainer!r}; choose one of {', '.join(TRAINERS)}")
+        if self.loop not in LOOPS:
+            raise bad("loop", f"unknown loop {self.loop!r}; choose one of {', '.join(LOOPS)}")
         if self.strategy not in STRATEGIES:
             raise bad("strategy", f"unknown strategy {self.strategy!r}; choose one of {', '.join(STRATEGIES)}")
         if self.model not in MODELS:

@@ -50,8 +50,8 @@ import pandas as pd  # noqa: E402
 from prefect import flow  # noqa: E402
 
 from flows import preflight  # noqa: E402
-from flows.config import (LINES, OUTPUTS, RESIDUALS, STRATEGIES, TRAINERS, ConfigError, UpdateConfig,  # noqa: E402
-                          load_config, parse_windows)
+from flows.config import (LINES, LOOPS, OUTPUTS, RESIDUALS, STRATEGIES, TRAINERS, ConfigError,  # noqa: E402
+                          UpdateConfig, load_config, parse_windows)
 from flows.hybrid import hybrid_summary, run_hybrid  # noqa: E402
 from mrgp_core import adaptive  # noqa: E402
 from tasks import fe_backends, stages  # noqa: E402
@@ -106,8 +106,8 @@ def iteration_flow(root: str, config: UpdateConfig, iteration: int, freqs_hz: np
             return {"stop": True, "converged": decision.converged, "reason": decision.reason, "best": best,
                     "fe": fe_count}
     stages.distribution_task(root, config, iteration, m)
-    stages.train_task(root, config, iteration)
-    stages.predict_task(root, config, iteration, m)
+    stages.train_task(root, config, iteration, data=data)
+    stages.predict_task(root, config, iteration, m, data=data)
     stages.select_task(root, config, iteration, m, 1 if config.strategy == "conventional" else config.s)
     print(f"iteration {iteration}: best overall error {best:.4%} after {fe_count} FE runs")
     return {"stop": False, "converged": False, "reason": "continue", "best": best, "fe": fe_count}
@@ -412,17 +412,20 @@ def rerun_stage(run_root: Path, iteration: int, stage: str, trainer: str | None 
     if stage not in RERUNNABLE:
         raise ConfigError(f"stage {stage!r} cannot be rerun in place; choose one of {', '.join(RERUNNABLE)}")
     config = UpdateConfig(**manifest["config"])
-    for needed in ("errors", "distribution") if stage == "predict" else ("errors",):
+    tr_loop = stages.trust_region_loop(config)
+    for needed in ("errors", "distribution") if stage == "predict" or tr_loop else ("errors",):
         if not store.is_finished(iteration, needed):
             raise ConfigError(f"{run_root}: iteration {iteration} has no finished '{needed}' stage to rerun from")
     trainer = trainer or config.trainer
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     name = f"{stage}.rerun-{trainer}-{stamp}"
-    m = stages.load_model(config.model).n_parameters
+    model = stages.load_model(config.model)
+    m = model.n_parameters
+    data = prepare_data(config, read_measured(config.resolve(config.measured)), model) if tr_loop else None
     if stage == "train":
-        stages.train_task.fn(str(store.root), config, iteration, trainer=trainer, output_stage=name)
+        stages.train_task.fn(str(store.root), config, iteration, trainer=trainer, output_stage=name, data=data)
     else:
-        stages.predict_task.fn(str(store.root), config, iteration, m, output_stage=name)
+        stages.predict_task.fn(str(store.root), config, iteration, m, output_stage=name, data=data)
     return store.stage_dir(iteration, name)
 
 
@@ -460,6 +463,11 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("-w", type=int, help="candidates predicted per iteration (default 10000)")
     p.add_argument("-s", type=int, help="FE runs per iteration (default 20)")
     p.add_argument("-z", type=int, help="best samples defining the sampling distribution (default 20)")
+    p.add_argument("--loop", choices=LOOPS,
+                   help="the adaptive strategy's loop: paper (default: Table 2's steps, normal distribution of the "
+                        "best z, relative residuals) or trust-region (a change to the paper's loop: a region "
+                        "following the best sample, the MRGP emulating the inverse receptance near it, "
+                        "Gauss-Newton on its mean)")
     p.add_argument("--polish", action=argparse.BooleanOptionalAction, default=None,
                    help="after the MRGP loop, least squares on the FE model from the best sample (default on)")
     p.add_argument("--polish-max-fe", type=int, metavar="N",
@@ -566,7 +574,7 @@ def main(argv: list[str] | None = None) -> int:
             dask_address=args.dask_address, repeats=args.repeats,
             threshold=args.threshold, max_iterations=args.max_iterations,
             max_fe_evaluations=args.max_fe_evaluations, q=args.q, w=args.w, s=args.s, z=args.z,
-            polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target,
+            polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target, loop=args.loop,
             polish_stall_rtol=args.polish_stall_rtol, model=args.model, outputs=args.outputs,
             intervals=args.intervals, noise=args.noise, lines=args.lines,
             line_windows=None if args.line_windows is None else parse_windows(args.line_windows),
