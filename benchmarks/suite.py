@@ -1,6 +1,8 @@
 """Optimiser suite (issue 17): random true parameters, noise-free and 1 % noise, every FE run and round counted.
 
     nice -n 5 python -m benchmarks.suite                 # 24 truths x 2 noise levels x 5 methods, one process
+    python -m benchmarks.suite --noise 0 --out a & python -m benchmarks.suite --noise 0.01 --out b   # both cores
+    python -m benchmarks.suite --from-runs a-runs.csv b-runs.csv    # then one table (docs/suite.md) from both
     python -m benchmarks.suite --truths 3 --methods default dfo-ls-nominal --out /tmp/suite
 
 ``--truths`` true parameter vectors uniform in [-0.9, 0.9]^6 (seed ``--seed``)
@@ -235,8 +237,12 @@ def main(argv=None) -> int:
     p.add_argument("--trainer", default="gradient", help="MRGP trainer of the default's emulator and the paper's loop")
     p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     p.add_argument("--out", default=str(REPO / "docs" / "suite"))
+    p.add_argument("--from-runs", nargs="+", metavar="CSV",
+                   help="no run: write the table from these <out>-runs.csv files (e.g. one per noise level)")
     args = p.parse_args(argv)
-    from benchmarks.compare import markdown_table
+    if args.from_runs:
+        return write_tables(pd.concat([pd.read_csv(f) for f in args.from_runs], ignore_index=True), Path(args.out),
+                            f"Tables from {', '.join(Path(f).name for f in args.from_runs)}.")
     from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ, three_plate
 
     logging.getLogger("prefect").setLevel(logging.WARNING)
@@ -265,14 +271,21 @@ def main(argv=None) -> int:
                           f"{rec['rounds_to_floor']} err {rec['final_error']:.2e} max|dalpha| "
                           f"{rec['largest_parameter_error']:.4f} {rec['wall_seconds']:.0f} s", flush=True)
                     pd.DataFrame(records).to_csv(out.with_name(out.name + "-runs.csv"), index=False)
-    runs = pd.DataFrame(records)
+    head = (f"Command: `nice -n 5 python -m benchmarks.suite --truths {args.truths} --seed {args.seed} --budget "
+            f"{args.budget} --trainer {args.trainer} --noise {' '.join(map(str, args.noise))}` "
+            f"({time.perf_counter() - t_start:.0f} s wall). An FE run with its exact Jacobian cost {ratio:.2f} FE runs "
+            f"(CPU time ratio measured at the start of the run).")
+    return write_tables(pd.DataFrame(records), out, head)
+
+
+def write_tables(runs: pd.DataFrame, out: Path, head: str) -> int:
+    """``<out>.csv`` and ``<out>.md`` (``head``, the table, the paired comparison) from the per-run rows."""
+    from benchmarks.compare import markdown_table
+
+    out.parent.mkdir(parents=True, exist_ok=True)
     table = aggregate(runs)
     table.to_csv(out.with_suffix(".csv"), index=False)
-    md = markdown_table(table)
-    text = (f"Command: `nice -n 5 python -m benchmarks.suite --truths {args.truths} --seed {args.seed} --budget "
-            f"{args.budget} --trainer {args.trainer}` ({time.perf_counter() - t_start:.0f} s wall). An FE run with its "
-            f"exact Jacobian cost {ratio:.2f} FE runs (CPU time ratio measured at the start of the run).\n\n"
-            + "\n".join(md) + "\n\n" + "\n".join(paired(runs)) + "\n")
+    text = head + "\n\n" + "\n".join(markdown_table(table)) + "\n\n" + "\n".join(paired(runs)) + "\n"
     out.with_suffix(".md").write_text(text)
     print(text)
     return 0
