@@ -895,6 +895,17 @@ def extended_frf(model: ParametricModel, alpha, freqs_hz, applied: Sequence[Appl
     return (Z @ model._out_weights) * (1.0 + sensor_gain(model, alpha, applied))[None, :]
 
 
+def segment_stiffness(model: ParametricModel, i: int) -> sp.csr_matrix:
+    """Segment ``i``'s stiffness at alpha = 0 without the common pattern's explicit zeros (cached on the
+    model): a derivative with respect to alpha_i touches only the segment's rows."""
+    cache = model.__dict__.setdefault("_segment_stiffness_cache", {})
+    if i not in cache:
+        K = model.stiffness_segments.segment(i).copy()  # the segment shares the pattern's index arrays
+        K.eliminate_zeros()
+        cache[i] = K
+    return cache[i]
+
+
 def sensor_gain(model: ParametricModel, alpha, applied: Sequence[Applied] = ()) -> np.ndarray:
     """Sum of the applied sensor gains, shape (n_sensors,) (zero without any)."""
     g = np.zeros(model.n_sensors)
@@ -912,9 +923,10 @@ class LinearisedResponse:
     vectors ``l_s``, the field is ``h = D^-1 F``, ``Z_s = l_s^T h`` and
     ``dZ_s = -l_s^T D^-1 dD h``. D is complex symmetric, so ``l_s^T D^-1`` is
     the response ``X_s`` to a unit load along ``l_s`` (reciprocity), and
-    ``dZ_s = -X_s^T (dD h)``: one solve with F and the sensor loads gives the
-    sensitivity to *every* candidate, e.g. a point mass at each of hundreds of
-    nodes, without a solve per candidate.
+    ``dZ_s = -X_s^T (dD h)``: one Krylov space of F and the sensor loads
+    (:class:`fe_core.adjoint.ReducedResponse`) gives the sensitivity to *every*
+    candidate, e.g. a point mass at each of hundreds of nodes, without a solve
+    per candidate.
 
     Parameters
     ----------
@@ -926,50 +938,27 @@ class LinearisedResponse:
     """
 
     def __init__(self, model: ParametricModel, alpha, freqs_hz, applied: Sequence[Applied] = ()):
+        from .adjoint import ReducedResponse
+
         self.model = model
         self.alpha = check_parameters(alpha, model.n_segments, "alpha")
         self.freqs_hz = np.asarray(freqs_hz, float)
         self.omegas = hz_to_rad(self.freqs_hz)
         self.applied = list(applied)
         self.K, self.M, self.a, self.b = extended_matrices(model, alpha, applied)
-        everything = np.arange(model.n_dofs)
-        # X[f, :, s]: field response to a unit load along output vector s; field: to the model's load F.
-        loads = np.column_stack([model.combined_load(), model.sensor_loads()])
-        both = krylov_frf(self.K, self.M, self.a, self.b, loads, self.omegas, everything)
-        self.field, self.X = both[:, :, 0], both[:, :, 1:]  # (p, n), (p, n, n_s)
-        self.Z = model.read_outputs(self.field)  # (p, n_s)
         self.gain = sensor_gain(model, self.alpha, self.applied)
+        self.reduced = ReducedResponse(self.K, self.M, self.a, self.b, model.combined_load(), model.outputs,
+                                       self.omegas, self.gain)
+        self.Z = self.reduced.Z  # (p, n_s), without the gains
+
+    @property
+    def amplitude(self) -> np.ndarray:
+        """The compared amplitude ``|Z| (1 + gain)``, shape (p, n_sensors), m/N."""
+        return self.reduced.amplitude
 
     def derivative(self, terms: Terms) -> np.ndarray:
         """``d ln|Z_s(f)|`` per unit of the change described by ``terms``, shape (p, n_sensors)."""
-        w = self.omegas
-        p, n = self.field.shape
-        dK, dM = terms.stiffness, terms.mass
-        out = np.zeros((p, self.model.n_sensors))
-        if terms.gain is not None:  # ln(|Z| (1 + g)): d/dg = 1 / (1 + g)
-            out += (np.asarray(terms.gain, float) / (1.0 + self.gain))[None, :]
-        rows = []
-        for A in (dK, dM):
-            if A is not None:
-                A = sp.csr_matrix(A)
-                rows.append(np.flatnonzero(np.diff(A.indptr)))
-        if terms.damping_a or terms.damping_b:
-            rows.append(np.arange(n))
-        if not rows:
-            return out
-        rows = np.unique(np.concatenate(rows))
-        v = np.zeros((rows.size, p), dtype=complex)  # (dD Z)[rows], per frequency
-        Zt = self.field.T  # (n, p)
-        if dK is not None:
-            v += (sp.csr_matrix(dK)[rows] @ Zt) * (1.0 + 1j * w * self.b)[None, :]
-        if dM is not None:
-            v += (sp.csr_matrix(dM)[rows] @ Zt) * (-(w**2) + 1j * w * self.a)[None, :]
-        if terms.damping_a:
-            v += terms.damping_a * (self.M[rows] @ Zt) * (1j * w)[None, :]
-        if terms.damping_b:
-            v += terms.damping_b * (self.K[rows] @ Zt) * (1j * w)[None, :]
-        dZ = -np.einsum("prs,rp->ps", self.X[:, rows, :], v)
-        return out + np.real(dZ / self.Z)
+        return self.reduced.dlog(terms.stiffness, terms.mass, terms.damping_a, terms.damping_b, terms.gain)
 
     def alpha_derivatives(self) -> np.ndarray:
         """``d ln|Z| / d alpha_i``, shape (p * n_sensors, n_segments), frequency-major rows.
@@ -979,7 +968,7 @@ class LinearisedResponse:
         """
         cols = []
         for i in range(self.model.n_segments):
-            dK = self.model.stiffness_segments.segment(i)
+            dK = segment_stiffness(self.model, i)
             for item in self.applied:
                 extra = item.effect.alpha_derivative(self.alpha, item.location, item.values, i)
                 if extra is not None and extra.stiffness is not None:

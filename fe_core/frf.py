@@ -45,7 +45,15 @@ from scipy.linalg import lapack
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["direct_frf", "krylov_frf", "KrylovInfo", "hz_to_rad", "spd_solver"]
+__all__ = [
+    "direct_frf",
+    "krylov_frf",
+    "krylov_space",
+    "KrylovSpace",
+    "KrylovInfo",
+    "hz_to_rad",
+    "spd_solver",
+]
 
 log = logging.getLogger(__name__)
 
@@ -166,6 +174,67 @@ def krylov_frf(
     KrylovInfo
         Only if ``return_info``.
     """
+    space = krylov_space(K, M, a, b, F, omegas, out_dofs, rtol=rtol, sigma=sigma, max_dimension=max_dimension,
+                         check_every=check_every)
+    info = space.info
+    if info.converged:
+        return (space.responses, info) if return_info else space.responses
+    log.warning(
+        "Krylov FRF did not converge to rtol=%g within %d vectors (last change %.2e); "
+        "falling back to the direct solver",
+        rtol,
+        info.dimension,
+        info.change,
+    )
+    C = a * M + b * K
+    result = direct_frf(K, M, C, _as_load_matrix(F), np.asarray(omegas, dtype=float), out_dofs)
+    return (result, info) if return_info else result
+
+
+@dataclass(frozen=True)
+class KrylovSpace:
+    """The converged projection space of :func:`krylov_space`.
+
+    Attributes
+    ----------
+    basis : ndarray, shape (n, d)
+        Orthonormal columns spanning the block Krylov space of the loads.
+    stiffness, mass : ndarray, shape (d, d)
+        ``basis^T K basis`` and ``basis^T M basis`` (symmetrised).
+    responses : ndarray, shape (p, n_out, n_loads), complex, m/N
+        The projected responses at ``out_dofs`` (what :func:`krylov_frf` returns).
+    info : KrylovInfo
+        ``converged`` is False if ``max_dimension`` was reached first (everything
+        above is then the last, unconverged space).
+    """
+
+    basis: np.ndarray
+    stiffness: np.ndarray
+    mass: np.ndarray
+    responses: np.ndarray
+    info: KrylovInfo
+
+
+def krylov_space(
+    K: sp.spmatrix,
+    M: sp.spmatrix,
+    a: float,
+    b: float,
+    F: np.ndarray,
+    omegas: np.ndarray,
+    out_dofs: np.ndarray,
+    *,
+    rtol: float = 1e-10,
+    sigma: float | None = None,
+    max_dimension: int = 240,
+    check_every: int = 8,
+) -> KrylovSpace:
+    """The converged projection space of :func:`krylov_frf` (same arguments), for reuse.
+
+    The reduced matrices grow with the space (each new block is multiplied
+    by K and M once), so a convergence check costs a small eigenproblem, not
+    a projection of the whole space.
+    """
     F = _as_load_matrix(F)
     omegas = np.asarray(omegas, dtype=float)
     K = sp.csr_matrix(K)
@@ -176,12 +245,22 @@ def krylov_frf(
     lam = (omegas**2 - 1j * omegas * a) / (1.0 + 1j * omegas * b)
     scale = 1.0 / (1.0 + 1j * omegas * b)
 
-    basis = np.empty((n, min(max_dimension, n)))
+    cap = min(max_dimension, n)
+    basis = np.empty((n, cap))
+    Kr = np.zeros((cap, cap))
+    Mr = np.zeros((cap, cap))
+    VF = np.zeros((cap, n_loads))
     dim = 0
     block = solve(F)
     previous = None
+    current = None
     change = np.inf
     next_check = check_every
+
+    def space(d: int, info: KrylovInfo) -> KrylovSpace:
+        k, m = _symmetric(Kr[:d, :d]), _symmetric(Mr[:d, :d])
+        return KrylovSpace(basis[:, :d], k, m, current, info)
+
     while True:
         # Block Gram-Schmidt, twice, against the whole basis (full
         # re-orthogonalisation keeps the projection exact to round-off).
@@ -190,40 +269,37 @@ def krylov_frf(
         q, r = np.linalg.qr(block)
         keep = np.abs(np.diag(r)) > 1e-13 * max(1.0, np.abs(r).max())
         q = q[:, keep]
-        room = basis.shape[1] - dim
+        room = cap - dim
         if q.shape[1] == 0 or room == 0:
             break
         q = q[:, :room]
-        basis[:, dim : dim + q.shape[1]] = q
-        dim += q.shape[1]
+        d0, dim = dim, dim + q.shape[1]
+        basis[:, d0:dim] = q
+        Mq = M @ q
+        for reduced, product in ((Kr, K @ q), (Mr, Mq)):
+            reduced[:dim, d0:dim] = basis[:, :dim].T @ product
+            reduced[d0:dim, :d0] = reduced[:d0, d0:dim].T
+        VF[d0:dim] = q.T @ F
         if dim >= next_check:
             next_check = dim + check_every
-            current = _project(K, M, basis[:, :dim], F, lam, scale, out_dofs)
+            current = _project(Kr[:dim, :dim], Mr[:dim, :dim], basis[out_dofs, :dim], VF[:dim], lam, scale)
             if previous is not None:
                 last_change, change = change, _relative_change(current, previous)
                 # Converged, or stagnated at the round-off floor of an ill-conditioned
                 # pencil (parameters near -1), where more vectors cannot help.
                 if change <= rtol or (change <= STAGNATION_RTOL and change >= 0.5 * last_change):
-                    info = KrylovInfo(dim, change, True, sigma)
-                    return (current, info) if return_info else current
+                    return space(dim, KrylovInfo(dim, change, True, sigma))
             previous = current
-        block = solve(M @ q)
+        block = solve(Mq)
 
     if dim >= n:  # the space is everything: the projection is exact
-        current = _project(K, M, basis[:, :dim], F, lam, scale, out_dofs)
-        info = KrylovInfo(dim, 0.0, True, sigma)
-        return (current, info) if return_info else current
-    log.warning(
-        "Krylov FRF did not converge to rtol=%g within %d vectors (last change %.2e); "
-        "falling back to the direct solver",
-        rtol,
-        dim,
-        change,
-    )
-    C = a * M + b * K
-    result = direct_frf(K, M, C, F, omegas, out_dofs)
-    info = KrylovInfo(dim, change, False, sigma)
-    return (result, info) if return_info else result
+        current = _project(Kr[:dim, :dim], Mr[:dim, :dim], basis[out_dofs, :dim], VF[:dim], lam, scale)
+        return space(dim, KrylovInfo(dim, 0.0, True, sigma))
+    return space(dim, KrylovInfo(dim, change, False, sigma))
+
+
+def _symmetric(A: np.ndarray) -> np.ndarray:
+    return 0.5 * (A + A.T)
 
 
 #: A change this small that stops decreasing is accepted as the round-off floor. PARDISO's
@@ -308,15 +384,12 @@ def spd_solver(A: sp.spmatrix):
     return solve
 
 
-def _project(K, M, V, F, lam, scale, out_dofs) -> np.ndarray:
-    """Responses of the Galerkin-reduced pencil at all shifts, shape (p, n_out, n_loads)."""
-    Kr = V.T @ (K @ V)
-    Mr = V.T @ (M @ V)
-    Kr = 0.5 * (Kr + Kr.T)
-    Mr = 0.5 * (Mr + Mr.T)
-    mu, phi = sla.eigh(Kr, Mr)  # phi^T Mr phi = I
-    left = V[out_dofs] @ phi  # (n_out, m)
-    right = phi.T @ (V.T @ F)  # (m, n_loads)
+def _project(Kr, Mr, V_out, VF, lam, scale) -> np.ndarray:
+    """Responses of the reduced pencil (Kr, Mr) at all shifts, shape (p, n_out, n_loads), from the
+    basis rows at the outputs ``V_out`` and the projected loads ``VF``."""
+    mu, phi = sla.eigh(_symmetric(Kr), _symmetric(Mr))  # phi^T Mr phi = I
+    left = V_out @ phi  # (n_out, m)
+    right = phi.T @ VF  # (m, n_loads)
     weights = scale[:, None] / (mu[None, :] - lam[:, None])  # (p, m)
     return np.einsum("om,pm,ml->pol", left, weights, right)
 
