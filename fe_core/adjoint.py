@@ -127,3 +127,23 @@ class ReducedResponse:
         if dgain is not None:  # ln(1 + g): d/dg = 1 / (1 + g)
             out = out + (np.asarray(dgain, float) / (1.0 + self.gain))[None, :]
         return out
+
+    def diagonal_dlog(self, matrix: str, rows: np.ndarray) -> np.ndarray:
+        """``d ln|Z|`` for many unit diagonal changes at once, shape (L, p, n_s).
+
+        Change ``l`` adds 1 to the diagonal of K (``matrix="stiffness"``) or M
+        (``"mass"``) at the free DOFs ``rows[l]`` (shape (L, k); negative entries
+        are skipped): a point mass or a grounded spring at every node in one
+        product, ``dZ_s = -c(w) sum_r (u_s . W_r)(W_r . v)``.
+        """
+        rows = np.atleast_2d(np.asarray(rows, dtype=np.int64))
+        w = self.omegas
+        c = (1.0 + 1j * w * self.b) if matrix == "stiffness" else (-(w**2) + 1j * w * self.a)
+        used, where = np.unique(np.where(rows >= 0, rows, -1), return_inverse=True)
+        where = where.reshape(rows.shape)
+        Wu = self.W[np.maximum(used, 0)]  # (nu, m); the row of index -1 (if any) is masked below
+        unit = np.einsum("psm,rm->rps", self._u, Wu, optimize=True) * (Wu @ self._v.T)[:, :, None]  # (nu, p, s)
+        unit[used < 0] = 0.0
+        dZ = -c[None, :, None] * unit[where].sum(axis=1)  # (L, p, s)
+        return np.real(dZ / self.Z[None])
+

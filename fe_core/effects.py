@@ -188,6 +188,12 @@ class Effect(abc.ABC):
         """Extra facts about a location for reports (coordinates, cells...)."""
         return {}
 
+    def diagonal(self, locations: Sequence[str]) -> tuple[str, np.ndarray] | None:
+        """For a one-parameter effect whose unit terms are ones on a few diagonal entries of K or M:
+        ``("stiffness" | "mass", rows)`` with ``rows`` (len(locations), k) free-DOF indices, -1 padded
+        (the screening then derives every location in one product); None otherwise."""
+        return None
+
     def neighbours(self, location: str) -> list[str]:
         """Locations next to ``location`` (used to refine a searched location); none by default."""
         return []
@@ -402,6 +408,10 @@ class PointMass(_NodalEffect):
     upper = (np.inf,)
     scale = (0.1,)
 
+    def diagonal(self, locations):
+        rows = np.array([_rows_of(self.model, self.node(loc)) for loc in locations]).reshape(-1, DOFS_PER_NODE)
+        return "mass", np.where(rows >= 0, rows, -1)
+
     def __init__(self, model: ParametricModel, nodes: Sequence[int] | None = None):
         super().__init__(model, nodes)
         self.upper = (MASS_SHARE * float(model.total_mass()),)
@@ -432,6 +442,10 @@ class GroundedSpring(_NodalEffect):
 
     def _candidates(self) -> np.ndarray:
         return candidate_nodes(self.model, self.node_set, self.component)
+
+    def diagonal(self, locations):
+        rows = np.array([_rows_of(self.model, self.node(loc))[self.component] for loc in locations]).reshape(-1, 1)
+        return "stiffness", np.where(rows >= 0, rows, -1)
 
     def terms(self, alpha, location, values) -> Terms:
         row = _rows_of(self.model, self.node(location))[self.component]
@@ -632,6 +646,9 @@ class SensorMass(Effect):
 
     def locations(self) -> list[str]:
         return ["all sensors"]
+
+    def diagonal(self, locations):
+        return "mass", np.tile(self._rows, (len(locations), 1))
 
     def terms(self, alpha, location, values) -> Terms:
         return Terms(mass=_diag(self.model.n_dofs, self._rows, np.full(self._rows.size, float(values[0]))))
@@ -975,6 +992,16 @@ class LinearisedResponse:
                     dK = dK + extra.stiffness
             cols.append(self.derivative(Terms(stiffness=dK)).ravel())
         return np.column_stack(cols)
+
+    def batch_derivatives(self, effect: Effect, locations: Sequence[str]) -> np.ndarray:
+        """``d ln|Z| / d values`` of an effect at many locations, shape (L, p * n_sensors, k): in one
+        product for a diagonal effect (:meth:`Effect.diagonal`), else location by location."""
+        diag = effect.diagonal(locations) if effect.n_parameters == 1 else None
+        if diag is not None:
+            d = self.reduced.diagonal_dlog(*diag)
+            return d.reshape(len(locations), -1, 1)
+        return np.stack([self.effect_derivatives(effect, loc) for loc in locations]) if locations else \
+            np.zeros((0, self.Z.size, effect.n_parameters))
 
     def effect_derivatives(self, effect: Effect, location: str) -> np.ndarray:
         """``d ln|Z| / d values`` of an effect at a location, shape (p * n_sensors, k)."""
