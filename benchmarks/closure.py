@@ -57,10 +57,10 @@ def location_error(model, truth: dict, found: str | None) -> dict:
 def run_one(path: Path, truth: dict, settings: dict | None = None) -> dict:
     model = three_plate()
     measured = read_measured(path)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     result = close_loop(model, measured.frequencies_hz, measured.amplitude, np.zeros(model.n_segments),
                         **(settings or SETTINGS))
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     u = measured.amplitude
     row = {
         "data": path.name,
@@ -78,6 +78,9 @@ def run_one(path: Path, truth: dict, settings: dict | None = None) -> dict:
         "p_before": result.before.p_chi2,
         "p_after": result.after.p_chi2,
         "seconds": seconds,
+        "cpu_seconds": cpu,
+        "verdict": result.verdict,
+        "n_added": len(result.steps),
         "fe_solves": result.baseline.evaluations + sum(c.fit.evaluations for c in result.candidates if c.fit),
     }
     if truth.get("effect"):
@@ -150,7 +153,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{row['data']:22s} first {row['first']}/{row['first_location']}  added {row['added']} "
               f"at {row['location']} = {value} (true {row['true_value']} at {row['true_location']}; "
               f"value error {verr}, location {loc})  error {row['error_before']:.3%} -> {row['error_after']:.3%} "
-              f"(noise floor {row['noise_floor']:.3%})  {row['seconds']:.1f} s, {row['fe_solves']} FE solves",
+              f"(noise floor {row['noise_floor']:.3%})  verdict {row['verdict']} ({row['n_added']} added)  "
+              f"{row['cpu_seconds']:.1f} s CPU, {row['seconds']:.1f} s wall, {row['fe_solves']} FE solves",
               flush=True)
     print(json.dumps(rows, indent=1))
     return 0
@@ -174,20 +178,27 @@ def _distance_mm(model, truth: dict, location: str) -> str:
 
 def _found_text(model, result, truth_effects: list) -> str:
     """Effects in the order added with final values, evidence, distance to a true effect of the same kind."""
+    from fe_core.selection import spread_mm
+
     parts = []
-    for c, a, w in zip(result.steps, result.final.applied, result.weights):
+    for c, a, w, sp in zip(result.steps, result.final.applied, result.weights, result.spreads):
         same = [t for t in truth_effects if t["effect"] == a.effect.kind]
         near = min((_distance_mm(model, t, a.location) for t in same), default="", key=lambda x: (x == "", x))
+        mm = spread_mm(a.effect, a.location, sp) if len(sp) > 1 else None
+        where = f"; {len(sp)} locations hold 95 %" + ("" if mm is None else f", within {mm:.0f} mm") \
+            if len(sp) > 1 else ""
         parts.append(f"{a.effect.kind} {a.location} = {a.values[0]:.4g} {a.effect.units[0]} "
-                     f"(evidence {w:.0%}{near})")
+                     f"(evidence {w:.0%}{near}{where})")
     return "; ".join(parts) or "-"
 
 
-def _rivals_text(result) -> str:
+def _rivals_text(model, result, truth_effects: list) -> str:
     parts = []
     for c, rivals in zip(result.steps, result.rivals):
         for r in rivals:
-            parts.append(f"for {c.effect}: {r.effect} {r.location} = {r.values[0]:.4g} ({r.weight:.0%})")
+            parts.append(f"for {c.effect}: {r.effect} {r.location} = {r.values[0]:.4g} ({r.weight:.0%}"
+                         + "".join(_distance_mm(model, t, r.location) for t in truth_effects
+                                   if t["effect"] == r.effect) + ")")
     return "; ".join(parts) or "-"
 
 
@@ -215,7 +226,7 @@ def table(files: list[str] | None = None) -> int:
         u = measured.amplitude
         bad = "; ".join(f"{c.effect} {c.location} = {c.fit.values[0]:.4g}" for c in result.implausible[:3]) or "-"
         line = (f"| {name} | {_truth_text(truth[name])} | {result.verdict} | "
-                f"{_found_text(model, result, truth[name]['effects'])} | {_rivals_text(result)} | {bad} | "
+                f"{_found_text(model, result, truth[name]['effects'])} | {_rivals_text(model, result, truth[name]['effects'])} | {bad} | "
                 f"{overall_error(result.baseline.relative(u)):.2%} -> {overall_error(result.final.relative(u)):.2%} | "
                 f"{result.before.noise_floor:.2%} | {cpu:.0f} | {seconds:.0f} |")
         lines.append(line)

@@ -204,6 +204,8 @@ class ClosureResult:
     #: Swaps made by the swap passes and moves of earlier effects (joint relocation), as text.
     swaps: list[str] = field(default_factory=list)
     moves: list[str] = field(default_factory=list)
+    #: Per added effect: the locations of its kind holding 95 % of the linearised evidence, with weights.
+    spreads: list[list[tuple[str, float]]] = field(default_factory=list)
 
 
 # -- fitting ------------------------------------------------------------------------------------------
@@ -509,8 +511,8 @@ def scores(rss: float, n_values: int, n_parameters: int, n_locations: int = 1) -
     return float(bic), float(bic + 2.0 * np.log(n_locations))
 
 
-def _relocation_target(model, freqs, fit: Fit, effect: Effect, candidates: list[str], index: int | None = None):
-    """Linearised best move of one fitted effect to one of ``candidates``: (location, values, predicted RSS).
+def _relocation_fits(model, freqs, fit: Fit, effect: Effect, candidates: list[str], index: int | None = None):
+    """Linearised fits of one fitted effect moved to each of ``candidates``: values (L, k) and RSS (L,).
 
     ``index`` is the effect's place in ``fit.applied`` (the newest by default); the other effects
     and alpha are refitted in the prediction.
@@ -524,7 +526,12 @@ def _relocation_target(model, freqs, fit: Fit, effect: Effect, candidates: list[
     # Take the effect away where it is (linear in its values), then add it at the candidate.
     r_moved = r - lin.effect_derivatives(here.effect, here.location) @ here.values
     r_perp = r_moved - q @ (q.T @ r_moved)
-    d, rss = _linear_fits(lin, effect, candidates, r_perp, q)
+    return _linear_fits(lin, effect, candidates, r_perp, q)
+
+
+def _relocation_target(model, freqs, fit: Fit, effect: Effect, candidates: list[str], index: int | None = None):
+    """Linearised best move of one fitted effect to one of ``candidates``: (location, values, predicted RSS)."""
+    d, rss = _relocation_fits(model, freqs, fit, effect, candidates, index)
     k = int(np.argmin(rss))
     return candidates[k], d[k], float(rss[k])
 
@@ -682,7 +689,7 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     return ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
                          sel.final, sel.after, times, sel.steps,
                          verdict(before, sel.after, len(sel.steps), sel.identified), sel.implausible, sel.rounds,
-                         sel.weights, sel.rivals, sel.swaps, sel.moves)
+                         sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads)
 
 
 def __getattr__(name: str):

@@ -188,6 +188,10 @@ class Effect(abc.ABC):
         """Extra facts about a location for reports (coordinates, cells...)."""
         return {}
 
+    def position(self, location: str) -> np.ndarray | None:
+        """Where a location is, shape (3,), m (a node, a band's centroid); None if it has no place."""
+        return None
+
     def diagonal(self, locations: Sequence[str]) -> tuple[str, np.ndarray] | None:
         """For a one-parameter effect whose unit terms are ones on a few diagonal entries of K or M:
         ``("stiffness" | "mass", rows)`` with ``rows`` (len(locations), k) free-DOF indices, -1 padded
@@ -380,6 +384,9 @@ class _NodalEffect(Effect):
         x, y, z = self.model.mesh.nodes[n]
         return {"node": n, "x_m": float(x), "y_m": float(y), "z_m": float(z)}
 
+    def position(self, location) -> np.ndarray | None:
+        return None if self.model.mesh is None else self.model.mesh.nodes[self.node(location)].copy()
+
     def neighbours(self, location) -> list[str]:
         """Candidate nodes sharing a cell with this node (without a mesh: coupled to it in K)."""
         n = self.node(location)
@@ -551,6 +558,9 @@ class ElementBand(Effect):
 
     def alpha_derivative(self, alpha, location, values, index) -> Terms:
         return Terms(stiffness=float(values[0]) * self._matrices[location].segment(index))
+
+    def position(self, location) -> np.ndarray:
+        return self.model.mesh.centroids[self.bands[location]].mean(axis=0)
 
     def describe(self, location) -> dict:
         cells = self.bands[location]

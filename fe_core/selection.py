@@ -36,6 +36,7 @@ from .closure import (
     ALPHA_BOUNDS,
     Candidate,
     Fit,
+    _relocation_fits,
     _relocation_target,
     _start_value,
     check,
@@ -51,7 +52,8 @@ from .closure import (
 from .effects import Effect
 from .residual import ResidualAnalysis, analyse_residual
 
-__all__ = ["Selection", "forward_select", "swap_pass", "refine", "evidence", "IDENTIFIED", "Rival"]
+__all__ = ["Selection", "forward_select", "swap_pass", "refine", "evidence", "location_spread", "spread_mm", "IDENTIFIED",
+           "Rival"]
 
 log = logging.getLogger(__name__)
 
@@ -99,6 +101,7 @@ class Selection:
     rivals: list[list[Rival]] = field(default_factory=list)
     swaps: list[str] = field(default_factory=list)
     moves: list[str] = field(default_factory=list)
+    spreads: list[list[tuple[str, float]]] = field(default_factory=list)
 
     @property
     def identified(self) -> bool:
@@ -130,6 +133,40 @@ def evidence(incumbent: Candidate, rivals: Sequence[Candidate]) -> tuple[float, 
     rivals_out = [Rival(c.effect, c.location, np.asarray(c.fit.values, float), float(c.ebic - incumbent.ebic),
                         share[c.effect]) for c in listed]
     return share[incumbent.effect], rivals_out
+
+
+def location_spread(model, freqs_hz, fit: Fit, index: int, share: float = IDENTIFIED) -> list[tuple[str, float]]:
+    """The locations of one fitted effect's kind that hold ``share`` of the evidence, best first.
+
+    The effect is moved, in the linearisation at the fitted point (alpha and
+    the other effects refitted), to every location of its kind not taken by
+    another effect of that kind; each location is weighed by
+    ``exp(-N ln(RSS) / 2)`` (same parameters, same search: the extended BIC's
+    differences), and the smallest set holding ``share`` of the weight is
+    returned with the weights. A kind with one location gives itself.
+    """
+    a = fit.applied[index]
+    if not _searched(a.effect):
+        return [(a.location, 1.0)]
+    taken = {b.location for i, b in enumerate(fit.applied) if i != index and b.effect.kind == a.effect.kind}
+    locations = [loc for loc in a.effect.locations() if loc not in taken]
+    _, rss = _relocation_fits(model, freqs_hz, fit, a.effect, locations, index=index)
+    n = fit.residual.size
+    e = n * np.log(np.maximum(rss, 1e-300))
+    w = np.exp(-(e - e.min()) / 2.0)
+    w /= w.sum()
+    order = np.argsort(-w)
+    keep = order[: int(np.searchsorted(np.cumsum(w[order]), share)) + 1]
+    return [(locations[k], float(w[k])) for k in keep]
+
+
+def spread_mm(effect: Effect, location: str, spread: Sequence[tuple[str, float]]) -> float | None:
+    """Largest distance, mm, from ``location`` to the locations of a spread (None without positions)."""
+    here = effect.position(location)
+    where = [effect.position(loc) for loc, _ in spread]
+    if here is None or any(p is None for p in where):
+        return None
+    return float(1e3 * max((np.linalg.norm(p - here) for p in where), default=0.0))
 
 
 def _reordered(fit: Fit, order: Sequence[int]) -> Fit:
@@ -383,4 +420,5 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         w, lst = evidence(step, r) if r else (1.0, [])
         weights.append(w)
         listed.append(lst)
-    return Selection(steps, rounds, implausible, current, analysis, weights, listed, swap_log, move_log)
+    spreads = [location_spread(model, freqs, current, j) for j in range(len(steps))]
+    return Selection(steps, rounds, implausible, current, analysis, weights, listed, swap_log, move_log, spreads)

@@ -151,6 +151,10 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
             evidence = f", evidence {e['evidence']:.0%}" if "evidence" in e else ""
             print(f"  {e['step']}. {word}: {e['type']} at {e['location']}, {e['parameter']} = {e['value']:.4g} "
                   f"{e['unit']}, explains {e['explained']:.1%} of the residual then{evidence}", file=file)
+            if e.get("locations_95", 0) > 1:
+                far = f", up to {e['spread_mm']:.0f} mm away" if e.get("spread_mm") is not None else ""
+                print(f"       where: {e['locations_95']} locations of this kind hold 95 % of the evidence{far}",
+                      file=file)
             for r in e.get("rivals", []):
                 print(f"       or {r['type']} at {r['location']} = {r['value']:.4g} {r['unit']} (extended BIC "
                       f"{r['delta_ebic']:+.1f}, evidence {r['evidence']:.0%})", file=file)

@@ -35,7 +35,7 @@ from prefect.cache_policies import NO_CACHE
 
 from fe_core import closure as core
 from fe_core.effects import Applied, build_library, extended_frf, registered_effects
-from fe_core.selection import IDENTIFIED, forward_select
+from fe_core.selection import IDENTIFIED, forward_select, spread_mm
 from fe_core.residual import analyse_residual, log_residual, overall_error, per_sensor_error
 from tasks.runstore import atomic_write_bytes, atomic_write_json
 from tasks.stages import load_model
@@ -55,6 +55,8 @@ log = logging.getLogger(__name__)
 STEP_RECORD = "_step.json"
 #: Candidates listed in closure.json (all of them are in candidates.parquet).
 CANDIDATES_IN_JSON = 25
+#: Locations of an added effect's kind listed with their evidence (of those holding 95 % of it).
+LOCATIONS_IN_JSON = 10
 
 
 def _logger():
@@ -431,13 +433,16 @@ def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, f
     finals = [a.values for a in final.applied] if steps else []
     weights = sel.weights if sel is not None else [1.0] * len(steps)
     rivals = sel.rivals if sel is not None else [[] for _ in steps]
+    spreads = sel.spreads if sel is not None else [[] for _ in steps]
     effects = []
-    for k, (c, v, w, rv) in enumerate(zip(steps, finals, weights, rivals), start=1):
+    for k, (c, v, w, rv, sp) in enumerate(zip(steps, finals, weights, rivals, spreads), start=1):
         entry = {**_effect_entry(c, library, v), "explained": c.explained, "delta_ebic": c.delta_ebic, "step": k,
                  "evidence": w, "identified": bool(w >= IDENTIFIED),
                  "rivals": [{"type": r.effect, "location": r.location, "value": float(r.values[0]),
                              "unit": _unit(library[r.effect], r.location), "delta_ebic": r.delta_ebic,
-                             "evidence": r.weight} for r in rv]}
+                             "evidence": r.weight} for r in rv],
+                 "locations_95": len(sp), "spread_mm": spread_mm(library[c.effect], c.location, sp) if sp else None,
+                 "locations": [{"location": loc, "evidence": wl} for loc, wl in sp[:LOCATIONS_IN_JSON]]}
         effects.append(entry)
     return {"verdict": verdict, "effects": effects,
             "implausible": [{**_effect_entry(c, library), "explained": c.explained} for c in implausible],

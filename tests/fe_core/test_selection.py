@@ -97,3 +97,24 @@ def test_a_point_mass_or_a_stiffer_patch_the_data_cannot_tell_is_ambiguous(bench
     kinds = {c.effect for c in result.steps} | {r.effect for rs in result.rivals for r in rs}
     assert kinds == {"point_mass", "patch"}
     assert min(result.weights) < IDENTIFIED
+
+
+def test_the_location_spread_says_how_far_the_evidence_reaches(benchmark_model):
+    """A damaged patch is pinned to two overlapping patches; a point mass far from the sensors' strong
+    points spreads over tens of nodes (data/effects2, fitted at the true location from the true alpha)."""
+    from fe_core.selection import location_spread, spread_mm
+
+    lib = {e.kind: e for e in build_library(benchmark_model, ["patch", "point_mass"])}
+    spans = {}
+    for name in ("damaged_patch.csv", "far_point_mass.csv"):
+        truth = TRUTH2[name]
+        t = truth["effects"][0]
+        m = read_measured(DATA2 / name)
+        fit = fit_update(benchmark_model, m.frequencies_hz, m.amplitude, truth["alpha"], lib[t["effect"]],
+                         t["location"], [t["value"]])
+        spread = location_spread(benchmark_model, m.frequencies_hz, fit, 0)
+        assert t["location"] in [loc for loc, _ in spread]
+        assert sum(w for _, w in spread) >= 0.95
+        spans[name] = (len(spread), spread_mm(lib[t["effect"]], t["location"], spread))
+    assert spans["damaged_patch.csv"][0] <= 3 and spans["damaged_patch.csv"][1] <= 25.0
+    assert spans["far_point_mass.csv"][0] >= 10 and spans["far_point_mass.csv"][1] >= 40.0
