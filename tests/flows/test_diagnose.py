@@ -58,6 +58,10 @@ def test_the_closure_of_a_reduced_run_names_the_point_mass_and_writes_its_tables
     # Issue 18: the verdict, the effects in the order added, and the FRF of both models.
     assert on_disk["verdict"] == "explained" and [e["type"] for e in on_disk["effects"]] == ["point_mass"]
     assert on_disk["effects"][0]["value"] == pytest.approx(effect["value"], rel=1e-12)
+    # Its kind holds the evidence in its place, and its node is among the locations that hold 95 % of it.
+    first = on_disk["effects"][0]
+    assert first["identified"] and first["evidence"] >= 0.95
+    assert first["location"] in [loc["location"] for loc in first["locations"]] or first["locations_95"] > 10
     frf = pd.read_parquet(closure / on_disk["frf_table"])
     rel = (frf["extended"] - frf["measured"]).abs() / frf["measured"]
     assert rel.mean() == pytest.approx(on_disk["error_after"], rel=1e-9)
