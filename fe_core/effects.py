@@ -42,7 +42,8 @@ Plausibility: every effect's fit box (:meth:`Effect.bounds_at`) is its
 :meth:`Effect.set_limits`. Defaults: a point mass at most 20 % of the
 structure's mass, the sensor masses together at most 20 %, a grounded spring
 at most 1e8 N/m, a sensor gain within +-50 %, factors above -1 (kept off by a
-margin) and at most 10. A fit that ends on such a bound is not a finding
+margin), a band's or patch's stiffness at most doubled (+1), a segment's mass
+factor at most 10. A fit that ends on such a bound is not a finding
 (:func:`fe_core.closure.at_bound`).
 
 Every extension keeps K symmetric positive definite and M positive definite
@@ -525,7 +526,9 @@ class ElementBand(Effect):
     parameters = ("beta",)
     units = ("-",)
     lower = (-1.0,)
-    upper = (10.0,)
+    #: A band more than twice as stiff as the plate it is part of needs material the model lacks (a
+    #: stiffener), not damage or a joint's flexibility: implausible by default (``set_limits`` widens it).
+    upper = (1.0,)
     scale = (0.1,)
     margin = (1e-3,)
 
