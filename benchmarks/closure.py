@@ -194,12 +194,12 @@ def _found_text(model, result, truth_effects: list) -> str:
     from fe_core.selection import spread_mm
 
     parts = []
-    for c, a, w, sp in zip(result.steps, result.final.applied, result.weights, result.spreads):
+    for c, a, w, sp, at in zip(result.steps, result.final.applied, result.weights, result.spreads, result.located):
         same = [t for t in truth_effects if t["effect"] == a.effect.kind]
         near = min((_distance_mm(model, t, a.location) for t in same), default="", key=lambda x: (x == "", x))
         mm = spread_mm(a.effect, a.location, sp) if len(sp) > 1 else None
-        where = f"; {len(sp)} locations hold 95 %" + ("" if mm is None else f", within {mm:.0f} mm") \
-            if len(sp) > 1 else ""
+        where = (f"; {len(sp)} locations hold 95 %" + ("" if mm is None else f", within {mm:.0f} mm")
+                 + ("" if at else ": not located")) if len(sp) > 1 else ""
         parts.append(f"{a.effect.kind} {a.location} = {a.values[0]:.4g} {a.effect.units[0]} "
                      f"(evidence {w:.0%}{near}{where})")
     return "; ".join(parts) or "-"
@@ -239,7 +239,8 @@ def table(files: list[str] | None = None) -> int:
         u = measured.amplitude
         bad = "; ".join(f"{c.effect} {c.location} = {c.fit.values[0]:.4g}" for c in result.implausible[:3]) or "-"
         line = (f"| {name} | {_truth_text(truth[name])} | {result.verdict} | "
-                f"{_found_text(model, result, truth[name]['effects'])} | {_rivals_text(model, result, truth[name]['effects'])} | {bad} | "
+                f"{_found_text(model, result, truth[name]['effects'])} | "
+                f"{_rivals_text(model, result, truth[name]['effects'])} | {bad} | "
                 f"{overall_error(result.baseline.relative(u)):.2%} -> {overall_error(result.final.relative(u)):.2%} | "
                 f"{result.before.noise_floor:.2%} | {cpu:.1f} | {seconds:.0f} |")
         lines.append(line)
@@ -311,8 +312,10 @@ def seeds(n: int, names: list[str] | None = None) -> int:
             result = close_loop(model, F, u, np.zeros(model.n_segments), library, **SETTINGS)
             cpu.append(time.process_time() - c0)
             verdicts.append(result.verdict)
-            found.append(" + ".join(f"{a.effect.kind} {a.location} = {a.values[0]:.3g} ({w:.0%})"
-                                    for a, w in zip(result.final.applied, result.weights)) or "-")
+            found.append(" + ".join(f"{a.effect.kind} {a.location} = {a.values[0]:.3g} ({w:.0%}"
+                                    + ("" if at else ", not located") + ")"
+                                    for a, w, at in zip(result.final.applied, result.weights, result.located))
+                         or "-")
             print(f"{name} seed {1000 + 10 * seed + k}: {result.verdict}: {found[-1]}", flush=True)
         counts = ", ".join(f"{v} {verdicts.count(v)}" for v in dict.fromkeys(verdicts))
         lines.append(f"| {name} | {'; '.join(truth) or 'none'} | {counts} | {' / '.join(found)} | "

@@ -34,8 +34,9 @@ Steps (each a plain function, so a flow can store and resume them one by one):
 6. The verdict: ``noise`` (the residual before was noise, nothing to add),
    ``explained`` (effects were added, the residual after them is noise and
    each effect's kind holds at least 95 % of the evidence among the kinds
-   checked in its place), ``ambiguous`` (noise after, but a rival kind fits
-   about as well: both are listed, neither is a finding), ``partly
+   checked in its place, its location pinned down), ``ambiguous`` (noise
+   after, but a rival kind or a distant location fits about as well: listed,
+   not a finding), ``partly
    explained`` (structure remains: what was added and the best candidates
    are candidates, not findings).
 
@@ -204,8 +205,10 @@ class ClosureResult:
     #: Swaps made by the swap passes and moves of earlier effects (joint relocation), as text.
     swaps: list[str] = field(default_factory=list)
     moves: list[str] = field(default_factory=list)
-    #: Per added effect: the locations of its kind holding 95 % of the linearised evidence, with weights.
+    #: Per added effect: the locations of its kind holding 95 % of the linearised evidence, with weights,
+    #: and whether they lie close together (:func:`fe_core.selection.located`).
     spreads: list[list[tuple[str, float]]] = field(default_factory=list)
+    located: list[bool] = field(default_factory=list)
 
 
 # -- fitting ------------------------------------------------------------------------------------------
@@ -689,7 +692,7 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     return ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
                          sel.final, sel.after, times, sel.steps,
                          verdict(before, sel.after, len(sel.steps), sel.identified), sel.implausible, sel.rounds,
-                         sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads)
+                         sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads, sel.located)
 
 
 def __getattr__(name: str):

@@ -153,13 +153,15 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
                   f"{e['unit']}, explains {e['explained']:.1%} of the residual then{evidence}", file=file)
             if e.get("locations_95", 0) > 1:
                 far = f", up to {e['spread_mm']:.0f} mm away" if e.get("spread_mm") is not None else ""
-                print(f"       where: {e['locations_95']} locations of this kind hold 95 % of the evidence{far}",
-                      file=file)
+                pinned = "" if e.get("located", True) else ": the location is not pinned down"
+                print(f"       where: {e['locations_95']} locations of this kind hold 95 % of the evidence{far}"
+                      f"{pinned}", file=file)
             for r in e.get("rivals", []):
                 print(f"       or {r['type']} at {r['location']} = {r['value']:.4g} {r['unit']} (extended BIC "
                       f"{r['delta_ebic']:+.1f}, evidence {r['evidence']:.0%})", file=file)
         if verdict == "ambiguous":
-            print("  the data cannot tell an added effect from its rivals: none of them is a finding", file=file)
+            print("  the data cannot tell an added effect from its rivals or its place from others far off: "
+                  "none of them is a finding", file=file)
         for s in summary.get("swaps", []):
             print(f"  swapped: {s}", file=file)
         for e in summary.get("implausible", []):

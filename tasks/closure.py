@@ -434,10 +434,11 @@ def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, f
     weights = sel.weights if sel is not None else [1.0] * len(steps)
     rivals = sel.rivals if sel is not None else [[] for _ in steps]
     spreads = sel.spreads if sel is not None else [[] for _ in steps]
+    where = sel.located if sel is not None else [True] * len(steps)
     effects = []
-    for k, (c, v, w, rv, sp) in enumerate(zip(steps, finals, weights, rivals, spreads), start=1):
+    for k, (c, v, w, rv, sp, at) in enumerate(zip(steps, finals, weights, rivals, spreads, where), start=1):
         entry = {**_effect_entry(c, library, v), "explained": c.explained, "delta_ebic": c.delta_ebic, "step": k,
-                 "evidence": w, "identified": bool(w >= IDENTIFIED),
+                 "evidence": w, "located": bool(at), "identified": bool(w >= IDENTIFIED and at),
                  "rivals": [{"type": r.effect, "location": r.location, "value": float(r.values[0]),
                              "unit": _unit(library[r.effect], r.location), "delta_ebic": r.delta_ebic,
                              "evidence": r.weight} for r in rv],
