@@ -193,9 +193,9 @@ def spread_mm(effect: Effect, location: str, spread: Sequence[tuple[str, float]]
 
 
 def located(model, effect: Effect, location: str, spread: Sequence[tuple[str, float]]) -> bool:
-    """The spread of an effect's location is small: one location, or all within :data:`LOCATION_SHARE` of
-    the structure's size of ``location``."""
-    if len(spread) <= 1:
+    """The spread of an effect's location is small: ``location`` alone, or all within :data:`LOCATION_SHARE`
+    of the structure's size of ``location``."""
+    if all(loc == location for loc, _ in spread):
         return True
     far = spread_mm(effect, location, spread)
     if far is None or getattr(model, "mesh", None) is None:

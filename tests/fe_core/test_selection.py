@@ -130,6 +130,7 @@ def test_an_effect_is_located_when_the_evidence_stays_within_five_percent_of_the
     assert 30.0 < 0.05 * size < 35.0
     assert located(benchmark_model, pm, "node 337", near) and not located(benchmark_model, pm, "node 337", far)
     assert located(benchmark_model, pm, "node 337", [("node 337", 1.0)])
+    assert not located(benchmark_model, pm, "node 337", [("node 457", 1.0)])  # the evidence is elsewhere
 
 
 @pytest.mark.slow
