@@ -33,7 +33,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -298,11 +298,11 @@ def _key(fit: Fit, skip: int | None = None) -> frozenset:
 
 
 def _sync(steps: list[Candidate], fit: Fit) -> list[Candidate]:
-    """Steps whose effects moved (by a refinement) take the fit's locations, the old ones in ``moved_from``."""
-    for step, a in zip(steps, fit.applied):
+    """Steps whose effects moved (by a refinement) take the fit's locations, the old ones in ``moved_from``
+    (as copies: the candidates stay as they were ranked in their rounds)."""
+    for k, (step, a) in enumerate(zip(steps, fit.applied)):
         if step.location != a.location:
-            step.moved_from = list(step.moved_from) + [step.location]
-            step.location = a.location
+            steps[k] = replace(step, location=a.location, moved_from=list(step.moved_from) + [step.location])
     return steps
 
 

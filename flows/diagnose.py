@@ -145,11 +145,14 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
     verdict = summary.get("verdict")
     if verdict is not None:
         print(f"verdict: {verdict}", file=file)
-        word = {"explained": "added", "ambiguous": "added, not singled out"}.get(
-            verdict, "candidate (structure remains, not a finding)")
         for e in summary.get("effects", []):
             evidence = f", evidence {e['evidence']:.0%}" if "evidence" in e else ""
-            print(f"  {e['step']}. {word}: {e['type']} at {e['location']}, {e['parameter']} = {e['value']:.4g} "
+            if verdict not in ("explained", "ambiguous"):
+                word = "candidate (structure remains, not a finding)"
+            else:
+                word = "added" if e.get("identified", True) else "added, not singled out"
+            moved = f" (moved from {', '.join(e['moved_from'])})" if e.get("moved_from") else ""
+            print(f"  {e['step']}. {word}: {e['type']} at {e['location']}{moved}, {e['parameter']} = {e['value']:.4g} "
                   f"{e['unit']}, explains {e['explained']:.1%} of the residual then{evidence}", file=file)
             if e.get("locations_95", 0) > 1:
                 far = f", up to {e['spread_mm']:.0f} mm away" if e.get("spread_mm") is not None else ""

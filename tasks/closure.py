@@ -438,6 +438,7 @@ def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, f
     effects = []
     for k, (c, v, w, rv, sp, at) in enumerate(zip(steps, finals, weights, rivals, spreads, where), start=1):
         entry = {**_effect_entry(c, library, v), "explained": c.explained, "delta_ebic": c.delta_ebic, "step": k,
+                 "moved_from": list(c.moved_from),
                  "evidence": w, "located": bool(at), "identified": bool(w >= IDENTIFIED and at),
                  "rivals": [{"type": r.effect, "location": r.location, "value": float(r.values[0]),
                              "unit": _unit(library[r.effect], r.location), "delta_ebic": r.delta_ebic,
