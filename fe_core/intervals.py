@@ -264,7 +264,7 @@ def _log_problem(model, freqs_hz, measured_amplitude, lower, upper):
                          f"({freqs.size}, {model.n_sensors})")
     if not np.all(np.isfinite(u) & (u > 0)):
         raise ValueError("measured amplitudes must be finite and positive (the residual is logarithmic)")
-    m = model.n_segments
+    m = model.n_parameters
     lo = np.broadcast_to(np.asarray(lower, float), (m,)).copy()
     hi = np.broadcast_to(np.asarray(upper, float), (m,)).copy()
     if np.any(lo <= -1.0) or np.any(lo >= hi):
@@ -272,7 +272,7 @@ def _log_problem(model, freqs_hz, measured_amplitude, lower, upper):
     log_u = np.log(u).ravel()
 
     def residual(a):
-        return np.log(np.abs(model.frf(a, freqs))).ravel() - log_u
+        return np.log(np.abs(model.parameter_frf(a, freqs))).ravel() - log_u
 
     return freqs, lo, hi, residual
 
@@ -442,7 +442,7 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     J = log_amplitude_jacobian(model, a, freqs)
     fe_runs, jacobians = 1, 1
     while True:
-        iv = laplace_intervals(r, J, a, noise=noise, level=level, lower=lo, upper=hi,
+        iv = laplace_intervals(r, J, a, names=model.parameter_names, noise=noise, level=level, lower=lo, upper=hi,
                                width_threshold=width_threshold)
         step = np.linalg.lstsq(J, -r, rcond=None)[0]
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -32,12 +32,18 @@ INTERVALS_STAGE = "intervals"
 
 @task(name="intervals", task_run_name="iteration-{iteration}-intervals", cache_policy=NO_CACHE)
 def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measured_amplitude: np.ndarray,
-                   start) -> dict:
-    """Intervals near ``start`` (shape (m,), the run's best parameters); returns the stage record's info.
+                   start, data=None) -> dict:
+    """Intervals near ``start`` (shape (n_parameters,), the run's best parameters); returns the stage record's info.
 
     The info holds the ``summary.json`` fields (``intervals``, ``covariance``,
     ``interval_method``, ``noise_sigma``, ``interval_details``) and the cost
     (``interval_cost``: FE runs, Jacobians, seconds).
+
+    With ``data`` (:class:`tasks.update_data.UpdateData`): the log amplitudes of its
+    channels on the lines where every channel is kept (coherence), through the model
+    seen with the channels' one reference as its load; the phase of complex data is
+    not used here (the intervals' error model is the relative amplitude noise). Data
+    with several references (MIMO) get no intervals: ``{"skipped": reason}``.
     """
     store = RunStore(root)
     logger = stages._logger()
@@ -49,7 +55,15 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
         logger.info("iteration %d, stage intervals: noise changed from %s to %s, computed again", iteration,
                     info.get("noise_config"), config.noise)
     model = stages.load_model(config.model)
-    m = model.n_segments
+    if data is not None:
+        try:
+            model = data.single_reference_model(model)
+        except ValueError as exc:
+            logger.warning("iteration %d, stage intervals: skipped: %s", iteration, exc)
+            return {"skipped": str(exc)}
+        lines = data.complete_lines
+        freqs_hz, measured_amplitude = data.frequencies_hz[lines], data.amplitude[lines]
+    m = model.n_parameters
     lower, upper = stages.parameter_box(config, m)
     lower = np.maximum(lower, polish_lower_bound(-1.0))
     t0 = time.perf_counter()
@@ -57,7 +71,7 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
                                   noise=config.noise)
     seconds = time.perf_counter() - t0
     iv = refined.intervals
-    cols = stages.param_columns(m)
+    cols = model.parameter_names
     table = pd.DataFrame({"parameter": cols, "start": refined.start, "estimate": iv.estimate, "low": iv.low,
                           "high": iv.high, "std": iv.std, "unpinned": iv.unpinned, "near_bound": iv.near_bound})
     for j, c in enumerate(cols):
