@@ -22,6 +22,23 @@ The Galerkin projection reproduces any field inside its space, so with both
 the primal and the dual solutions converged in ``V`` the derivative is that
 of the FE model to the space's convergence (compared against central
 differences of the direct solver in ``tests/fe_core/test_adjoint.py``).
+
+The space is the same one :func:`fe_core.frf_derivatives.krylov_frf_derivatives`
+differentiates on, grown by the same builder (:class:`fe_core.frf.BlockKrylov`,
+the only one in the code base). Two front-ends remain because they answer
+different questions: ``krylov_frf_derivatives`` takes its directions
+(:class:`fe_core.frf_derivatives.Direction`) before the space is built and
+grows the space until the derivatives along them stop changing, which suits a
+Jacobian over a fixed parameter list; this class builds the space once,
+converged on the responses to the load *and* to the sensor loads at the
+outputs (the primal and dual fields the derivative is made of), and keeps its
+modal coordinates, so that changes not known in advance are differentiated
+afterwards at the price of a row-sparse projection: the closure screens
+hundreds of candidate effects per fit (:meth:`diagonal_dlog`), and the sensor
+gains enter ``ln|Z|`` directly. ``dlog`` takes the four parts of a
+``Direction`` (``fe_core.effects.Terms`` has them) and a gain change.
+One reduced-model object serving both (space plus modal coordinates) is the
+next step.
 """
 
 from __future__ import annotations
