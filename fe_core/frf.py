@@ -21,7 +21,9 @@ Two solvers with one signature:
     responses at all requested frequencies stop changing to ``rtol``
     entry-wise, so the result carries its own convergence check. The reduced
     pencil is diagonalised once, after which any number of frequencies costs
-    a few small matrix products.
+    a few small matrix products. The space is grown by :class:`BlockKrylov`,
+    the one builder that :mod:`fe_core.frf_derivatives` and
+    :mod:`fe_core.adjoint` use as well.
 
     The factorisation at ``sigma = 0`` (K positive-definite) is a LAPACK banded
     Cholesky when the bandwidth is small (the structured meshes here number
