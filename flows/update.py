@@ -192,11 +192,33 @@ def _interval_fields(config, store, iteration, measured, summary) -> dict:
     info = intervals_task(str(store.root), config, iteration, measured.frequencies_hz, measured.amplitude, start)
     fields = {k: info[k] for k in ("intervals", "covariance", "interval_method", "noise_sigma", "interval_details",
                                    "interval_cost")}
+    fields["interval_cost"] = {**info["interval_cost"], **_cost_against_update(store, iteration, summary,
+                                                                               info["interval_cost"]["seconds"])}
     if config.true_parameters is not None:
         truth = dict(zip(summary["parameters"], config.true_parameters))
         fields["intervals_contain_truth"] = {n: lo is not None and lo <= truth[n] <= hi
                                              for n, (lo, hi) in info["intervals"].items()}
     return fields
+
+
+def _cost_against_update(store: RunStore, iteration: int, summary: dict, seconds: float) -> dict:
+    """The intervals' time in FE runs of this update (the median FE run of the loop) and as a share of the
+    update's FE runs: ``fe_run_seconds``, ``fe_run_equivalents``, ``share_of_update_fe_runs``."""
+    per_run = []
+    for k in range(1, iteration + 1):
+        try:
+            fe = store.read_table(k, "fe")
+        except Exception:  # an iteration without a readable FE table: measure on the others
+            continue
+        per_run.append(fe.groupby("sample_id")["seconds"].first().to_numpy())
+    if not per_run or not np.concatenate(per_run).size:
+        return {}
+    fe_run = float(np.median(np.concatenate(per_run)))
+    if not fe_run > 0:
+        return {}
+    equivalents = seconds / fe_run
+    return {"fe_run_seconds": round(fe_run, 4), "fe_run_equivalents": round(equivalents, 2),
+            "share_of_update_fe_runs": round(equivalents / max(1, summary["fe_evaluations"]), 4)}
 
 
 def uses_polish(config: UpdateConfig) -> bool:
@@ -450,9 +472,16 @@ def interval_sentences(summary: dict) -> list[str]:
     """How the intervals were made, and a sentence per parameter the data do not pin down or that meets a bound."""
     d = summary["interval_details"]
     cost = summary["interval_cost"]
+    spent = (f"{cost['jacobians']} exact Jacobian" + (" (with its FRF)" if cost["jacobians"] == 1
+                                                       else "s (with their FRFs)"))
+    if cost.get("fe_runs"):
+        spent += f" and {cost['fe_runs']} FE runs"
+    if "fe_run_equivalents" in cost:
+        spent += (f", {cost['seconds']:.2f} s = the time of {cost['fe_run_equivalents']:.1f} FE runs "
+                  f"({100 * cost['share_of_update_fe_runs']:.1f} % of the update's {summary['fe_evaluations']})")
     lines = [f"95 % intervals: {summary['interval_method']} (Gauss-Newton) at the least-squares optimum of the log "
              f"amplitudes, noise {100 * summary['noise_sigma']:.3g} % ({d['noise_source']}, {d['distribution']} "
-             f"quantile {d['quantile']:.3f}); cost {cost['fe_runs']} FE runs and {cost['jacobians']} exact Jacobians"]
+             f"quantile {d['quantile']:.3f}); cost {spent}"]
     if not cost["at_optimum"]:
         lines.append("warning: the Gauss-Newton steps did not settle at the optimum; the intervals are approximate")
     return lines + d["flags"]

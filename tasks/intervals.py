@@ -1,7 +1,7 @@
 """The intervals stage: 95 % intervals and the covariance of the updated parameters.
 
 After the polish, :func:`fe_core.intervals.parameter_intervals` takes
-Gauss-Newton steps with the exact adjoint Jacobian from the run's best
+Gauss-Newton steps with the exact Jacobian (Krylov, with its FRF) from the run's best
 parameters to the least-squares optimum of the log-amplitude residual and
 computes the Laplace intervals there (noise from ``config.noise`` or
 estimated from the residual). Written to
@@ -37,7 +37,8 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
 
     The info holds the ``summary.json`` fields (``intervals``, ``covariance``,
     ``interval_method``, ``noise_sigma``, ``interval_details``) and the cost
-    (``interval_cost``: FE runs, Jacobians, seconds).
+    (``interval_cost``: Jacobians, FE runs besides them, seconds; the flow adds the
+    cost in FE runs of the update).
     """
     store = RunStore(root)
     logger = stages._logger()
@@ -69,8 +70,8 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
                               "last_step_in_std": (refined.last_step_in_std if np.isfinite(refined.last_step_in_std)
                                                    else None)}}
     store.finish(iteration, INTERVALS_STAGE, [INTERVALS_STAGE], info)
-    logger.info("iteration %d, stage intervals: %s noise %.3g %%, %d FE runs and %d Jacobians (%.1f s)", iteration,
-                iv.noise_source, 100 * iv.noise_sigma, refined.fe_runs, refined.jacobians, seconds)
+    logger.info("iteration %d, stage intervals: %s noise %.3g %%, %d exact Jacobians with their FRF (%.2f s)",
+                iteration, iv.noise_source, 100 * iv.noise_sigma, refined.jacobians, seconds)
     for line in iv.flag_lines():
         logger.warning(line)
     return store.stage_info(iteration, INTERVALS_STAGE)

@@ -179,10 +179,16 @@ def intervals_section(data: RunData, out: Path) -> Section | None:
         table["true"] = truth
         table["contains truth"] = (low <= truth) & (truth <= high)
     cost = s.get("interval_cost", {})
+    spent = f"{cost.get('jacobians', '?')} exact Jacobian(s), each with its FRF"
+    if cost.get("fe_runs"):
+        spent += f" and {cost['fe_runs']} FE runs"
+    if "fe_run_equivalents" in cost:
+        spent += (f" ({cost['seconds']:.2f} s, the time of {cost['fe_run_equivalents']:.1f} FE runs: "
+                  f"{100 * cost['share_of_update_fe_runs']:.1f} % of the update's {s.get('fe_evaluations', '?')})")
     paragraphs = [f"Laplace (Gauss-Newton) approximation at the least-squares optimum of the log amplitudes, "
                   f"noise {100 * s['noise_sigma']:.3g} % ({d['noise_source']}; {d['distribution']} quantile "
-                  f"{d['quantile']:.3f}); cost {cost.get('fe_runs', '?')} FE runs and {cost.get('jacobians', '?')} "
-                  "exact Jacobians. The coverage of these intervals is checked in docs/coverage.md.", *d["flags"]]
+                  f"{d['quantile']:.3f}); cost {spent}. The coverage of these intervals is checked in "
+                  "docs/coverage.md.", *d["flags"]]
     return Section(title="How sure: parameter intervals", paragraphs=paragraphs,
                    tables=[("95 % intervals", table)], figures=[(fig, "Marginal posteriors and correlations")])
 
