@@ -49,6 +49,12 @@ def run_intro(data: RunData) -> list[str]:
         + (f" ({len(data.polish)} of them in the polish stage)" if data.polish is not None else "") + "; "
         f"reported overall error {err:.3%}" + (f" (sample {sid})" if sid >= 0 else "") + ".",
     ]
+    lowest = (data.summary or {}).get("lowest_error")
+    if lowest:
+        lines.append(f"Reported parameters: {data.summary.get('parameters_source')}; the FE run with the lowest "
+                     f"overall error (sample {lowest.get('sample_id')}, {lowest['overall_error']:.3%}) is kept in "
+                     "summary.json's lowest_error (docs/estimators.md: the optimum is the better estimate on noisy "
+                     "data).")
     if data.summary:
         lines.append(f"Stop reason: {data.summary.get('stop_reason', '?')}; "
                      f"{'converged' if data.summary.get('converged') else 'not converged'}; "

@@ -19,7 +19,9 @@ from tasks.runstore import RunStore
 
 def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_recomputes_them(reduced_config,
                                                                                           prefect_harness):
-    config = reduced_config.replace(intervals=True, noise=0.002, true_parameters=ALPHA_ACTUAL.tolist())
+    # posterior_fe = 0: the Laplace intervals whatever the check would say (the sampled path: the next test)
+    config = reduced_config.replace(intervals=True, noise=0.002, true_parameters=ALPHA_ACTUAL.tolist(),
+                                    posterior_fe=0)
     summary = update.update_flow(config)
     root = Path(config.runs_dir) / config.run_id
     on_disk = json.loads((root / "summary.json").read_text())
@@ -60,6 +62,21 @@ def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_recompu
     assert noisier["noise_sigma"] == 0.004
     np.testing.assert_allclose(np.array(noisier["covariance"]), 4 * cov, rtol=1e-9)
 
+    # The sampled path on the same run (a changed posterior_fe recomputes the stage): the reduced run ends
+    # far from the optimum, flagged parameters fail the linearity check, 40 FE runs sample the posterior.
+    sampled = update.update_flow(config.replace(noise=0.004, posterior_fe=40))
+    d = sampled["interval_details"]
+    assert sampled["interval_method"] == "importance sampling" and d["method_reason"].startswith("importance")
+    assert d["posterior"]["fe_runs"] == 40 and d["linearity"]["poor"]
+    assert sampled["interval_cost"]["posterior_fe_runs"] == 40
+    assert sampled["interval_cost"]["fe_runs"] == 40 + d["linearity"]["fe_runs"]
+    low, high = np.array([sampled["intervals"][n] for n in names]).T
+    assert np.all(low >= -1.0) and np.all(high <= 1.0) and np.all(low <= high)  # on the search box
+    assert d["laplace"]["intervals"] == noisier["intervals"]  # the Laplace ones kept beside
+    out = io.StringIO()
+    update.print_summary(sampled, file=out)
+    assert "importance sampling of the posterior" in out.getvalue() and "why: importance" in out.getvalue()
+
 
 def test_noise_key_is_validated_and_reaches_the_config(tmp_path):
     assert load_config(None, noise=0.005).noise == 0.005
@@ -93,3 +110,29 @@ def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(t
     assert any("alpha_3 is not pinned down" in p for p in section.paragraphs)
     assert any("alpha_2's 95% interval" in p and "crosses a bound" in p for p in section.paragraphs)
     assert intervals_section(SimpleNamespace(summary={"parameters": {}}, config={}), tmp_path) is None
+
+
+def test_the_least_squares_optimum_is_reported_and_the_lowest_error_run_kept_beside_it():
+    names = ["alpha_1", "alpha_2"]
+    summary = {"parameters": {"alpha_1": 0.10, "alpha_2": -0.20}, "overall_error": 0.0071, "best_sample_id": 42,
+               "per_sensor_error": {"sensor_1": 0.006, "sensor_3": 0.008},
+               "parameter_errors": {"alpha_1": 0.02, "alpha_2": 0.01},
+               "interval_details": {"estimate": {"alpha_1": 0.11, "alpha_2": -0.19}},
+               "estimate_errors": {"overall_error": 0.0072, "per_sensor_error": [0.0065, 0.0079], "at_optimum": True}}
+    out = update.report_least_squares_optimum(summary, [1, 3], truth=[0.12, -0.21])
+    assert out["parameters"] == {"alpha_1": 0.11, "alpha_2": -0.19}
+    assert out["parameters_source"] == update.LEAST_SQUARES_SOURCE and "estimate_errors" not in out
+    assert out["overall_error"] == 0.0072 and out["per_sensor_error"] == {"sensor_1": 0.0065, "sensor_3": 0.0079}
+    assert out["parameter_errors"] == pytest.approx({"alpha_1": 0.01, "alpha_2": 0.02})
+    low = out["lowest_error"]
+    assert low["parameters"] == summary["parameters"] and low["overall_error"] == 0.0071 and low["sample_id"] == 42
+    assert low["parameter_errors"] == summary["parameter_errors"] and out["best_sample_id"] == 42
+    text = io.StringIO()
+    update.print_summary({**out, "run_folder": "x", "strategy": "adaptive", "trainer": "gradient", "converged": True,
+                          "iterations": 2, "fe_evaluations": 100, "wall_seconds": 1.0}, file=text)
+    assert "at the reported parameters, the least-squares optimum" in text.getvalue() and "lowest 6b" in text.getvalue()
+    # Gauss-Newton not settled: the lowest-error run stays, and the summary says why
+    kept = update.report_least_squares_optimum({**summary, "estimate_errors": {**summary["estimate_errors"],
+                                                                               "at_optimum": False}}, [1, 3])
+    assert kept["parameters"] == summary["parameters"] and "lowest_error" not in kept
+    assert "did not settle" in kept["parameters_source"] and names == list(kept["parameters"])
