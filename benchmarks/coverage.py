@@ -17,7 +17,7 @@ For each noise level (0.5 % and 1 % by default) and each data set k:
   (:func:`fe_core.intervals.fit_log_amplitudes`), started at the truth plus a
   uniform offset of +-``START_OFFSET`` per parameter (in the truth's basin: the
   question is the interval, not the search, which the update answers), with
-  the exact adjoint Jacobian (scipy's trust region reflective); a fit whose
+  the exact Jacobian (Krylov, :mod:`fe_core.frf_derivatives`; scipy's trust region reflective); a fit whose
   cost is above the truth's is counted as a failed search and reported;
 * the 95 % Laplace intervals (:func:`fe_core.intervals.laplace_intervals`)
   with the noise estimated from the residual (Student t, ``N - m`` dof: what a
@@ -148,8 +148,8 @@ def main(argv: list[str] | None = None) -> int:
     tab = table(runs)
     per_set = runs.drop_duplicates(["noise", "dataset"])
     cost = (f"Per data set: the fit took a median of {per_set['fe_runs'].median():.0f} FE runs (Krylov FRFs) and "
-            f"{per_set['jacobians'].median():.0f} exact Jacobians; the interval itself costs one adjoint Jacobian "
-            f"(one complex LU per frequency with 1 + 6 right-hand sides) at the optimum. Median "
+            f"{per_set['jacobians'].median():.0f} exact Jacobians; the interval itself costs one exact Jacobian "
+            f"(Krylov projection with the adjoint, about 2 FE runs of time) at the optimum. Median "
             f"{per_set['seconds'].median():.2f} s per fit (2 busy cores shared with other work).")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     text = markdown(tab)
     setup = (f"Coverage of the 95 % Laplace intervals (fe_core.intervals) on synthetic data sets: true alpha uniform "
              f"in [-{TRUTH_RANGE}, {TRUTH_RANGE}]^6, amplitudes |Z(alpha)| (1 + sigma e) from the direct-solver FRF "
-             f"of the fitted FE model, least squares of the log amplitudes with the exact adjoint Jacobian started "
+             f"of the fitted FE model, least squares of the log amplitudes with the exact Jacobian started "
              f"at the truth + U(-{START_OFFSET}, {START_OFFSET}). Row 'estimated': sigma from the residual, "
              f"||r||^2 / (N - m), Student t with N - m = 66 dof (what a run without --noise reports); row 'given': "
              f"the true sigma, normal quantile. 'all 6 covered': data sets whose six intervals all contain the "

@@ -87,6 +87,9 @@ def test_noise_key_is_validated_and_reaches_the_config(tmp_path):
     bad.write_text('noise = "1 %"\n')
     with pytest.raises(ConfigError, match="bad.toml: key 'noise' must be int or float"):
         load_config(bad)
+    assert UpdateConfig().posterior_fe == 400 and load_config(None, posterior_fe=0).posterior_fe == 0
+    with pytest.raises(ConfigError, match="command line: key 'posterior_fe'"):
+        load_config(None, posterior_fe=-1)
     bad.write_text("noise = 1.5\n")
     with pytest.raises(ConfigError, match=r"bad.toml: key 'noise': must be a relative amplitude noise in \(0, 1\)"):
         load_config(bad)
