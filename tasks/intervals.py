@@ -13,7 +13,8 @@ the summary says which method was used and why
 (``interval_details.method_reason``). Written to
 ``iteration=<K>/stage=intervals/intervals.parquet`` (one row per parameter:
 estimate, interval, standard deviation, the covariance row, the Laplace
-interval) with the summary fields in the stage record; a resumed run reads
+interval; ``posterior.parquet``: the sampled points and their weights, when
+sampled) with the summary fields in the stage record; a resumed run reads
 them back unless ``noise`` or ``posterior_fe`` changed (the settings a resume
 may change that the intervals depend on).
 """
@@ -33,9 +34,11 @@ from tasks import stages
 from tasks.polish import polish_lower_bound
 from tasks.runstore import RunStore
 
-__all__ = ["INTERVALS_STAGE", "intervals_task"]
+__all__ = ["INTERVALS_STAGE", "POSTERIOR_TABLE", "intervals_task"]
 
 INTERVALS_STAGE = "intervals"
+#: The sampled posterior's FE-evaluated points and normalised weights (when it was used).
+POSTERIOR_TABLE = "posterior"
 
 
 @task(name="intervals", task_run_name="iteration-{iteration}-intervals", cache_policy=NO_CACHE)
@@ -80,6 +83,11 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
     for j, c in enumerate(cols):
         table[f"cov_{c}"] = reported[:, j]
     store.write_table(iteration, INTERVALS_STAGE, INTERVALS_STAGE, table)
+    names = [INTERVALS_STAGE]
+    if post is not None:  # the weighted samples, for the report's marginal posteriors
+        samples = pd.DataFrame(post.samples, columns=cols).assign(weight=post.weights)
+        store.write_table(iteration, INTERVALS_STAGE, POSTERIOR_TABLE, samples)
+        names.append(POSTERIOR_TABLE)
     fe_runs = refined.fe_runs + (check.fe_runs if check is not None else 0) + (post.fe_runs if post else 0)
     # The paper's errors at the least-squares optimum, from its log residual (no FE run): (|Z| - u) / u = e^r - 1.
     rel = np.expm1(refined.residual)
@@ -95,7 +103,7 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
                                                    else None),
                               "check_fe_runs": check.fe_runs if check is not None else 0,
                               "posterior_fe_runs": post.fe_runs if post else 0}}
-    store.finish(iteration, INTERVALS_STAGE, [INTERVALS_STAGE], info)
+    store.finish(iteration, INTERVALS_STAGE, names, info)
     logger.info("iteration %d, stage intervals: %s; %s noise %.3g %%, %d exact Jacobians with their FRF and %d FE "
                 "runs (%.2f s)", iteration, fields["interval_method"], iv.noise_source, 100 * iv.noise_sigma,
                 refined.jacobians, fe_runs, seconds)

@@ -179,7 +179,15 @@ def intervals_section(data: RunData, out: Path) -> Section | None:
     high = arr(s["intervals"][n][1] if s["intervals"][n][1] is not None else np.inf for n in names)
     corr = np.array([[np.nan if v is None else v for v in row] for row in d["correlation"]], float)
     truth = data.true_parameters
-    fig = figures.plot_intervals(names, est, std, low, high, corr, out / "intervals.png", truth, _bounds(data))
+    samples = weights = laplace_std = None
+    path = (None if s.get("interval_method", "laplace") == "laplace" else
+            Path(data.root) / f"iteration={s.get('iterations')}" / "stage=intervals" / "posterior.parquet")
+    if path is not None and path.exists():  # a sampled posterior: draw its marginals
+        post = pd.read_parquet(path)
+        samples, weights = post[names].to_numpy(), post["weight"].to_numpy()
+        laplace_std = arr(d["laplace"]["std"][n] for n in names) if "laplace" in d else None
+    fig = figures.plot_intervals(names, est, std, low, high, corr, out / "intervals.png", truth, _bounds(data),
+                                 samples=samples, weights=weights, laplace_std=laplace_std)
     table = pd.DataFrame({"parameter": names, "estimate": est, "low (95 %)": low, "high (95 %)": high, "std": std})
     if truth is not None:
         table["true"] = truth
@@ -191,10 +199,14 @@ def intervals_section(data: RunData, out: Path) -> Section | None:
     if "fe_run_equivalents" in cost:
         spent += (f" ({cost['seconds']:.2f} s, the time of {cost['fe_run_equivalents']:.1f} FE runs: "
                   f"{100 * cost['share_of_update_fe_runs']:.1f} % of the update's {s.get('fe_evaluations', '?')})")
-    paragraphs = [f"Laplace (Gauss-Newton) approximation at the least-squares optimum of the log amplitudes, "
-                  f"noise {100 * s['noise_sigma']:.3g} % ({d['noise_source']}; {d['distribution']} quantile "
+    how = ("Laplace (Gauss-Newton) approximation at the least-squares optimum of the log amplitudes"
+           if s.get("interval_method", "laplace") == "laplace" else
+           f"{s['interval_method'].capitalize()} of the posterior on the FE model around the least-squares "
+           "optimum (bars: the weighted samples; dashed: the Laplace approximation it replaced)")
+    paragraphs = [f"{how}, noise {100 * s['noise_sigma']:.3g} % ({d['noise_source']}; {d['distribution']} quantile "
                   f"{d['quantile']:.3f}); cost {spent}. The coverage of these intervals is checked in "
-                  "docs/coverage.md.", *d["flags"]]
+                  "docs/coverage.md and docs/posterior.md.", *([f"Why: {d['method_reason']}"] if "method_reason" in d
+                                                               else []), *d["flags"]]
     return Section(title="How sure: parameter intervals", paragraphs=paragraphs,
                    tables=[("95 % intervals", table)], figures=[(fig, "Marginal posteriors and correlations")])
 

@@ -114,6 +114,32 @@ def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(t
     assert any("alpha_2's 95% interval" in p and "crosses a bound" in p for p in section.paragraphs)
     assert intervals_section(SimpleNamespace(summary={"parameters": {}}, config={}), tmp_path) is None
 
+    # A sampled posterior: its weighted samples are drawn from the stage's posterior.parquet.
+    import pandas as pd
+
+    from fe_core.posterior import LinearityCheck, Posterior, sampled_summary
+
+    names = iv.names
+    X = iv.estimate + 0.01 * rng.normal(size=(200, 3))
+    w = np.full(200, 1 / 200)
+    post = Posterior(names=names, mean=X.mean(0), covariance=np.cov(X.T), low=X.min(0), high=X.max(0), level=0.95,
+                     samples=X, weights=w, ess=200.0, fe_runs=200, outside_box=3)
+    check = LinearityCheck(names=names, checked=np.array([False, True, False]), ratio=np.full((3, 2), np.nan),
+                           outside=np.array([[False, False], [False, True], [False, False]]), tolerance=0.25,
+                           fe_runs=1)
+    sampled = {**sampled_summary(iv, check, post, 200), "interval_cost": {"fe_runs": 201, "jacobians": 1},
+               "iterations": 2}
+    folder = tmp_path / "run" / "iteration=2" / "stage=intervals"
+    folder.mkdir(parents=True)
+    pd.DataFrame(X, columns=names).assign(weight=w).to_parquet(folder / "posterior.parquet")
+    out = tmp_path / "sampled"
+    out.mkdir()
+    section = intervals_section(SimpleNamespace(summary=sampled, true_parameters=None, config={},
+                                                root=tmp_path / "run"), out)
+    assert (out / "intervals.png").stat().st_size > 10_000
+    assert section.paragraphs[0].startswith("Importance sampling of the posterior")
+    assert any(p.startswith("Why: importance sampling: alpha_2's interval crosses") for p in section.paragraphs)
+
 
 def test_the_least_squares_optimum_is_reported_and_the_lowest_error_run_kept_beside_it():
     names = ["alpha_1", "alpha_2"]
