@@ -42,7 +42,7 @@ from tasks.runstore import RunStore  # noqa: E402
 def stage_time(config: UpdateConfig) -> tuple[float, pd.DataFrame]:
     """Wall time of one FE stage (iteration 1) in a fresh run folder, and its FE table."""
     root = str(Path(config.runs_dir) / config.run_id)
-    m = stages.load_model(config.model).n_segments
+    m = stages.load_model(config.model).n_parameters
     stages.samples_task.fn(root, config, 1, m)
     t0 = time.perf_counter()
     ran = stages.fe_task.fn(root, config, 1, np.asarray(MEASUREMENT_FREQUENCIES_HZ, float))

@@ -5,8 +5,10 @@
 The mesh is :func:`fe_core.benchmark.three_plate`'s hex8 mesh, written with meshio as
 Abaqus input (17 significant digits) with the element sets ``plate1..3`` and
 ``segment1..6`` and the node sets ``clamped`` and ``top``. The model file names the
-sensors by the SPEC's positions (points, nearest node) and the combined excitation
-(a unit z force at each sensor), so reading it goes through the general path
+sensors by the SPEC's positions (points, nearest node) with test nodes 1..6 and two
+excitations: the combined one (a unit z force at each sensor; the default, the SPEC's
+load) and a hammer at sensor 5 (test node 5, for ``data/benchmark/hammer.uff``), so
+reading it goes through the general path
 (:func:`fe_core.io.read_model`); ``tests/fe_core/test_model_file.py`` checks that
 its FRF equals ``three_plate()``'s.
 """
@@ -21,6 +23,9 @@ import meshio
 from fe_core import benchmark as b
 
 OUT = Path(__file__).resolve().parents[1] / "data" / "benchmark"
+#: The sensor whose point and direction (u_z) the hammer hits: s5 has the largest driving-point
+#: response of the second mode (291 Hz) and a strong first mode.
+HAMMER_SENSOR = 5
 
 
 def model_toml(mesh_name: str) -> str:
@@ -32,6 +37,7 @@ def model_toml(mesh_name: str) -> str:
         'units = "SI"',
         f'mesh = "{mesh_name}"',
         "point_tolerance = 1e-6  # m: the sensors sit on nodes",
+        'excitation = "combined"  # drives the FRF of data without a reference (sensor columns, UFF ref node 0)',
         "",
         "[damping]",
         f"a = {b.DAMPING[0]!r}  # 1/s",
@@ -50,10 +56,14 @@ def model_toml(mesh_name: str) -> str:
         lines += ["[[segments]]", f'set = "segment{s}"', ""]
     lines += ["[[supports]]", 'nodes = "clamped"', 'fix = ["x", "y", "z"]', ""]
     for j, p in enumerate(points, start=1):
-        lines += ["[[sensors]]", f'name = "s{j}"', f"point = {p}", 'direction = "z"', ""]
+        lines += ["[[sensors]]", f'name = "s{j}"', f"point = {p}", 'direction = "z"',
+                  f"test_node = {j}  # the test's node id (UFF58), direction +z", ""]
     lines += ["[[excitations]]", 'name = "combined"  # a unit force along z at every sensor, in phase', "dofs = ["]
     lines += [f'  {{ point = {p}, direction = "z", weight = 1.0 }},' for p in points]
     lines += ["]", ""]
+    lines += ["[[excitations]]", f'name = "hammer"  # an impact hammer at sensor s{HAMMER_SENSOR}\'s point along z '
+              "(data/benchmark/hammer.uff)", f"point = {points[HAMMER_SENSOR - 1]}", 'direction = "z"',
+              f"test_node = {HAMMER_SENSOR}", ""]
     return "\n".join(lines)
 
 

@@ -11,10 +11,10 @@ heads clamp the foot around them). Fixing the whole underside instead
 hardly deform in the first modes and could not be updated; a base that only touches
 the foot is contact, which a linear model leaves out.
 
-Six sensors look at the web, the ribs and the foot in x, y, z and along the rib's
-normal (the first modes rock the bracket about the bolt line in x, sway it in y and
-twist it); one hammer hit at the web's free vertical edge, along (1, 1, 0)/sqrt(2),
-drives the symmetric (x) and antisymmetric (y, twist) mode families at once.
+Six sensors (``SENSORS``, placed by ``python -m benchmarks.bracket_sensors``) look at the web
+in x, y and z and at both ribs along their hypotenuse's normal and the right one in y (the
+first modes rock the bracket about the bolt line in x, sway it in y and twist it); one hammer
+hit at the web's free vertical edge, along (1, 1, 0)/sqrt(2), drives the symmetric (x) and antisymmetric (y, twist) mode families at once.
 
 ``measured.csv`` is the FRF of the **fine** mesh (``make_mesh.py --fine``, 105,114 DOFs,
 regenerated here when missing; an independent discretisation: other element size,
@@ -51,14 +51,18 @@ SEED = 3
 N_MODES = 5
 #: Measured frequencies per mode, relative to its natural frequency (the peak and both flanks).
 WINDOW = (0.95, 1.0, 1.05)
-#: (name, point [m], direction): the sensors, in the measured data's order.
+#: (name, point [m], direction): the sensors, in the measured data's order. Chosen by
+#: ``python -m benchmarks.bracket_sensors`` (docs/bracket-sensors.md): of 24 candidates, the six that leave the
+#: smallest predicted parameter error from the discretisation residual and the noise, with both ribs' normals.
+#: (The first layout, u_x/u_y at the web's top corners, u_x mid-web, u_y on the left rib, the right rib's normal
+#: and u_z on the foot, left web_lower and the ribs on a weak combination: predicted bias -0.10/+0.09/+0.07.)
 SENSORS = (
-    ("web top x", [0.0, 0.0, 0.12], '"x"'),
-    ("web top y", [0.01, 0.08, 0.12], '"y"'),
-    ("web middle x", [0.0, 0.04, 0.08], '"x"'),
-    ("rib left y", [0.03, 0.0, 0.03], '"y"'),
+    ("web top z", [0.005, 0.04, 0.12], '"z"'),
+    ("web lower x", [0.0, 0.04, 0.04], '"x"'),
+    ("web lower y", [0.005, 0.0, 0.04], '"y"'),
+    ("rib left normal", [0.035, 0.004, 0.035], "[1.0, 0.0, 1.0]"),
     ("rib right normal", [0.035, 0.076, 0.035], "[1.0, 0.0, 1.0]"),
-    ("foot z", [0.06, 0.04, 0.01], '"z"'),
+    ("rib right y", [0.03, 0.08, 0.03], '"y"'),
 )
 HAMMER = ("hammer", [0.0, 0.0, 0.11], "[1.0, 1.0, 0.0]")
 #: Nearest-node tolerance, m, per mesh: about half the element size near the points.

@@ -10,6 +10,11 @@ benchmark update when its run is missing):
    ``model.toml`` when there is one, else one written here (six segments, bolted at the holes,
    three sensors and a hammer on the web): ``docs/mesh-bracket.png`` and the times of each step,
    written to ``docs/mesh-pictures.md``.
+
+``python -m benchmarks.mesh_pictures --bracket-run <id>`` instead draws the updated factors of a finished
+update run of the bracket example (``python -m flows.update --model data/examples/bracket/model.toml ...``,
+minutes, so not started here) on its mesh, ``docs/mesh-bracket-factors.png``, and that model's segments,
+sensors and hammer, ``docs/mesh-bracket.png``.
 """
 
 from __future__ import annotations
@@ -99,6 +104,30 @@ def benchmark_pictures(run_id: str, runs_dir: Path) -> dict:
     return {"run": run_id, "alpha": alpha.round(4).tolist(), "overall_error": summary["overall_error"]}
 
 
+def bracket_run_factors(run_id: str, runs_dir: Path) -> dict:
+    """docs/mesh-bracket-factors.png: the updated factors of the bracket run ``run_id``, and docs/mesh-bracket.png:
+    its model's segments, sensors and hammer, by the report's functions."""
+    from tasks.model_vtu import factors_from_parameters
+    from tasks.report.mesh import MeshView, plot_mesh_factors, plot_mesh_segments, read_run_model
+
+    root = runs_dir / run_id
+    if not (root / "summary.json").exists():
+        raise SystemExit(f"{root}: no finished run; update the bracket first, e.g. python -m flows.update --model "
+                         f"data/examples/bracket/model.toml --measured data/examples/bracket/measured.csv "
+                         f"--run-id {run_id} (see data/examples/bracket/README.md)")
+    summary = json.loads((root / "summary.json").read_text())
+    model = read_run_model(json.loads((root / "manifest.json").read_text())["config"]["model"])
+    alpha, gamma = factors_from_parameters(summary["parameters"], model)
+    truth = json.loads((BRACKET / "truth.json").read_text())["alpha"]
+    title = (f"The L-bracket's updated stiffness factors (run {run_id}, overall error {summary['overall_error']:.2%}); "
+             f"truth {', '.join(f'{t:+.2f}' for t in truth)}")
+    view = MeshView(model)
+    plot_mesh_segments(model, DOCS / "mesh-bracket.png", view,
+                       "The L-bracket (tet10): segments, sensors and excitation")
+    plot_mesh_factors(model, alpha, DOCS / "mesh-bracket-factors.png", gamma, view, title=title)
+    return {"run": run_id, "alpha": alpha.round(4).tolist(), "truth": truth, "overall_error": summary["overall_error"]}
+
+
 def bracket_timings(model_file: Path | None) -> dict:
     """Read the bracket, draw both pictures, build model.vtu (6 modes); the time of each step."""
     from fe_core.io import read_model
@@ -177,7 +206,12 @@ def main(argv=None) -> int:
     p.add_argument("--runs-dir", default=str(REPO / "data" / "runs"))
     p.add_argument("--bracket-model", type=Path, default=None,
                    help="the bracket's model.toml (default data/examples/bracket/model.toml when it exists)")
+    p.add_argument("--bracket-run", metavar="ID",
+                   help="only draw docs/mesh-bracket-factors.png from this finished update run of the bracket")
     args = p.parse_args(argv)
+    if args.bracket_run:
+        print(json.dumps(bracket_run_factors(args.bracket_run, Path(args.runs_dir)), indent=1))
+        return 0
     bracket_file = args.bracket_model or (BRACKET / "model.toml" if (BRACKET / "model.toml").exists() else None)
     bench = benchmark_pictures(args.run_id, Path(args.runs_dir))
     bracket = bracket_timings(bracket_file)

@@ -273,7 +273,7 @@ def _log_problem(model, freqs_hz, measured_amplitude, lower, upper):
                          f"({freqs.size}, {model.n_sensors})")
     if not np.all(np.isfinite(u) & (u > 0)):
         raise ValueError("measured amplitudes must be finite and positive (the residual is logarithmic)")
-    m = model.n_segments
+    m = model.n_parameters
     lo = np.broadcast_to(np.asarray(lower, float), (m,)).copy()
     hi = np.broadcast_to(np.asarray(upper, float), (m,)).copy()
     if np.any(lo <= -1.0) or np.any(lo >= hi):
@@ -281,7 +281,7 @@ def _log_problem(model, freqs_hz, measured_amplitude, lower, upper):
     log_u = np.log(u).ravel()
 
     def residual(a):
-        return np.log(np.abs(model.frf(a, freqs))).ravel() - log_u
+        return np.log(np.abs(model.parameter_frf(a, freqs))).ravel() - log_u
 
     return freqs, lo, hi, residual
 
@@ -457,8 +457,8 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
         J, Z = log_amplitude_jacobian(model, alpha, freqs, return_frf=True)
         return np.log(np.abs(Z)).ravel() - log_u, J
 
-    return _gauss_newton_intervals(at, alpha0, lo, hi, None, noise, level, width_threshold, max_jacobians,
-                                   step_tolerance)
+    return _gauss_newton_intervals(at, alpha0, lo, hi, model.parameter_names, noise, level, width_threshold,
+                                   max_jacobians, step_tolerance)
 
 
 def _gauss_newton_intervals(at, start, lo, hi, names, noise, level, width_threshold, max_jacobians, step_tolerance,

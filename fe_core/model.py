@@ -109,8 +109,9 @@ class ParametricModel:
     sensor_names, excitation_name : list of str, str
     n_total_dofs : int or None
         DOFs before constraints (``3 * n_nodes`` for a mesh).
-    parameter_bounds : ndarray, shape (n_segments, 2), or None
-        Per-segment ``(lower, upper)`` of alpha from the model file; None = the run's box.
+    parameter_bounds : ndarray, shape (n_parameters, 2), or None
+        ``(lower, upper)`` of each parameter (:attr:`parameter_names`' order) from the model
+        file, +-inf where the file gives none; None = the run's box for every parameter.
     source : str or None
         The model file the model was read from.
     remainder_mass : float, kg
@@ -127,6 +128,18 @@ class ParametricModel:
         mesh cells at alpha = 0, DOFs as :func:`fe_core.assembly.cell_dofs` (model
         extensions that stiffen a set of cells need it; built from ``material`` and
         ``formulation`` when None).
+    excitation_loads : ndarray, shape (n_free, n_excitations), N, or None
+        Every excitation of the model file, one column each (``load`` is the column of
+        ``excitation_name``); ``load`` alone when None. Measured channels with other
+        references use them (:meth:`frf_channels`).
+    excitation_names : list of str
+    sensor_test_dofs, excitation_test_dofs : list of (int, int) or None
+        Per sensor / excitation: the test's node id and signed UFF58 direction code
+        (``test_node``, ``test_direction`` of the model file), None where not given.
+    mass_parameters : ndarray, shape (g,), int
+        Segments (0-based, ascending) whose mass factor gamma is updated too; empty for the
+        paper's alpha-only parameters. The parameter vector is then
+        ``[alpha_1 .. alpha_m, gamma_j for j in mass_parameters]`` (:meth:`factors`).
     """
 
     mesh: Mesh | None
@@ -152,8 +165,18 @@ class ParametricModel:
     dof_table: np.ndarray | None = None
     cell_segment: np.ndarray | None = None
     cell_stiffness: Callable[[np.ndarray], np.ndarray] | None = None
+    excitation_loads: np.ndarray | None = None
+    excitation_names: list[str] = field(default_factory=list)
+    sensor_test_dofs: list = field(default_factory=list)
+    excitation_test_dofs: list = field(default_factory=list)
+    mass_parameters: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
     def __post_init__(self) -> None:
+        self.mass_parameters = np.asarray(self.mass_parameters, dtype=int).ravel()
+        if (np.any(np.diff(self.mass_parameters) <= 0) or np.any(self.mass_parameters < 0)
+                or np.any(self.mass_parameters >= self.n_segments)):
+            raise ValueError(f"mass_parameters must be ascending segment indices below {self.n_segments}, "
+                             f"got {self.mass_parameters.tolist()}")
         if self.n_total_dofs is None:
             self.n_total_dofs = self.mesh.n_nodes * DOFS_PER_NODE
         if self.outputs is None:
@@ -172,6 +195,15 @@ class ParametricModel:
         self.load = np.asarray(self.load, dtype=float)
         if not self.sensor_names:
             self.sensor_names = [f"sensor {j + 1}" for j in range(self.outputs.shape[1])]
+        if self.excitation_loads is None:
+            self.excitation_loads = self.load[:, None].copy()
+            self.excitation_names = [self.excitation_name]
+        self.excitation_loads = np.asarray(self.excitation_loads, dtype=float)
+        if self.excitation_loads.shape != (self.free_dofs.size, len(self.excitation_names)):
+            raise ValueError(f"excitation_loads must have shape (n_free, {len(self.excitation_names)}), "
+                             f"got {self.excitation_loads.shape}")
+        self.sensor_test_dofs = list(self.sensor_test_dofs) or [None] * self.outputs.shape[1]
+        self.excitation_test_dofs = list(self.excitation_test_dofs) or [None] * len(self.excitation_names)
         # The DOFs the outputs read, and how each sensor combines them.
         coo = self.outputs.tocoo()
         self._out_rows = np.unique(coo.row)
@@ -206,9 +238,47 @@ class ParametricModel:
         return self.outputs.shape[1]
 
     @property
+    def n_parameters(self) -> int:
+        """Length of the parameter vector: one alpha per segment plus the updated gammas."""
+        return self.n_segments + self.mass_parameters.size
+
+    @property
     def parameter_names(self) -> list[str]:
-        """``alpha_1 .. alpha_m`` (stiffness factors, the paper's updating parameters)."""
-        return [f"alpha_{i + 1}" for i in range(self.n_segments)]
+        """``alpha_1 .. alpha_m`` (stiffness factors, the paper's updating parameters), then
+        ``gamma_j`` (mass factor of segment j, 1-based) for each segment whose mass is updated."""
+        return ([f"alpha_{i + 1}" for i in range(self.n_segments)]
+                + [f"gamma_{j + 1}" for j in self.mass_parameters])
+
+    def factors(self, theta) -> tuple[np.ndarray, np.ndarray | None]:
+        """Stiffness and mass factors of a parameter vector.
+
+        Parameters
+        ----------
+        theta : array_like, shape (n_parameters,)
+            ``[alpha_1 .. alpha_m, gamma_j ...]`` in :attr:`parameter_names`' order.
+
+        Returns
+        -------
+        alpha : ndarray, shape (n_segments,)
+        gamma : ndarray, shape (n_segments,), or None
+            Zero for segments whose mass is not updated; None when no mass is updated.
+
+        Raises
+        ------
+        ValueError
+            A vector of another length (naming the parameters) or outside the domain (-1, inf).
+        """
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (self.n_parameters,):
+            raise ValueError(f"the parameter vector must have {self.n_parameters} entries "
+                             f"({', '.join(self.parameter_names)}), got shape {theta.shape}")
+        m = self.n_segments
+        alpha = check_parameters(theta[:m], m, "alpha")
+        if not self.mass_parameters.size:
+            return alpha, None
+        gamma = np.zeros(m)
+        gamma[self.mass_parameters] = theta[m:]
+        return alpha, check_parameters(gamma, m, "gamma")
 
     # -- matrices --------------------------------------------------------
     def _gamma(self, gamma) -> np.ndarray:
@@ -273,6 +343,54 @@ class ParametricModel:
             The measured quantity is its modulus.
         """
         return self._solve(alpha, freqs_hz, gamma, method, self.combined_load())[:, :, 0]
+
+    def frf_channels(self, alpha, freqs_hz, responses, references, gamma=None, method: str = "krylov") -> np.ndarray:
+        """Receptance of (response sensor, reference excitation) channels.
+
+        One solve with one load column per distinct reference (the Krylov
+        space is built for all of them at once), then the channels are picked.
+
+        Parameters
+        ----------
+        alpha, freqs_hz, gamma, method
+            As in :meth:`frf`.
+        responses : array_like of int, shape (n_channels,)
+            0-based sensor of each channel.
+        references : array_like of int, shape (n_channels,)
+            0-based excitation (column of :attr:`excitation_loads`) of each channel.
+
+        Returns
+        -------
+        ndarray, shape (p, n_channels), complex, m/N
+            Column j is the response at sensor ``responses[j]`` to a unit
+            ``excitation_loads[:, references[j]]``; for every sensor under the
+            default excitation it equals :meth:`frf`.
+        """
+        responses = np.asarray(responses, dtype=int)
+        references = np.asarray(references, dtype=int)
+        if responses.shape != references.shape or responses.ndim != 1:
+            raise ValueError("responses and references must be 1-D and of one length (one entry per channel)")
+        if np.any((responses < 0) | (responses >= self.n_sensors)):
+            raise ValueError(f"responses must be sensor indices 0..{self.n_sensors - 1}")
+        if np.any((references < 0) | (references >= self.excitation_loads.shape[1])):
+            raise ValueError(f"references must be excitation indices 0..{self.excitation_loads.shape[1] - 1}")
+        used, column = np.unique(references, return_inverse=True)
+        Z = self._solve(alpha, freqs_hz, gamma, method, self.excitation_loads[:, used])
+        return Z[:, responses, column]
+
+    def parameter_frf(self, theta, freqs_hz, channels=None, method: str = "krylov") -> np.ndarray:
+        """What the updating flow evaluates: the FRF of a parameter vector ``theta``.
+
+        ``theta`` has shape (n_parameters,) (:meth:`factors`). With ``channels``
+        None the result is :meth:`frf`, shape (p, n_sensors); with ``channels =
+        (responses, references)`` it is :meth:`frf_channels`, shape (p, n_channels).
+        Complex, m/N.
+        """
+        alpha, gamma = self.factors(theta)
+        if channels is None:
+            return self.frf(alpha, freqs_hz, gamma, method)
+        responses, references = channels
+        return self.frf_channels(alpha, freqs_hz, responses, references, gamma, method)
 
     def frf_matrix(self, alpha, freqs_hz, gamma=None, method: str = "krylov") -> np.ndarray:
         """Sensor-by-sensor receptance matrix, one load case per sensor.

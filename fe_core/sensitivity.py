@@ -104,11 +104,12 @@ JACOBIAN_METHODS = ("krylov", "direct")
 
 
 def segment_directions(model: ParametricModel) -> list:
-    """``dK / dalpha_i = K_i`` for every segment, as :class:`fe_core.frf_derivatives.Direction` (cached).
+    """The derivative directions of the parameter vector, as :class:`fe_core.frf_derivatives.Direction` (cached).
 
-    The segment matrices share the union pattern of the model (zeros outside
-    the segment); the explicit zeros are dropped so a product costs the
-    segment's own entries.
+    ``dK / dalpha_i = K_i`` for every segment, then ``dM / dgamma_j = M_j`` for every
+    segment whose mass is updated (:attr:`ParametricModel.mass_parameters`). The
+    segment matrices share the union pattern of the model (zeros outside the
+    segment); the explicit zeros are dropped so a product costs the segment's own entries.
     """
     cached = model.__dict__.get("_segment_directions")
     if cached is None:
@@ -117,20 +118,25 @@ def segment_directions(model: ParametricModel) -> list:
             Ki = model.stiffness_segments.segment(i).copy()  # copy: segment() shares the pattern's index arrays
             Ki.eliminate_zeros()
             cached.append(Direction(stiffness=Ki))
+        for j in model.mass_parameters:
+            Mj = model.mass_segments.segment(int(j)).copy()
+            Mj.eliminate_zeros()
+            cached.append(Direction(mass=Mj))
         model.__dict__["_segment_directions"] = cached
     return cached
 
 
 def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov",
                  return_info: bool = False):
-    """The receptance at the sensors and its exact derivative with respect to alpha.
+    """The receptance at the sensors and its exact derivative with respect to the parameters.
 
-    The dynamic stiffness ``D(w) = K(alpha) - w^2 M + j w (a M + b K(alpha))``
-    depends on ``alpha_i`` through ``dD/dalpha_i = (1 + j w b) K_i``, so with
-    ``h = D^-1 F`` (the response to the model's load) and ``g_s = D^-1 l_s``
-    (the adjoint for sensor s, ``l_s`` its output vector; D is complex symmetric)::
+    The dynamic stiffness ``D(w) = K(alpha) - w^2 M(gamma) + j w (a M(gamma) + b K(alpha))``
+    depends on ``alpha_i`` through ``dD/dalpha_i = (1 + j w b) K_i`` and on an updated mass
+    factor through ``dD/dgamma_i = (-w^2 + j w a) M_i``, so with ``h = D^-1 F`` (the response
+    to the model's load) and ``g_s = D^-1 l_s`` (the adjoint for sensor s, ``l_s`` its output
+    vector; D is complex symmetric)::
 
-        dZ_s / dalpha_i = -(1 + j w b) g_s^T K_i h
+        dZ_s / dalpha_i = -(1 + j w b) g_s^T K_i h,    dZ_s / dgamma_i = -(-w^2 + j w a) g_s^T M_i h
 
     ``method="krylov"`` (default) evaluates this on one block Krylov space
     carrying both h and the g_s (:func:`fe_core.frf_derivatives.krylov_frf_derivatives`:
@@ -143,7 +149,9 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
     Parameters
     ----------
     model : ParametricModel
-    alpha : array_like, shape (m,)
+    alpha : array_like, shape (n_parameters,)
+        The parameter vector (:meth:`ParametricModel.factors`): alpha, then the updated gammas
+        when the model has any.
     freqs_hz : array_like, shape (p,), Hz
     method : {"krylov", "direct"}
     return_info : bool
@@ -153,17 +161,17 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
     Returns
     -------
     Z : ndarray, shape (p, n_sensors), complex, m/N
-        Same as ``model.frf(alpha, freqs_hz)`` (to its 1e-9).
-    dZ : ndarray, shape (p, n_sensors, m), complex, m/N per unit alpha
+        Same as ``model.frf(alpha, freqs_hz, gamma)`` (to its 1e-9).
+    dZ : ndarray, shape (p, n_sensors, n_parameters), complex, m/N per unit parameter
     """
     if method not in JACOBIAN_METHODS:
         raise ValueError(f"unknown Jacobian method {method!r}; choose one of {JACOBIAN_METHODS}")
-    alpha = check_parameters(alpha, model.n_segments, "alpha")
+    alpha, gamma = model.factors(alpha)
     freqs = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
     if freqs.ndim != 1 or freqs.size == 0 or np.any(~np.isfinite(freqs)) or np.any(freqs <= 0):
         raise ValueError(f"frequencies must be a non-empty 1-D array of positive values in Hz, got {freqs_hz!r}")
     K = model.stiffness(alpha)
-    M = model.mass()
+    M = model.mass(gamma)
     a, b = model.damping
     args = (K, M, a, b, model.combined_load(), model.outputs, segment_directions(model), hz_to_rad(freqs))
     info = None
@@ -240,7 +248,7 @@ def extended_log_jacobian(model: ParametricModel, alpha, freqs_hz, applied=(), m
     applied = list(applied)
     K, M, a, b = extended_matrices(model, alpha, applied)
     dirs = []
-    for i, base in enumerate(segment_directions(model)):
+    for i, base in enumerate(segment_directions(model)[:model.n_segments]):  # alpha only: the closure does not move gamma
         dK = base.stiffness
         for item in applied:
             extra = item.effect.alpha_derivative(alpha, item.location, item.values, i)

@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "MODELS", "OUTPUTS"]
+__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "MODELS", "OUTPUTS", "LINES",
+           "RESIDUALS", "parse_windows"]
 
 REPO = Path(__file__).resolve().parents[1]
 TRAINERS = ("sao", "pso", "gradient")
@@ -22,6 +23,8 @@ STRATEGIES = ("adaptive", "conventional")
 MODELS = ("three_plate",)
 FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
 OUTPUTS = ("full", "reduced", "auto")  # tasks.stages.reduced_outputs
+LINES = ("all", "windows", "resonances")  # tasks.lines.LINE_MODES
+RESIDUALS = ("auto", "amplitude", "complex")  # tasks.update_data.RESIDUALS
 
 
 class ConfigError(ValueError):
@@ -116,6 +119,22 @@ class UpdateConfig:
         Relative noise of the measured amplitudes (standard deviation, e.g.
         0.01 = 1 %) for the intervals; None (default) estimates it from the
         residual at the least-squares optimum.
+    lines : {"all", "windows", "resonances"}
+        Which measured frequency lines enter the update (:mod:`tasks.lines`):
+        every line (default), those in ``line_windows``, or windows around the
+        measured resonances (half-power band widened by ``resonance_widen``).
+    line_windows : list of [low, high] or None
+        Hz, for ``lines = "windows"``.
+    resonance_widen : float
+        Factor (>= 1) on each resonance's half-power band, for ``lines = "resonances"``.
+    min_coherence : float
+        Values (line, channel) whose measured coherence is below this are left
+        out and counted (default 0.9; data without coherence lose nothing).
+    residuals : {"auto", "amplitude", "complex"}
+        The residual (:mod:`tasks.update_data`): the paper's amplitude
+        residual of Eq. (5), the real and imaginary parts of ``(Z - H)/|H|``,
+        or auto (default): complex when the data carry phase, amplitude for
+        the legacy ``sensor`` form.
     min_free_mb : float
         Free disk space the run folder needs before any work starts, MB;
         0 (default) = twice the run's estimated output
@@ -161,6 +180,11 @@ class UpdateConfig:
     intervals: bool = True
     noise: float | None = None
     posterior_fe: int = 400
+    lines: str = "all"
+    line_windows: list[list[float]] | None = field(default=None)
+    resonance_widen: float = 2.0
+    min_coherence: float = 0.9
+    residuals: str = "auto"
 
     def __post_init__(self) -> None:
         self.validate("config")
@@ -221,8 +245,29 @@ class UpdateConfig:
         if not (isinstance(self.posterior_fe, int) and self.posterior_fe >= 0):
             raise bad("posterior_fe", f"must be a whole number of FE runs >= 0 (0 = never sample), "
                                       f"got {self.posterior_fe!r}")
+        self._validate_lines(bad)
         if self.run_id is not None and (not self.run_id or "/" in self.run_id or self.run_id.startswith(".")):
             raise bad("run_id", f"must be a plain folder name, got {self.run_id!r}")
+
+    def _validate_lines(self, bad) -> None:
+        if self.lines not in LINES:
+            raise bad("lines", f"unknown line selection {self.lines!r}; choose one of {', '.join(LINES)}")
+        if self.line_windows is not None:
+            for i, w in enumerate(self.line_windows):
+                ok = (isinstance(w, (list, tuple)) and len(w) == 2
+                      and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in w))
+                if not ok or not 0 <= w[0] < w[1]:
+                    raise bad("line_windows", f"window {i + 1} is {w!r}; each window is [low, high] in Hz with "
+                                              "0 <= low < high")
+        if self.lines == "windows" and not self.line_windows:
+            raise bad("line_windows", "is required with lines = 'windows', e.g. [[100.0, 120.0], [280.0, 300.0]]")
+        if not (isinstance(self.resonance_widen, (int, float)) and math.isfinite(self.resonance_widen)
+                and self.resonance_widen >= 1):
+            raise bad("resonance_widen", f"must be a factor >= 1 on the half-power band, got {self.resonance_widen!r}")
+        if not 0 <= self.min_coherence <= 1:
+            raise bad("min_coherence", f"must lie in [0, 1] (0 keeps every line), got {self.min_coherence!r}")
+        if self.residuals not in RESIDUALS:
+            raise bad("residuals", f"unknown residual {self.residuals!r}; choose one of {', '.join(RESIDUALS)}")
 
     def replace(self, **changes: Any) -> "UpdateConfig":
         return dataclasses.replace(self, **changes)
@@ -248,7 +293,7 @@ def check_model_path(config: UpdateConfig, bad) -> None:
 
 _TYPES: dict[str, tuple[type, ...]] = {}
 for _f in dataclasses.fields(UpdateConfig):
-    if _f.name == "true_parameters":
+    if _f.name in ("true_parameters", "line_windows"):
         _TYPES[_f.name] = (list,)
     elif _f.type in ("bool", bool):
         _TYPES[_f.name] = (bool,)
@@ -274,6 +319,21 @@ def _check_types(values: dict[str, Any], source: str) -> dict[str, Any]:
         ):
             raise ConfigError(f"{source}: key 'true_parameters' must be a list of numbers, got {value!r}")
     return values
+
+
+def parse_windows(text: str) -> list[list[float]]:
+    """``"100-120,280-300"`` -> ``[[100.0, 120.0], [280.0, 300.0]]`` (the ``--line-windows`` flag)."""
+    out = []
+    for part in text.split(","):
+        lo, sep, hi = part.strip().partition("-")
+        try:
+            if not sep:
+                raise ValueError
+            out.append([float(lo), float(hi)])
+        except ValueError:
+            raise ConfigError(f"command line: key 'line_windows': {part.strip()!r} is not LOW-HIGH in Hz "
+                              "(e.g. --line-windows 100-120,280-300)") from None
+    return out
 
 
 def load_config(path: str | Path | None = None, **overrides: Any) -> UpdateConfig:

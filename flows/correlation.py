@@ -93,7 +93,7 @@ def fe_samples_task(folder: str, meta: dict, n_samples: int, n_jobs: int) -> dic
 @task(name="pearson", cache_policy=NO_CACHE)
 def pearson_task(folder: str, meta: dict, n_samples: int) -> dict:
     X, A, columns, failed = corr.load_amplitudes(Path(folder), n_samples, meta)
-    table = corr.correlation_table(X, A, columns)
+    table = corr.correlation_table(X, A, columns, corr.parameter_names(meta))
     atomic_write_bytes(Path(folder) / "correlation.parquet", _parquet_bytes(table))
     return {"n_ok": int(X.shape[0]), "failed": failed}
 
@@ -123,7 +123,7 @@ def page_task(folder: str, meta: dict, n_samples: int, counts: dict, summary: di
               fe_info: dict) -> str:
     out = Path(folder)
     table = pd.read_parquet(out / "correlation.parquet")
-    names = [f"alpha_{i + 1}" for i in range(meta["n_parameters"])]
+    names = corr.parameter_names(meta)
     f1 = figures.plot_correlation(table, names, out / "correlation.png", counts["n_ok"])
     f2 = figures.plot_correlation_heatmap(table, names, out / "correlation_map.png")
     f3 = figures.plot_singular_values(results, out / "singular_values.png")

@@ -17,6 +17,14 @@ Reads the run's ``summary.json`` (its updated parameters) and ``manifest.json``
 Everything goes to ``<run folder>/closure/`` (``--name`` for another folder);
 a finished step is read back on a second call, so a killed diagnosis resumes.
 
+Measured data: the closure traces the amplitude residual of the model's
+sensors under its default excitation. Legacy data (sensor numbers) are used
+as they are; channel data (response, reference) must be every sensor of the
+model under its default excitation (a hammer test: name the hammer as the
+model file's ``excitation``), and then the closure uses the amplitudes of the
+lines the run selected where every channel passed the coherence threshold
+(:func:`closure_measurements`); the phase of complex data is not used here.
+
 Examples::
 
     python -m flows.diagnose --run-id pso-3
@@ -79,11 +87,46 @@ def run_folder(run_id: str, runs_dir: str | Path = "data/runs") -> tuple[Path, d
     return root, summary, manifest
 
 
+def closure_measurements(path: Path, model_name: str, selection: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frequencies (p,), sensors (n,), amplitudes (p, n)) the closure fits (see the module docstring).
+
+    ``selection``: the run's ``lines``, ``line_windows``, ``resonance_widen``,
+    ``min_coherence`` (its config). Raises DiagnoseError for channel data the
+    closure cannot use, MeasuredDataError for a bad file.
+    """
+    measured = read_measured(path)
+    if measured.legacy:
+        return measured.frequencies_hz, np.asarray(measured.sensors), measured.amplitude
+    from tasks.stages import load_model
+    from tasks.update_data import update_data
+
+    model = load_model(model_name)
+    data = update_data(measured, model, residuals="amplitude", **{k: selection[k] for k in selection if k in (
+        "lines", "line_windows", "resonance_widen", "min_coherence")})
+    if data.channels is not None:
+        refs = sorted({c["excitation"] for c in data.channel_info})
+        raise DiagnoseError(f"{path}: the closure traces the residual of every sensor of the model under its default "
+                            f"excitation ({model.excitation_name!r}); these data have {data.n_channels} channels under "
+                            f"{', '.join(map(repr, refs))}: name that excitation in the model file (excitation = "
+                            f"\"{refs[0]}\") and measure every sensor, or diagnose legacy data")
+    lines = data.complete_lines
+    return data.frequencies_hz[lines], np.arange(1, model.n_sensors + 1), data.amplitude[lines]
+
+
+_SELECTION_KEYS = ("lines", "line_windows", "resonance_widen", "min_coherence")
+
+
+#: Why a run that updated mass factors is not closed (the closure's fits and effects are alpha-based).
+MASS_FACTORS_REFUSED = ("the run updates mass factors ({names}); the closure refits the stiffness factors alpha only "
+                        "(its segment_mass effect is how it tests a segment's mass), so it would drop them: close "
+                        "the loop on a run whose model file updates stiffness only")
+
+
 @flow(name="diagnose", flow_run_name="diagnose-{run_id}", log_prints=True)
 def diagnose_flow(run_id: str, closure_root: str, settings: dict, run_info: dict) -> dict:
     """The closure of one run as four tasks; returns the content of ``closure.json``."""
-    measured = read_measured(Path(settings["measured"]))
-    freqs, sensors, u = measured.frequencies_hz, np.asarray(measured.sensors), measured.amplitude
+    freqs, sensors, u = closure_measurements(Path(settings["measured"]), settings["model"],
+                                             run_info.get("selection", {}))
     t0 = time.perf_counter()
     ct.baseline_task(closure_root, settings, freqs, sensors, u)
     ct.screen_task(closure_root, settings, freqs, u)
@@ -100,7 +143,11 @@ def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closu
     cfg = manifest.get("config", {})
     measured_path = Path(measured or cfg.get("measured", "data/benchmark/measured.csv"))
     measured_path = measured_path if measured_path.is_absolute() else REPO / measured_path
-    read_measured(measured_path)  # refuse bad data before any work
+    selection = {k: cfg[k] for k in _SELECTION_KEYS if k in cfg}
+    closure_measurements(measured_path, cfg.get("model", "three_plate"), selection)  # refuse bad data first
+    gammas = [k for k in summary["parameters"] if k.startswith("gamma_")]
+    if gammas:
+        raise DiagnoseError(f"{root / 'summary.json'}: {MASS_FACTORS_REFUSED.format(names=', '.join(gammas))}")
     names = [f"alpha_{i + 1}" for i in range(len(summary["parameters"]))]
     try:
         alpha = [float(summary["parameters"][n]) for n in names]
@@ -129,7 +176,7 @@ def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closu
         raise DiagnoseError(f"--significance must lie in (0, 1), got {settings['significance']}")
     closure_root = root / name
     ct.ClosureStore(closure_root).write_settings(dict(settings))
-    run_info = {"run_id": run_id, "run_folder": str(root), "parameters": summary["parameters"]}
+    run_info = {"run_id": run_id, "run_folder": str(root), "parameters": summary["parameters"], "selection": selection}
     return diagnose_flow(run_id, str(closure_root), dict(settings), run_info)
 
 

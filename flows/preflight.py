@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from flows.config import ConfigError, UpdateConfig
-from tasks.io.measured import MeasuredDataError, MeasuredFRF
+from tasks.io.measured import MeasuredDataError
 
 __all__ = ["max_frequency_hz", "check_inputs", "check_resume", "check_disk", "expected_output_mb",
            "ELEMENTS_PER_WAVELENGTH"]
@@ -62,12 +62,20 @@ def max_frequency_hz(model_name: str) -> float:
     raise ConfigError(f"config: key 'model': unknown model {model_name!r}")
 
 
-def check_inputs(config: UpdateConfig, measured: MeasuredFRF, model) -> None:
-    """The measured data and the parameters fit the model."""
+def check_inputs(config: UpdateConfig, measured, model) -> None:
+    """The measured data and the parameters fit the model.
+
+    ``measured`` is the :class:`tasks.update_data.UpdateData` of the run (or a
+    :class:`MeasuredFRF` in the legacy form): its channels were matched to the
+    model already; the legacy form's sensor numbers are checked here, and every
+    selected line against the highest frequency the model resolves (the
+    refusal names the line in the file).
+    """
     source = measured.source
+    legacy = getattr(measured, "measured", measured).legacy
     want = np.arange(1, model.n_sensors + 1)
     have = np.asarray(measured.sensors)
-    if have.size != want.size or np.any(have != want):
+    if legacy and (have.size != want.size or np.any(have != want)):
         missing = sorted(set(want.tolist()) - set(have.tolist()))
         extra = sorted(set(have.tolist()) - set(want.tolist()))
         raise MeasuredDataError(
@@ -77,8 +85,9 @@ def check_inputs(config: UpdateConfig, measured: MeasuredFRF, model) -> None:
     f_max = max_frequency_hz(config.model)
     above = np.flatnonzero(np.asarray(measured.frequencies_hz) > f_max)
     if above.size:
+        place = measured.line_place(int(above[0])) + ": " if hasattr(measured, "line_place") else ""
         raise MeasuredDataError(
-            f"{source}: frequency_hz {float(measured.frequencies_hz[above[0]])!r} is above {f_max:.0f} Hz, "
+            f"{source}: {place}frequency_hz {float(measured.frequencies_hz[above[0]])!r} is above {f_max:.0f} Hz, "
             f"the highest frequency the mesh of {config.model!r} resolves ({ELEMENTS_PER_WAVELENGTH} elements per bending "
             f"wavelength); {above.size} frequencies are out of range"
         )
@@ -86,9 +95,10 @@ def check_inputs(config: UpdateConfig, measured: MeasuredFRF, model) -> None:
         check_band(config, measured, model)
     if config.true_parameters is not None:
         truth = np.asarray(config.true_parameters, float)
-        if truth.shape != (model.n_segments,):
+        if truth.shape != (model.n_parameters,):
             raise ConfigError(f"config: key 'true_parameters': the model {config.model!r} has "
-                              f"{model.n_segments} parameters, got {truth.size}")
+                              f"{model.n_parameters} parameters ({', '.join(model.parameter_names)}), "
+                              f"got {truth.size}")
 
 
 #: The measured band is "far outside" the model's modes beyond this factor (a mesh in mm with SI
@@ -96,7 +106,7 @@ def check_inputs(config: UpdateConfig, measured: MeasuredFRF, model) -> None:
 BAND_FACTOR = 30.0
 
 
-def check_band(config: UpdateConfig, measured: MeasuredFRF, model) -> None:
+def check_band(config: UpdateConfig, measured, model) -> None:
     """Refuse a measured band far from the model's lowest natural frequencies (units mix-ups).
 
     With all alpha = 0: refused when every measured frequency is above

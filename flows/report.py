@@ -41,6 +41,7 @@ from flows.config import REPO  # noqa: E402
 from tasks.report import sections as sec  # noqa: E402
 from tasks.report.data import ReportError, is_repeats_folder, load_repeats, load_run  # noqa: E402
 from tasks.report.html import write_page  # noqa: E402
+from tasks.report.lines import lines_section  # noqa: E402
 from tasks.report.mesh import mesh_section  # noqa: E402
 
 __all__ = ["report_flow", "main", "REPORT_DIR", "PAGE"]
@@ -58,6 +59,7 @@ parameters_task = task(sec.parameters_section, name="parameter-figures", cache_p
 training_task = task(sec.training_section, name="training-figure", cache_policy=NO_CACHE)
 closure_task = task(sec.closure_section, name="closure-figures", cache_policy=NO_CACHE)
 mesh_task = task(mesh_section, name="mesh-figures", cache_policy=NO_CACHE)
+lines_task = task(lines_section, name="line-selection-figure", cache_policy=NO_CACHE)
 intervals_task = task(sec.intervals_section, name="interval-figures", cache_policy=NO_CACHE)
 repeats_task = task(sec.repeats_section, name="repeats-figures", cache_policy=NO_CACHE)
 page_task = task(write_page, name="html-page", cache_policy=NO_CACHE)
@@ -82,7 +84,8 @@ def report_flow(run_root: str, out_dir: str | None = None) -> str:
                  f"{root.name}/repeat=<i>."] + sec.run_intro(best)[1:2]
     else:
         data = load_run_task(root)
-        parts = [frf_task(data, out), mesh_task(data, out), errors_task(data, out), parameters_task(data, out),
+        parts = [frf_task(data, out), lines_task(data, out), mesh_task(data, out), errors_task(data, out),
+                 parameters_task(data, out),
                  intervals_task(data, out), training_task(data, out)]
         closure = closure_task(data, out)
         parts.append(sec.stages_section(data))

@@ -45,7 +45,8 @@ import pandas as pd  # noqa: E402
 from prefect import flow  # noqa: E402
 
 from flows import preflight  # noqa: E402
-from flows.config import OUTPUTS, STRATEGIES, TRAINERS, ConfigError, UpdateConfig, load_config  # noqa: E402
+from flows.config import (LINES, OUTPUTS, RESIDUALS, STRATEGIES, TRAINERS, ConfigError, UpdateConfig,  # noqa: E402
+                          load_config, parse_windows)
 from mrgp_core import adaptive  # noqa: E402
 from tasks import fe_backends, stages  # noqa: E402
 from tasks.intervals import intervals_task  # noqa: E402
@@ -54,6 +55,7 @@ from tasks.model_vtu import model_vtu_task  # noqa: E402
 from tasks.polish import POLISH_STAGE, polish_results, polish_task  # noqa: E402
 from tasks.runlock import RunLock, RunLockedError  # noqa: E402
 from tasks.runstore import RunStore, atomic_write_json, git_commit, package_versions  # noqa: E402
+from tasks.update_data import UpdateData, update_data  # noqa: E402
 
 __all__ = ["update_flow", "iteration_flow", "run_update", "main", "rerun_stage"]
 
@@ -64,14 +66,22 @@ RESUMABLE_CHANGES = {"n_jobs", "run_id", "runs_dir", "repeats", "min_free_mb", "
                      "intervals", "noise", "posterior_fe"}
 
 
+#: Measurements of the benchmark at the SPEC's actual alpha: their runs report parameter errors.
+BENCHMARK_MEASUREMENTS = ("data/benchmark/measured.csv", "data/benchmark/hammer.uff")
+
+
 # -- the flows ------------------------------------------------------------------------------------
 @flow(name="iteration", flow_run_name="iteration-{iteration}", log_prints=True)
 def iteration_flow(root: str, config: UpdateConfig, iteration: int, freqs_hz: np.ndarray,
-                   measured_amplitude: np.ndarray, m: int) -> dict:
-    """One iteration: FE batch and errors, then (unless stopping) the next batch."""
+                   measured_amplitude: np.ndarray, m: int, data: UpdateData | None = None) -> dict:
+    """One iteration: FE batch and errors, then (unless stopping) the next batch.
+
+    ``data`` (the run's :class:`tasks.update_data.UpdateData`) gives the channels and the
+    residual; without it the model's sensors under its default excitation, amplitude residuals.
+    """
     stages.samples_task(root, config, iteration, m)
-    stages.fe_task(root, config, iteration, freqs_hz)
-    info = stages.errors_task(root, config, iteration, measured_amplitude)
+    stages.fe_task(root, config, iteration, freqs_hz, channels=None if data is None else data.channels)
+    info = stages.errors_task(root, config, iteration, measured_amplitude, data=data)
     store = RunStore(root)
     _, _, _, errors = stages.training_data(store, iteration)
     fe_count = _fe_count(store, iteration)
@@ -105,23 +115,38 @@ def update_flow(config: UpdateConfig) -> dict:
 def check_before_run(config: UpdateConfig):
     """Every check that needs no run folder: measured data, model, resume settings, disk.
 
-    Returns the measured data. Raises ConfigError or MeasuredDataError naming
-    the file and key; nothing has been written into the run folder then.
+    Returns the run's :class:`tasks.update_data.UpdateData` (the measured
+    channels matched to the model, the selected lines, the residual). Raises
+    ConfigError or MeasuredDataError naming the file and key; nothing has
+    been written into the run folder then.
     """
     measured = read_measured(config.resolve(config.measured))
     model = load_model_checked(config)
-    preflight.check_inputs(config, measured, model)
+    data = prepare_data(config, measured, model)
+    preflight.check_inputs(config, data, model)
     root = config.resolve(config.runs_dir) / config.run_id
     preflight.check_resume(config, root, RESUMABLE_CHANGES)
     required = config.min_free_mb or 2 * preflight.expected_output_mb(
-        config, measured.amplitude.size, model.n_segments)
+        config, max(data.amplitude.size, data.n_values), model.n_parameters)
     preflight.check_disk(config, root, required)
     if config.fe_backend == "dask":  # an unreachable cluster is refused before any work, not in iteration 1
         try:
             fe_backends.check_dask(config.dask_address)
         except fe_backends.FEBackendError as exc:
             raise ConfigError(str(exc)) from None
-    return measured
+    return data
+
+
+def prepare_data(config: UpdateConfig, measured, model) -> UpdateData:
+    """The measured channels matched to the model, with the config's line selection and residual."""
+    try:
+        return update_data(measured, model, lines=config.lines, line_windows=config.line_windows,
+                           resonance_widen=config.resonance_widen, min_coherence=config.min_coherence,
+                           residuals=config.residuals)
+    except MeasuredDataError:
+        raise
+    except ValueError as exc:
+        raise ConfigError(f"config: key 'residuals': {exc}") from None
 
 
 def load_model_checked(config: UpdateConfig):
@@ -159,29 +184,37 @@ def _run_locked(config: UpdateConfig, root: Path, measured, t0: float) -> dict:
     return summary
 
 
-def _single_run(config: UpdateConfig, store: RunStore, measured, t0: float) -> dict:
-    _write_manifest(store, config)
+def _single_run(config: UpdateConfig, store: RunStore, measured: UpdateData, t0: float) -> dict:
+    _write_manifest(store, config, measured)
     model = stages.load_model(config.model)
-    m = model.n_segments
-    if measured.amplitude.shape[1] != model.n_sensors:
+    m = model.n_parameters
+    if measured.channels is None and measured.amplitude.shape[1] != model.n_sensors:
         raise MeasuredDataError(f"{measured.source}: {measured.amplitude.shape[1]} sensors, "
                                 f"but the model {config.model!r} has {model.n_sensors}")
+    for line in measured.describe():
+        print(f"measured: {line}")
+    write_measured_table(store, measured)
     root = str(store.root)
     last = None
     iteration = 0
     while True:
         iteration += 1
-        last = iteration_flow(root, config, iteration, measured.frequencies_hz, measured.amplitude, m)
+        last = iteration_flow(root, config, iteration, measured.frequencies_hz, measured.amplitude, m, measured)
         if last["stop"]:
             break
     if uses_polish(config):
-        info = polish_task(root, config, iteration, measured.frequencies_hz, measured.amplitude)
+        info = polish_task(root, config, iteration, measured.frequencies_hz, measured.amplitude, data=measured)
         print(f"polish: {info['status']} after {info['n']} FE runs, overall error "
               f"{info['error_before']:.4%} -> {info['error_after']:.4%}")
     summary = _summary(config, store, iteration, last, measured, time.perf_counter() - t0)
     if uses_polish(config) and config.intervals:
         summary.update(_interval_fields(config, store, iteration, measured, summary))
-        summary = report_least_squares_optimum(summary, measured.sensors, config.true_parameters)
+        if measured.residual == "amplitude":
+            summary = report_least_squares_optimum(summary, measured.sensors, config.true_parameters)
+        else:  # the optimum of the log amplitudes ignores the phase this run's residual uses
+            summary = {k: v for k, v in summary.items() if k != "estimate_errors"}
+            summary["parameters_source"] = ("lowest Eq. (6b) error among the FE runs (complex residuals: the "
+                                            "intervals' least-squares optimum uses the amplitudes only)")
     model_vtu_task(root, config.model, summary["parameters"])  # <run>/model.vtu for ParaView, before the summary
     atomic_write_json(store.root / "summary.json", summary)
     return summary
@@ -190,7 +223,10 @@ def _single_run(config: UpdateConfig, store: RunStore, measured, t0: float) -> d
 def _interval_fields(config, store, iteration, measured, summary) -> dict:
     """95 % intervals at the least-squares optimum near the run's result (tasks.intervals), for summary.json."""
     start = np.array(list(summary["parameters"].values()))
-    info = intervals_task(str(store.root), config, iteration, measured.frequencies_hz, measured.amplitude, start)
+    info = intervals_task(str(store.root), config, iteration, measured.frequencies_hz, measured.amplitude, start,
+                          data=measured)
+    if info.get("skipped"):
+        return {"intervals_skipped": info["skipped"]}
     fields = {k: info[k] for k in ("intervals", "covariance", "interval_method", "noise_sigma", "interval_details",
                                    "interval_cost", "estimate_errors") if k in info}
     fields["interval_cost"] = {**info["interval_cost"], **_cost_against_update(store, iteration, summary,
@@ -282,7 +318,33 @@ def _fe_count(store: RunStore, iteration: int) -> int:
     return n
 
 
-def _write_manifest(store: RunStore, config: UpdateConfig) -> None:
+def write_measured_table(store: RunStore, data: UpdateData) -> None:
+    """``<run>/measured.parquet``: every measured line and channel as read (receptance, sign-corrected), with
+    ``used`` (the value enters the residual), ``selected`` (its line is selected) and the channel's match."""
+    from tasks.runstore import _parquet_bytes, atomic_write_bytes
+
+    m = data.measured
+    p, n = m.amplitude.shape
+    lines = data.selection_lines
+    used = np.zeros((p, n), dtype=bool)
+    used[lines] = data.mask
+    signs = np.array([c["sign"] for c in data.channel_info], float)
+    table = pd.DataFrame({
+        "frequency_hz": np.repeat(m.frequencies_hz, n), "sensor": np.tile(m.sensors, p).astype(np.int64),
+        "channel": np.tile([c["label"] for c in data.channel_info], p),
+        "model_sensor": np.tile([c["sensor"] or "" for c in data.channel_info], p),
+        "model_excitation": np.tile([c["excitation"] for c in data.channel_info], p),
+        "amplitude": m.amplitude.ravel(), "selected": np.repeat(lines, n), "used": used.ravel(),
+    })
+    if m.complex_frf is not None:
+        z = (m.complex_frf * signs).ravel()
+        table["real"], table["imag"] = z.real, z.imag
+    if m.coherence is not None:
+        table["coherence"] = m.coherence.ravel()
+    atomic_write_bytes(store.root / "measured.parquet", _parquet_bytes(table))
+
+
+def _write_manifest(store: RunStore, config: UpdateConfig, data: UpdateData | None = None) -> None:
     old = store.read_manifest()
     cfg = config.to_dict()
     if old is not None:
@@ -304,6 +366,7 @@ def _write_manifest(store: RunStore, config: UpdateConfig) -> None:
         "git_commit": git_commit(),
         "stages": list(stages.STAGES),
         "model_checksum": stages.model_fingerprint(config.model),
+        **({"measured_data": data.manifest_entry()} if data is not None else {}),
     })
 
 
@@ -323,9 +386,8 @@ def _summary(config, store, iterations, last, measured, wall) -> dict:
     if polished is not None and polished[0].size and polished[3].min() < E[best]:
         ids, X, Y, E = (np.concatenate([a, b]) for a, b in zip((ids, X, Y, E), polished))
         best = int(np.argmin(E))
-    n = measured.amplitude.shape[1]
-    per_sensor = adaptive.per_sensor_error(Y[best], n)
-    names = [f"alpha_{i + 1}" for i in range(X.shape[1])]
+    per_sensor = measured.channel_errors(Y[best])
+    names = stages.parameter_names(config)
     summary = {
         "parameters": dict(zip(names, map(float, X[best]))),
         "overall_error": float(E[best]),
@@ -410,7 +472,7 @@ def rerun_stage(run_root: Path, iteration: int, stage: str, trainer: str | None 
     trainer = trainer or config.trainer
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     name = f"{stage}.rerun-{trainer}-{stamp}"
-    m = stages.load_model(config.model).n_segments
+    m = stages.load_model(config.model).n_parameters
     if stage == "train":
         stages.train_task.fn(str(store.root), config, iteration, trainer=trainer, output_stage=name)
     else:
@@ -429,7 +491,7 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", metavar="PATH", help="TOML file with any of the settings (data/update.example.toml)")
     p.add_argument("--model", metavar="NAME|PATH", help="FE model: three_plate (default, the benchmark) or a "
                                                        "model file model.toml (README: Your own structure)")
-    p.add_argument("--measured", metavar="PATH", help="measured FRF amplitudes: .csv, .parquet or .uff "
+    p.add_argument("--measured", metavar="PATH", help="measured FRFs: .csv, .parquet or .uff (README: Measured data) "
                                                       "(default data/benchmark/measured.csv)")
     p.add_argument("--run-id", metavar="ID", help="run folder name under data/runs; an existing id resumes that run")
     p.add_argument("--runs-dir", metavar="PATH", help="where run folders go (default data/runs)")
@@ -462,6 +524,18 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--outputs", choices=OUTPUTS,
                    help="MRGP over all k responses (full), in a reduced output basis (reduced), or auto "
                         "(default: reduced when k > 200)")
+    p.add_argument("--lines", choices=LINES,
+                   help="measured lines that enter the update: all (default), those in --line-windows, or windows "
+                        "around the measured resonances (half-power band x --resonance-widen)")
+    p.add_argument("--line-windows", metavar="LO-HI[,LO-HI...]",
+                   help="frequency windows in Hz for --lines windows, e.g. 100-120,280-300")
+    p.add_argument("--resonance-widen", type=float, metavar="F",
+                   help="factor on each resonance's half-power band for --lines resonances (default 2)")
+    p.add_argument("--min-coherence", type=float, metavar="C",
+                   help="leave out measured values whose coherence is below C (default 0.9)")
+    p.add_argument("--residuals", choices=RESIDUALS,
+                   help="amplitude residuals (Eq. 5), complex ones (real and imaginary parts of (Z - H)/|H|), or auto "
+                        "(default: complex when the data carry phase, except the legacy sensor form)")
     p.add_argument("--intervals", action=argparse.BooleanOptionalAction, default=None,
                    help="after the polish, 95 %% intervals and the covariance of the parameters (default on; "
                         "their noise level: --noise, else estimated from the residual)")
@@ -564,12 +638,14 @@ def main(argv: list[str] | None = None) -> int:
             max_fe_evaluations=args.max_fe_evaluations, q=args.q, w=args.w, s=args.s, z=args.z,
             polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target,
             polish_stall_rtol=args.polish_stall_rtol, model=args.model, outputs=args.outputs,
-            intervals=args.intervals, noise=args.noise, posterior_fe=args.posterior_fe,
+            intervals=args.intervals, noise=args.noise, posterior_fe=args.posterior_fe, lines=args.lines,
+            line_windows=None if args.line_windows is None else parse_windows(args.line_windows),
+            resonance_widen=args.resonance_widen, min_coherence=args.min_coherence, residuals=args.residuals,
         )
         if config.run_id is None:
             stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
             config = config.replace(run_id=f"{config.strategy}-{config.trainer}-seed{config.seed}-{stamp}")
-        if config.measured == "data/benchmark/measured.csv" and config.true_parameters is None:
+        if config.measured in BENCHMARK_MEASUREMENTS and config.true_parameters is None:
             from fe_core.benchmark import ALPHA_ACTUAL
 
             config = config.replace(true_parameters=ALPHA_ACTUAL.tolist())
@@ -583,6 +659,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         # Refuse bad inputs, a run in use, or a full / read-only disk before any work.
         check_before_run(config)
+        if args.close_loop:
+            from flows.diagnose import MASS_FACTORS_REFUSED
+
+            gammas = [n for n in stages.load_model(config.model).parameter_names if n.startswith("gamma_")]
+            if gammas:
+                raise ConfigError(f"--close-loop: {config.model}: "
+                                  f"{MASS_FACTORS_REFUSED.format(names=', '.join(gammas))}")
         lock = RunLock(config.resolve(config.runs_dir) / config.run_id).acquire()
         if lock.stale_owner:
             owner = lock.stale_owner

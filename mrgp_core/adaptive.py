@@ -15,6 +15,11 @@ replayed without the orchestration layer:
 Response layout (Eq. 5): for ``n`` sensors and ``p`` frequencies the error
 vector is frequency-major, ``[du_11 .. du_n1, du_12 .. du_n2, ..., du_np]``,
 so a (p, n) amplitude array flattens to it with ``reshape(-1)``.
+
+Complex data (beyond the paper): :func:`complex_relative_residuals` gives the
+real and imaginary parts of ``(Z - H) / |H|``, real parts first; Eq. (6b)
+applied to that vector is the overall error, and it is Eq. (6b) itself when
+only amplitudes are measured (then the vector is the amplitude residuals).
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import numpy as np
 
 __all__ = [
     "relative_residuals",
+    "complex_relative_residuals",
     "overall_error",
     "per_sensor_error",
     "uniform_samples",
@@ -57,6 +63,30 @@ def relative_residuals(model_amplitude: np.ndarray, measured_amplitude: np.ndarr
     measured_amplitude = np.asarray(measured_amplitude, dtype=float)
     rel = (model_amplitude - measured_amplitude) / measured_amplitude
     return rel.reshape(rel.shape[:-2] + (-1,))
+
+
+def complex_relative_residuals(model_frf: np.ndarray, measured_frf: np.ndarray) -> np.ndarray:
+    """Real and imaginary parts of ``(Z_model - H_meas) / |H_meas|``, real parts first.
+
+    The phase carries what the amplitude drops (the sign of a mode's
+    contribution, which side of a resonance a line is on); dividing by
+    ``|H_meas|`` keeps the relative weighting of Eq. (5), and the two parts
+    are smooth in the parameters where the amplitude residual has a kink.
+
+    Parameters
+    ----------
+    model_frf : ndarray, shape (..., c), complex
+        Model FRF at ``c`` measured values (lines x channels, flattened).
+    measured_frf : ndarray, shape (c,), complex, non-zero
+
+    Returns
+    -------
+    ndarray, shape (..., 2 c)
+        ``[Re r_1 .. Re r_c, Im r_1 .. Im r_c]``.
+    """
+    measured_frf = np.asarray(measured_frf, dtype=complex)
+    r = (np.asarray(model_frf, dtype=complex) - measured_frf) / np.abs(measured_frf)
+    return np.concatenate([r.real, r.imag], axis=-1)
 
 
 def overall_error(residuals: np.ndarray) -> np.ndarray:

@@ -90,11 +90,12 @@ def evaluate_chunk(folder: str, chunk: int, meta: dict) -> int:
     m, size = int(meta["n_parameters"]), int(meta["chunk_size"])
     X = chunk_samples(meta["seed"], chunk, size, m, meta["lower"], meta["upper"])
     freqs = np.asarray(meta["frequencies_hz"], dtype=float)
+    names = parameter_names(meta)
     parts = []
     for j, alpha in enumerate(X):
         df = evaluate_sample(meta["model"], chunk * size + j, alpha, freqs)
-        for i in range(m):
-            df[f"alpha_{i + 1}"] = alpha[i]
+        for i, name in enumerate(names):
+            df[name] = alpha[i]
         parts.append(df.drop(columns=["message", "pid"]))
     atomic_write_bytes(chunk_path(Path(folder), chunk), _parquet_bytes(pd.concat(parts, ignore_index=True)))
     return chunk
@@ -148,12 +149,23 @@ def load_amplitudes(folder: Path, n_samples: int, meta: dict) -> tuple[np.ndarra
     fe = fe[fe["sample_id"].isin(ok_ids)]
     fe = fe.assign(amplitude=np.hypot(fe["real"], fe["imag"]))
     wide = fe.pivot_table(index="sample_id", columns=["frequency_hz", "sensor"], values="amplitude").sort_index(axis=1)
-    cols = [f"alpha_{i + 1}" for i in range(m)]
+    cols = parameter_names(meta)
     X = fe.groupby("sample_id")[cols].first().loc[wide.index].to_numpy()
     return X, wide.to_numpy(), wide.columns, int((status != "ok").sum())
 
 
-def correlation_table(X: np.ndarray, A: np.ndarray, columns: pd.MultiIndex) -> pd.DataFrame:
+def parameter_names(meta: dict) -> list[str]:
+    """The model's parameter names (``alpha_i``, and ``gamma_j`` for updated masses); ``meta["n_parameters"]``
+    of them."""
+    names = load_model(meta["model"]).parameter_names
+    if len(names) != int(meta["n_parameters"]):
+        raise CorrelationError(f"the model {meta['model']} has {len(names)} parameters ({', '.join(names)}), "
+                               f"the samples {meta['n_parameters']}")
+    return names
+
+
+def correlation_table(X: np.ndarray, A: np.ndarray, columns: pd.MultiIndex,
+                      names: list[str] | None = None) -> pd.DataFrame:
     """Eq. (16) for every parameter and response: ``parameter, sensor, frequency_hz, rho, rho_log, n_samples``.
 
     ``rho`` is the paper's coefficient with the amplitude; ``rho_log`` is the
@@ -166,7 +178,7 @@ def correlation_table(X: np.ndarray, A: np.ndarray, columns: pd.MultiIndex) -> p
     freqs = columns.get_level_values(0).to_numpy(float)
     sensors = columns.get_level_values(1).to_numpy(int)
     return pd.DataFrame({
-        "parameter": np.repeat([f"alpha_{i + 1}" for i in range(m)], len(columns)),
+        "parameter": np.repeat(names or [f"alpha_{i + 1}" for i in range(m)], len(columns)),
         "sensor": np.tile(sensors, m),
         "frequency_hz": np.tile(freqs, m),
         "rho": rho.ravel(),
@@ -189,7 +201,7 @@ def sensitivity_tables(model_name: str, references: dict[str, np.ndarray], freqs
     """
     model = load_model(model_name)
     freqs = np.asarray(freqs_hz, dtype=float)
-    n, m = model.n_sensors, model.n_segments
+    n, m = model.n_sensors, model.n_parameters
     names = model.parameter_names
     rows, summary, results = [], {}, {}
     for label, alpha in references.items():

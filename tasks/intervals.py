@@ -43,13 +43,19 @@ POSTERIOR_TABLE = "posterior"
 
 @task(name="intervals", task_run_name="iteration-{iteration}-intervals", cache_policy=NO_CACHE)
 def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measured_amplitude: np.ndarray,
-                   start) -> dict:
-    """Intervals near ``start`` (shape (m,), the run's best parameters); returns the stage record's info.
+                   start, data=None) -> dict:
+    """Intervals near ``start`` (shape (n_parameters,), the run's best parameters); returns the stage record's info.
 
     The info holds the ``summary.json`` fields (``intervals``, ``covariance``,
     ``interval_method``, ``noise_sigma``, ``interval_details``) and the cost
     (``interval_cost``: Jacobians, FE runs besides them, seconds; the flow adds the
     cost in FE runs of the update).
+
+    With ``data`` (:class:`tasks.update_data.UpdateData`): the log amplitudes of its
+    channels on the lines where every channel is kept (coherence), through the model
+    seen with the channels' one reference as its load; the phase of complex data is
+    not used here (the intervals' error model is the relative amplitude noise). Data
+    with several references (MIMO) get no intervals: ``{"skipped": reason}``.
     """
     store = RunStore(root)
     logger = stages._logger()
@@ -62,8 +68,16 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
             return info
         logger.info("iteration %d, stage intervals: settings changed from %s to %s, computed again", iteration,
                     old, settings)
-    model = stages.load_model(config.model)
-    m = model.n_segments
+    model = full_model = stages.load_model(config.model)
+    if data is not None:
+        try:
+            model = data.single_reference_model(model)
+        except ValueError as exc:
+            logger.warning("iteration %d, stage intervals: skipped: %s", iteration, exc)
+            return {"skipped": str(exc)}
+        lines = data.complete_lines
+        freqs_hz, measured_amplitude = data.frequencies_hz[lines], data.amplitude[lines]
+    m = model.n_parameters
     lower, upper = stages.parameter_box(config, m)
     lower = np.maximum(lower, polish_lower_bound(-1.0))
     t0, c0 = time.perf_counter(), time.process_time()
@@ -73,7 +87,7 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
     iv = refined.intervals
     fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config)
     seconds = time.perf_counter() - t0
-    cols = stages.param_columns(m)
+    cols = model.parameter_names
     reported = np.array(fields["covariance"], float)
     low, high = np.array([fields["intervals"][c] for c in cols], dtype=float).T
     table = pd.DataFrame({"parameter": cols, "start": refined.start, "estimate": iv.estimate, "low": low,
@@ -89,11 +103,19 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
         store.write_table(iteration, INTERVALS_STAGE, POSTERIOR_TABLE, samples)
         names.append(POSTERIOR_TABLE)
     fe_runs = refined.fe_runs + (check.fe_runs if check is not None else 0) + (post.fe_runs if post else 0)
-    # The paper's errors at the least-squares optimum, from its log residual (no FE run): (|Z| - u) / u = e^r - 1.
-    rel = np.expm1(refined.residual)
-    n = np.shape(measured_amplitude)[1]
+    if data is None:
+        # The paper's errors at the least-squares optimum, from its log residual (no FE run): (|Z| - u) / u = e^r - 1.
+        rel = np.expm1(refined.residual)
+        n = np.shape(measured_amplitude)[1]
+        per_channel = np.mean(np.abs(rel.reshape(-1, n)), axis=0)
+    else:
+        # The run's own error measure (its lines, coherence mask and residual kind, which the log amplitudes
+        # of the complete lines are not): one FE run at the optimum.
+        rel = data.residuals(full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))
+        per_channel = data.channel_errors(rel)
+        fe_runs += 1
     fields["estimate_errors"] = {"overall_error": float(np.mean(np.abs(rel))),
-                                 "per_sensor_error": np.mean(np.abs(rel.reshape(-1, n)), axis=0).tolist(),
+                                 "per_sensor_error": np.asarray(per_channel, float).tolist(),
                                  "at_optimum": refined.at_optimum}
     info = {**fields, **settings,
             "interval_cost": {"fe_runs": fe_runs, "jacobians": refined.jacobians, "seconds": round(seconds, 3),
@@ -126,7 +148,7 @@ def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper
         log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
 
         def residual(alpha):
-            return np.log(np.abs(model.frf(alpha, freqs_hz))).ravel() - log_u
+            return np.log(np.abs(model.parameter_frf(alpha, freqs_hz))).ravel() - log_u
 
         check = linearity_check(residual, iv, refined.residual, lower, upper, which=flagged)
         if check.poor.any():

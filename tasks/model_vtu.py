@@ -10,7 +10,6 @@ again). A model without a mesh (matrices) writes nothing and says why in the log
 from __future__ import annotations
 
 import os
-import re
 import time
 from pathlib import Path
 
@@ -26,25 +25,21 @@ __all__ = ["VTU_NAME", "factors_from_parameters", "write_model_vtu", "model_vtu_
 VTU_NAME = "model.vtu"
 
 
-def factors_from_parameters(parameters: dict, n_segments: int) -> tuple[np.ndarray, np.ndarray | None]:
-    """``alpha`` (and ``gamma`` when the parameters have mass factors) from a summary's
-    ``parameters`` (``{"alpha_1": ..., "gamma_1": ...}``), shape (n_segments,) each.
+def factors_from_parameters(parameters: dict, model) -> tuple[np.ndarray, np.ndarray | None]:
+    """``alpha`` (and ``gamma`` when the model updates mass factors) from a summary's ``parameters``
+    (``{"alpha_1": ..., "gamma_2": ...}``), shape (n_segments,) each (:meth:`fe_core.ParametricModel.factors`:
+    zero gamma for segments whose mass is not updated).
 
-    Raises ``ValueError`` naming a missing factor.
+    Raises ``ValueError`` naming a missing parameter, or one the model does not have.
     """
-    def vector(symbol: str) -> np.ndarray | None:
-        keys = [k for k in parameters if re.fullmatch(rf"{symbol}_\d+", k)]
-        if not keys:
-            return None
-        missing = [f"{symbol}_{i + 1}" for i in range(n_segments) if f"{symbol}_{i + 1}" not in parameters]
-        if missing:
-            raise ValueError(f"the parameters lack {', '.join(missing)} (the model has {n_segments} segments)")
-        return np.array([float(parameters[f"{symbol}_{i + 1}"]) for i in range(n_segments)])
-
-    alpha = vector("alpha")
-    if alpha is None:
-        raise ValueError("the parameters have no alpha_1 .. alpha_m")
-    return alpha, vector("gamma")
+    names = model.parameter_names
+    missing = [n for n in names if n not in parameters]
+    if missing:
+        raise ValueError(f"the parameters lack {', '.join(missing)} (the model's parameters: {', '.join(names)})")
+    extra = [n for n in parameters if n not in names]
+    if extra:
+        raise ValueError(f"{', '.join(extra)}: not parameters of the model (its parameters: {', '.join(names)})")
+    return model.factors([float(parameters[n]) for n in names])
 
 
 def write_model_vtu(root: str | Path, model_name: str, parameters: dict, n_modes: int | None = None) -> Path | None:
@@ -76,7 +71,7 @@ def write_model_vtu(root: str | Path, model_name: str, parameters: dict, n_modes
     if model.mesh is None:
         logger.info("%s not written: the model %s is given as matrices (no mesh to draw)", VTU_NAME, model_name)
         return None
-    alpha, gamma = factors_from_parameters(parameters, model.n_segments)
+    alpha, gamma = factors_from_parameters(parameters, model)
     t0 = time.perf_counter()
     try:
         grid = model_vtu(model, alpha, gamma, DEFAULT_MODES if n_modes is None else n_modes)

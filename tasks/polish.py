@@ -80,15 +80,20 @@ def _sample_files(store: RunStore, iteration: int, cols: list[str], rows: int) -
 
 
 @task(name="polish", task_run_name="iteration-{iteration}-polish", cache_policy=NO_CACHE)
-def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measured_amplitude: np.ndarray) -> dict:
-    """Least squares on the FE model from the best sample of iterations 1..``iteration``."""
+def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measured_amplitude: np.ndarray,
+                data=None) -> dict:
+    """Least squares on the FE model from the best sample of iterations 1..``iteration``.
+
+    With ``data`` (:class:`tasks.update_data.UpdateData`) the FE runs give its channels and the
+    residual vector is its residual (amplitude or complex, the kept values), as in the loop.
+    """
     store = RunStore(root)
     logger = stages._logger()
     if stages._done(store, iteration, POLISH_STAGE):
         return store.stage_info(iteration, POLISH_STAGE)
     ids, X, Y, E = stages.training_data(store, iteration)
     m = X.shape[1]
-    cols = stages.param_columns(m)
+    cols = stages.parameter_names(config)
     p, n = measured_amplitude.shape
     best = int(np.argmin(E))
     lower, upper = stages.parameter_box(config, m)
@@ -107,7 +112,7 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
     if config.polish_max_fe < m + 1:
         logger.warning("polish_max_fe = %d is less than one Jacobian and a step (%d FE runs): the polish can "
                        "do nothing", config.polish_max_fe, m + 1)
-    results: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # sample id -> (parameters, residuals)
+    results: dict[int, tuple] = {}  # sample id -> (parameters, residuals, FRF)
     state = {"ran": 0, "next": base}
 
     def evaluate(points: list[np.ndarray]) -> list[np.ndarray]:
@@ -121,7 +126,7 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
                 df = pd.read_parquet(path)
                 xs = df[cols].to_numpy()[0].astype(float)
                 if np.max(np.abs(xs - x)) <= tol:
-                    results[sid] = (xs, _residuals(df, measured_amplitude))
+                    results[sid] = (xs, *_residuals(df, measured_amplitude, data))
                     if sid not in logged:  # killed between writing the result and logging it: one FE run
                         stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE,
                                                    "sample_id": sid, "event": "recovered",
@@ -131,7 +136,8 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
                 _set_aside(store, iteration, sid, path, f"computed for other parameters ({xs.tolist()}) than requested")
             todo.append((sid, x))
         if todo:
-            jobs = {sid: delayed(stages.evaluate_sample)(config.model, sid, x, freqs_hz) for sid, x in todo}
+            channels = None if data is None else data.channels
+            jobs = {sid: delayed(stages.evaluate_sample)(config.model, sid, x, freqs_hz, channels) for sid, x in todo}
             alpha = dict(todo)
             runs = run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=config.fe_backend,
                                  n_jobs=config.n_jobs, dask_address=config.dask_address,
@@ -146,9 +152,9 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
                 stages._append_log(store, {"iteration": iteration, "stage": POLISH_STAGE, "sample_id": sid,
                                            "event": "evaluated", "status": result["status"].iloc[0],
                                            "pid": int(result["pid"].iloc[0]), "unix": time.time()})
-                results[sid] = (alpha[sid], _residuals(result, measured_amplitude))
+                results[sid] = (alpha[sid], *_residuals(result, measured_amplitude, data))
                 state["ran"] += 1
-        errors = [float(np.mean(np.abs(r))) for _, r in results.values() if np.all(np.isfinite(r))]
+        errors = [float(np.mean(np.abs(r))) for _, r, _ in results.values() if np.all(np.isfinite(r))]
         logger.info("iteration %d, stage polish: %d FE runs, best overall error so far %.4g %%", iteration,
                     len(results), 100 * min([E[best], *errors]))
         return [results[sid][1] for sid in ids]
@@ -162,17 +168,23 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
     # One row per FE run of the polish, in request order.
     rows, res_parts = [], []
     for sid in sorted(results):
-        x, r = results[sid]
+        x, r, Z = results[sid]
         ok = bool(np.all(np.isfinite(r)))
         row = {"sample_id": sid, "step": sid - base, **dict(zip(cols, x)),
                "overall_error": float(adaptive.overall_error(r)) if ok else np.nan,
                "status": "ok" if ok else "failed"}
-        for j, e in enumerate(adaptive.per_sensor_error(r, n) if ok else np.full(n, np.nan)):
+        per_channel = adaptive.per_sensor_error(r, n) if data is None else data.channel_errors(r)
+        for j, e in enumerate(per_channel if ok else np.full(n, np.nan)):
             row[f"error_sensor_{j + 1}"] = float(e)
         rows.append(row)
-        res_parts.append(pd.DataFrame({"sample_id": np.int64(sid), "frequency_hz": np.repeat(freqs_hz, n),
-                                       "sensor": np.tile(np.arange(1, n + 1), p).astype(np.int64),
-                                       "residual": r}))
+        if data is None:
+            res_parts.append(pd.DataFrame({"sample_id": np.int64(sid), "frequency_hz": np.repeat(freqs_hz, n),
+                                           "sensor": np.tile(np.arange(1, n + 1), p).astype(np.int64),
+                                           "residual": r}))
+        else:
+            columns = data.residual_columns(Z)
+            res_parts.append(pd.DataFrame({"sample_id": np.full(columns["residual"].size, sid, np.int64),
+                                           **columns}))
     for sid, path in stored.items():  # results of points this polish never asked for (not expected)
         _set_aside(store, iteration, sid, path, "not requested by the resumed polish")
     table = pd.DataFrame(rows, columns=["sample_id", "step", *cols, "overall_error", "status",
@@ -195,11 +207,16 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
     return store.stage_info(iteration, POLISH_STAGE)
 
 
-def _residuals(fe: pd.DataFrame, measured_amplitude: np.ndarray) -> np.ndarray:
-    """Relative residuals (Eq. 5 layout) of one per-sample FE table; NaN for a failed run."""
+def _residuals(fe: pd.DataFrame, measured_amplitude: np.ndarray, data=None) -> tuple[np.ndarray, np.ndarray]:
+    """(residual vector, FRF (p, n)) of one per-sample FE table; NaN for a failed run.
+
+    The vector is Eq. (5)'s relative amplitude residuals, or ``data``'s residual when given.
+    """
     fe = fe.sort_values(["frequency_hz", "sensor"], kind="stable")
-    amp = np.hypot(fe["real"].to_numpy(), fe["imag"].to_numpy()).reshape(1, *measured_amplitude.shape)
-    return adaptive.relative_residuals(amp, measured_amplitude)[0]
+    Z = (fe["real"].to_numpy() + 1j * fe["imag"].to_numpy()).reshape(measured_amplitude.shape)
+    if data is not None:
+        return data.residuals(Z), Z
+    return adaptive.relative_residuals(np.hypot(Z.real, Z.imag)[None], measured_amplitude)[0], Z
 
 
 def polish_results(store: RunStore, iteration: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
@@ -209,7 +226,6 @@ def polish_results(store: RunStore, iteration: int) -> tuple[np.ndarray, np.ndar
     table = store.read_table(iteration, POLISH_STAGE)
     table = table[table["status"] == "ok"]
     res = store.read_table(iteration, POLISH_STAGE, "residuals")
-    wide = res.pivot_table(index="sample_id", columns=["frequency_hz", "sensor"], values="residual").sort_index(axis=1)
-    cols = [c for c in table.columns if c.startswith("alpha_")]
+    cols = stages.parameter_columns(table)
     ids = table["sample_id"].to_numpy()
-    return ids, table[cols].to_numpy(), wide.loc[ids].to_numpy(), table["overall_error"].to_numpy()
+    return ids, table[cols].to_numpy(), stages.residual_matrix(res, ids), table["overall_error"].to_numpy()

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import time
 from pathlib import Path
 
@@ -128,7 +129,8 @@ def _model_from_file(name: str):
 
 
 def parameter_box(config, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """The search box, shape (m,) each: the model file's per-segment bounds where given, else lower/upper."""
+    """The search box, shape (m,) each: the model file's bounds (of alpha, and of gamma where the mass is
+    updated) where given, else lower/upper."""
     lower, upper = np.full(m, float(config.lower)), np.full(m, float(config.upper))
     bounds = getattr(load_model(config.model), "parameter_bounds", None)
     if bounds is not None:
@@ -137,32 +139,54 @@ def parameter_box(config, m: int) -> tuple[np.ndarray, np.ndarray]:
     return lower, upper
 
 
-def param_columns(m: int) -> list[str]:
-    return [f"alpha_{i + 1}" for i in range(m)]
+def parameter_names(config) -> list[str]:
+    """The run's parameters, the columns of its sample tables: ``alpha_1 .. alpha_m`` and, for segments
+    whose mass factor the model file updates, ``gamma_j`` (:attr:`fe_core.ParametricModel.parameter_names`)."""
+    return load_model(config.model).parameter_names
+
+
+#: A parameter column of a run's tables (samples, FE results, polish, candidates).
+PARAMETER_COLUMN = re.compile(r"(alpha|gamma)_\d+")
+
+
+def parameter_columns(table: pd.DataFrame) -> list[str]:
+    """The parameter columns of a stored table, in the order written (the model's parameter order)."""
+    return [c for c in table.columns if PARAMETER_COLUMN.fullmatch(str(c))]
 
 
 # -- FE evaluation (runs in joblib worker processes) ---------------------------------------------
-def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz: np.ndarray) -> pd.DataFrame:
-    """One FE run: the complex FRF at the sensors as a long table.
+def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz: np.ndarray,
+                    channels: tuple[np.ndarray, np.ndarray] | None = None) -> pd.DataFrame:
+    """One FE run: the complex FRF of the measured channels as a long table.
+
+    ``alpha`` is the parameter vector, shape (n_parameters,): the stiffness factors and, when the
+    model file updates masses, the mass factors (:meth:`fe_core.ParametricModel.factors`).
 
     A failed evaluation (for instance a singular system) does not raise: it
     returns rows with NaN responses, ``status = "failed"`` and the reason, so
     the run records it, excludes the sample and goes on.
 
+    ``channels`` = ``(responses, references)`` (0-based model sensor and
+    excitation of each measured channel, :attr:`tasks.update_data.UpdateData.channels`)
+    gives those channels through one solve with a load column per reference
+    (:meth:`fe_core.model.ParametricModel.frf_channels`); None gives the
+    model's sensors under its default excitation (``model.frf``).
+
     Returns
     -------
     DataFrame
         Columns ``sample_id, sensor, frequency_hz, real, imag, status, message, seconds, pid``;
-        one row per (frequency, sensor), frequency-major.
+        one row per (frequency, channel), frequency-major; ``sensor`` is the
+        channel number (1-based; the sensor when ``channels`` is None).
     """
     t0 = time.perf_counter()
     model = load_model(model_name)
-    n, p = model.n_sensors, len(freqs_hz)
+    n, p = (model.n_sensors if channels is None else len(channels[0])), len(freqs_hz)
     delay = float(os.environ.get(FE_DELAY_ENV, "0") or 0)
     if delay > 0:  # fault-injection tests need FE runs slow enough to be interrupted
         time.sleep(delay)
     try:
-        Z = model.frf(np.asarray(alpha, dtype=float), freqs_hz)
+        Z = model.parameter_frf(np.asarray(alpha, dtype=float), freqs_hz, channels)
         if not np.all(np.isfinite(Z)):
             raise FloatingPointError("the FRF has non-finite values")
         status, message = "ok", ""
@@ -203,15 +227,28 @@ def training_data(store: RunStore, iteration: int) -> tuple[np.ndarray, np.ndarr
         errs = store.read_table(k, "errors", "errors")
         res = store.read_table(k, "errors", "residuals")
         ok = errs[errs["status"] == "ok"]
-        cols = [c for c in samples.columns if c.startswith("alpha_")]
+        cols = parameter_columns(samples)
         merged = samples.merge(ok[["sample_id", "overall_error"]], on="sample_id")
-        wide = res.pivot_table(index="sample_id", columns=["frequency_hz", "sensor"], values="residual")
-        wide = wide.sort_index(axis=1)  # frequency-major, sensors fastest (Eq. 5)
         ids.append(merged["sample_id"].to_numpy())
         X.append(merged[cols].to_numpy())
-        Y.append(wide.loc[merged["sample_id"]].to_numpy())
+        Y.append(residual_matrix(res, merged["sample_id"]))
         E.append(merged["overall_error"].to_numpy())
     return np.concatenate(ids), np.vstack(X), np.vstack(Y), np.concatenate(E)
+
+
+def residual_matrix(res: pd.DataFrame, sample_ids) -> np.ndarray:
+    """Residual vectors (rows in the order of ``sample_ids``) from a long residual table.
+
+    Columns frequency-major, channels fastest (Eq. 5); with complex residuals
+    (columns ``residual_real``, ``residual_imag``) all real parts, then all
+    imaginary parts (:meth:`tasks.update_data.UpdateData.residuals`).
+    """
+    parts = ["residual_real", "residual_imag"] if "residual_real" in res.columns else ["residual"]
+    out = []
+    for value in parts:
+        wide = res.pivot_table(index="sample_id", columns=["frequency_hz", "sensor"], values=value)
+        out.append(wide.sort_index(axis=1).loc[sample_ids].to_numpy())
+    return np.hstack(out)
 
 
 def _finish(store: RunStore, iteration: int, stage: str, names: list[str], info: dict) -> None:
@@ -295,7 +332,7 @@ def samples_task(root: str, config, iteration: int, m: int) -> int:
     """The FE batch of an iteration: uniform samples first, then the previous selection."""
     store = RunStore(root)
     if not _done(store, iteration, "samples"):
-        cols = param_columns(m)
+        cols = parameter_names(config)
         if iteration == 1:
             n = config.conventional_samples if config.strategy == "conventional" else config.q
             lower, upper = parameter_box(config, m)
@@ -313,35 +350,36 @@ def samples_task(root: str, config, iteration: int, m: int) -> int:
 
 
 @task(name="fe", task_run_name="iteration-{iteration}-fe", cache_policy=NO_CACHE)
-def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray) -> int:
+def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray, channels=None) -> int:
     """FE runs of the iteration's samples in parallel (joblib: loky processes or a Dask cluster).
 
     Each result is written as soon as it arrives, so a crash loses at most
     the runs in flight; on resume, samples with a result on disk are not run
     again. A lost worker costs only its runs in flight: they are submitted
-    again (:func:`tasks.fe_backends.run_unordered`). Returns the number of FE
-    runs made by this call.
+    again (:func:`tasks.fe_backends.run_unordered`). ``channels``: as in
+    :func:`evaluate_sample`. Returns the number of FE runs made by this call.
     """
     store = RunStore(root)
     logger = _logger()
     if _done(store, iteration, "fe"):
         return 0
     samples = store.read_table(iteration, "samples")
-    cols = [c for c in samples.columns if c.startswith("alpha_")]
-    check = _sample_check(samples, cols, len(freqs_hz) * load_model(config.model).n_sensors)
+    cols = parameter_columns(samples)
+    n = load_model(config.model).n_sensors if channels is None else len(channels[0])
+    check = _sample_check(samples, cols, len(freqs_hz) * n)
     done = store.finished_samples(iteration, check)
     _reconcile_log(store, iteration, done)
     todo = samples[~samples["sample_id"].isin(list(done))]
     for sid, x in zip(todo["sample_id"], todo[cols].to_numpy()):
         # The model refuses these (the run records the failure and goes on); sampling should never make one.
         if np.any(~np.isfinite(x)) or np.any(x <= -1.0):
-            logger.warning("iteration %d: sample %d is outside the valid domain (alpha > -1): %s",
+            logger.warning("iteration %d: sample %d is outside the valid domain (factors > -1): %s",
                            iteration, sid, x)
     if done:
         logger.info("iteration %d, stage fe: %d of %d FE results found on disk", iteration, len(done), len(samples))
     total, count = len(samples), len(done)
     jobs = {
-        int(sid): delayed(evaluate_sample)(config.model, int(sid), x, freqs_hz)
+        int(sid): delayed(evaluate_sample)(config.model, int(sid), x, freqs_hz, channels)
         for sid, x in zip(todo["sample_id"], todo[cols].to_numpy())
     }
     ran = 0
@@ -395,14 +433,21 @@ def _reconcile_log(store: RunStore, iteration: int, done: dict[int, Path]) -> No
 
 
 @task(name="errors", task_run_name="iteration-{iteration}-errors", cache_policy=NO_CACHE)
-def errors_task(root: str, config, iteration: int, measured_amplitude: np.ndarray) -> dict:
-    """Residuals (Eq. 5), overall (Eq. 6b) and per-sensor (Eq. 15) errors of the iteration's FE runs."""
+def errors_task(root: str, config, iteration: int, measured_amplitude: np.ndarray, data=None) -> dict:
+    """Residuals (Eq. 5), overall (Eq. 6b) and per-sensor (Eq. 15) errors of the iteration's FE runs.
+
+    With ``data`` (:class:`tasks.update_data.UpdateData`) the residual is the run's
+    (amplitude or complex) over the kept values, the errors per channel.
+    """
     store = RunStore(root)
     if not _done(store, iteration, "errors"):
         fe = store.read_table(iteration, "fe")
         p, n = measured_amplitude.shape
         status = fe.groupby("sample_id", sort=True)["status"].first()
         ids = status.index.to_numpy()
+        if data is not None:
+            _fit_errors(store, iteration, fe, ids, status, data)
+            return store.stage_info(iteration, "errors")
         amp = np.hypot(fe["real"].to_numpy(), fe["imag"].to_numpy()).reshape(len(ids), p, n)
         res = adaptive.relative_residuals(amp, measured_amplitude)  # (r, p*n)
         overall = adaptive.overall_error(res)
@@ -430,6 +475,32 @@ def errors_task(root: str, config, iteration: int, measured_amplitude: np.ndarra
     return store.stage_info(iteration, "errors")
 
 
+def _fit_errors(store: RunStore, iteration: int, fe: pd.DataFrame, ids: np.ndarray, status: pd.Series, data) -> None:
+    """The errors stage on the run's :class:`tasks.update_data.UpdateData` (channels, kept values, residual)."""
+    p, n = data.amplitude.shape
+    Z = (fe["real"].to_numpy() + 1j * fe["imag"].to_numpy()).reshape(len(ids), p, n)
+    res = data.residuals(Z)  # (r, k)
+    errors = pd.DataFrame({"sample_id": ids, "iteration": np.int64(iteration),
+                           "overall_error": adaptive.overall_error(res), "status": status.to_numpy()})
+    for j, e in enumerate(data.channel_errors(res).T):
+        errors[f"error_sensor_{j + 1}"] = e
+    failed = errors["status"] != "ok"
+    if failed.any():
+        messages = fe[fe["status"] != "ok"].groupby("sample_id")["message"].first()
+        for sid, msg in messages.items():
+            _logger().warning("iteration %d: FE run of sample %d failed and is excluded: %s", iteration, sid, msg)
+    parts = []
+    for sid, z in zip(ids, Z):
+        columns = data.residual_columns(z)
+        parts.append(pd.DataFrame({"sample_id": np.full(columns["residual"].size, sid, dtype=np.int64), **columns}))
+    store.write_table(iteration, "errors", "errors", errors)
+    store.write_table(iteration, "errors", "residuals", pd.concat(parts, ignore_index=True))
+    ok = errors.loc[~failed, "overall_error"]
+    _finish(store, iteration, "errors", ["errors", "residuals"],
+            {"best": float(ok.min()) if len(ok) else float("inf"), "failed": int(failed.sum()),
+             "residual": data.residual, "values": data.n_values})
+
+
 @task(name="distribution", task_run_name="iteration-{iteration}-distribution", cache_policy=NO_CACHE)
 def distribution_task(root: str, config, iteration: int, m: int) -> dict:
     """Step f: the sampling distribution of the next candidates, and the minimum distance."""
@@ -444,7 +515,7 @@ def distribution_task(root: str, config, iteration: int, m: int) -> dict:
             dist = adaptive.fit_distribution(X, E, config.z, config.std_floor)
             kind, mean, std = "normal", dist.mean, dist.std
         d_min = adaptive.default_min_distance(dist, lower, upper, config.min_distance_factor)
-        df = pd.DataFrame({"parameter": param_columns(m), "mean": mean, "std": std})
+        df = pd.DataFrame({"parameter": parameter_names(config), "mean": mean, "std": std})
         store.write_table(iteration, "distribution", "distribution", df)
         _finish(store, iteration, "distribution", ["distribution"], {"kind": kind, "min_distance": d_min})
     return store.stage_info(iteration, "distribution")
@@ -499,7 +570,7 @@ def predict_task(root: str, config, iteration: int, m: int, train_stage: str = "
         t0 = time.perf_counter()
         predicted = predict_overall_error(X, Y, dict(zip(hp["name"], hp["value"])), C, outputs=outputs)
         seconds = time.perf_counter() - t0
-        df = pd.DataFrame(C, columns=param_columns(m))
+        df = pd.DataFrame(C, columns=parameter_names(config))
         df.insert(0, "candidate_id", np.arange(len(df), dtype=np.int64))
         df["predicted_error"] = predicted
         store.write_table(iteration, output_stage, "candidates", df)
@@ -515,7 +586,7 @@ def select_task(root: str, config, iteration: int, m: int, s: int | None = None)
     if not _done(store, iteration, "select"):
         s = s or config.s
         cand = store.read_table(iteration, "predict", "candidates")
-        cols = param_columns(m)
+        cols = parameter_names(config)
         ids, X, _, _ = training_data(store, iteration)
         d_min = float(store.stage_info(iteration, "distribution")["min_distance"])
         chosen = adaptive.select_diverse(cand[cols].to_numpy(), cand["predicted_error"].to_numpy(), s, d_min,

@@ -25,7 +25,8 @@ def main(argv: list[str] | None = None) -> int:
     kind = "matrices" if model.mesh is None else f"{model.mesh.n_cells} cells, {model.mesh.n_nodes} nodes"
     print(f"{argv[0]}: {kind}, {model.n_dofs} free DOFs, total mass {model.total_mass():.6g} kg")
     for i, name in enumerate(model.segment_names):
-        print(f"  alpha_{i + 1}: segment {name!r}, {model.segment_masses[i]:.6g} kg")
+        gamma = f", gamma_{i + 1} (its mass factor)" if i in model.mass_parameters else ""
+        print(f"  alpha_{i + 1}{gamma}: segment {name!r}, {model.segment_masses[i]:.6g} kg")
     if model.remainder_mass:
         print(f"  fixed remainder: {model.remainder_mass:.6g} kg")
     for line in model.placements:

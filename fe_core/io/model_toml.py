@@ -25,6 +25,8 @@ file. Every refusal is a :class:`ModelFileError` naming the file and the key::
     [[segments]]                       # stiffness factor alpha_i of a cell set, in this order
     set = "segment1"
     bounds = [-1.0, 1.0]               # optional (default: the run's lower/upper)
+    update = ["stiffness", "mass"]     # optional: also its mass factor gamma_i (default ["stiffness"])
+    mass_bounds = [-0.5, 0.5]          # optional, with "mass": gamma_i's box
 
     [[supports]]                       # a node set (or a cell set's nodes) and the fixed directions
     nodes = "clamped"                  # or a list of node indices
@@ -34,11 +36,14 @@ file. Every refusal is a :class:`ModelFileError` naming the file and the key::
     name = "s1"
     point = [0.0359, 0.02, 0.01]       # or node = 17
     direction = "z"                    # x, y, z or a vector [nx, ny, nz]
+    test_node = 1                      # optional: the test's node id (UFF58 response/reference node)
+    test_direction = "+z"              # optional: the test's direction code (default: direction if x, y, z)
 
     [[excitations]]
     name = "combined"
     dofs = [{ point = [0.0359, 0.02, 0.01], direction = "z", weight = 1.0 }, ...]
                                        # or point / node, direction, weight directly
+                                       # test_node / test_direction as for sensors (both needed with dofs)
 
 A matrices model replaces ``mesh`` by::
 
@@ -268,24 +273,48 @@ def read_model_toml(path: str | Path) -> ParametricModel:
     return _matrices_model(spec, units, (a, b))
 
 
-def _segments_bounds(spec: _Spec, tables: list[dict], names: list[str]) -> np.ndarray | None:
-    bounds = np.tile([-np.inf, np.inf], (len(tables), 1))
-    given = False
+def _bounds(spec: _Spec, value: Any, key: str, segment: str, symbol: str) -> tuple[float, float]:
+    if not (isinstance(value, list) and len(value) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+        raise spec.error(key, f"must be [lower, upper], got {value!r}")
+    lo, hi = map(float, value)
+    what = "stiffness" if symbol == "alpha" else "mass"
+    if not (-1.0 <= lo < hi and np.isfinite(hi)):
+        raise spec.error(key, f"segment {segment!r}: need -1 <= lower < upper ({symbol} > -1 keeps the {what} "
+                              f"positive), got {value!r}")
+    return lo, hi
+
+
+#: What a segment's ``update`` may list: its stiffness factor alpha (always) and its mass factor gamma.
+UPDATES = ("stiffness", "mass")
+
+
+def _segment_parameters(spec: _Spec, tables: list[dict], names: list[str]) -> tuple[np.ndarray, np.ndarray | None]:
+    """The segments whose mass factor is updated (``update = ["stiffness", "mass"]``), and the parameter
+    bounds, shape (n_parameters, 2) in the model's parameter order (alphas, then the gammas), +-inf where
+    none is given, or None when no segment gives any."""
+    mass, alpha_bounds, gamma_bounds = [], [], []
     for i, seg in enumerate(tables):
         where = f"segments[{i}]"
-        if "bounds" not in seg:
-            continue
-        value = seg["bounds"]
-        if not (isinstance(value, list) and len(value) == 2
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
-            raise spec.error(f"{where}.bounds", f"must be [lower, upper], got {value!r}")
-        lo, hi = map(float, value)
-        if not (-1.0 <= lo < hi and np.isfinite(hi)):
-            raise spec.error(f"{where}.bounds", f"segment {names[i]!r}: need -1 <= lower < upper (alpha > -1 keeps "
-                                                f"the stiffness positive), got {value!r}")
-        bounds[i] = lo, hi
-        given = True
-    return bounds if given else None
+        update = seg.get("update", ["stiffness"])
+        if not (isinstance(update, list) and all(isinstance(u, str) for u in update)) \
+                or set(update) - set(UPDATES) or len(set(update)) != len(update):
+            raise spec.error(f"{where}.update", f"must be a list of distinct {' and '.join(UPDATES)}, got {update!r}")
+        if "stiffness" not in update:
+            raise spec.error(f"{where}.update", f"segment {names[i]!r}: a segment's stiffness factor alpha is "
+                                                "always updated; list \"stiffness\" (a cell set whose stiffness is "
+                                                "fixed belongs to no segment)")
+        alpha_bounds.append(_bounds(spec, seg["bounds"], f"{where}.bounds", names[i], "alpha") if "bounds" in seg
+                            else (-np.inf, np.inf))
+        if "mass" in update:
+            mass.append(i)
+            gamma_bounds.append(_bounds(spec, seg["mass_bounds"], f"{where}.mass_bounds", names[i], "gamma")
+                                if "mass_bounds" in seg else (-np.inf, np.inf))
+        elif "mass_bounds" in seg:
+            raise spec.error(f"{where}.mass_bounds", f"segment {names[i]!r}: its mass factor is not updated; "
+                                                     'add update = ["stiffness", "mass"] or remove mass_bounds')
+    bounds = np.array(alpha_bounds + gamma_bounds, dtype=float)
+    return np.array(mass, dtype=int), bounds if np.isfinite(bounds).any() else None
 
 
 def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> ParametricModel:
@@ -348,7 +377,7 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
     seg_names = []
     for i, seg in enumerate(seg_tables):
         where = f"segments[{i}]"
-        _keys(spec, seg, {"set", "bounds", "name"}, where)
+        _keys(spec, seg, {"set", "bounds", "name", "update", "mass_bounds"}, where)
         name = _get(spec, seg, "set", where, (str,))
         cells = cell_set(name, f"{where}.set")
         taken = cells[owner[cells] >= 0]
@@ -358,7 +387,7 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
                                              f"{other!r} (e.g. cell {taken[0]}); a cell belongs to one segment")
         owner[cells] = i
         seg_names.append(_get(spec, seg, "name", where, (str,), name))
-    bounds = _segments_bounds(spec, seg_tables, seg_names)
+    mass_parameters, bounds = _segment_parameters(spec, seg_tables, seg_names)
 
     # Element matrices and assembly.
     coords = mesh.nodes[mesh.cells] * length
@@ -400,7 +429,7 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
     def dof_of(node: int, component: int) -> int:
         return int(position[DOFS_PER_NODE * node + component])
 
-    outputs, load, names, placements, exc_name = _sensors_and_excitation(spec, locator, dof_of, free.size)
+    outputs, load, names, placements, exc_name, extra = _sensors_and_excitation(spec, locator, dof_of, free.size)
     mesh.nodes = mesh.nodes * length  # the model's mesh is in m
     model = ParametricModel(
         mesh=mesh, free_dofs=free,
@@ -413,6 +442,7 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
         parameter_bounds=bounds, source=str(spec.path), remainder_mass=rest_mass, placements=placements,
         cell_segment=owner,
         cell_stiffness=_cell_stiffness_of(family, coords, materials, material_of, options),
+        mass_parameters=mass_parameters, **extra,
     )
     log.info("%s: %d %s cells, %d nodes, %d free DOFs, %d segments, %d remainder cells", spec.path, n_cells,
              mf.cell_type, n_nodes, free.size, len(seg_names), rest.size)
@@ -519,9 +549,11 @@ def _check_rigid_body_modes(spec: _Spec, nodes: np.ndarray, fixed: np.ndarray) -
                                  f"({'; '.join(free)}); fix more directions or nodes")
 
 
-def _dof_entries(spec: _Spec, locator: _Locator, table: dict, where: str, dof_of, weighted: bool) -> tuple:
-    """(free-DOF indices, weights, placement text) of one sensor or excitation point."""
+def _dof_entries(spec: _Spec, locator: _Locator, table: dict, where: str, dof_of, weighted: bool,
+                 test_keys: bool = False) -> tuple:
+    """(free-DOF indices, weights, placement text, direction) of one sensor or excitation point."""
     allowed = {"node", "point", "direction", "name"} | ({"weight"} if weighted else set())
+    allowed |= TEST_KEYS if test_keys else set()
     _keys(spec, table, allowed, where)
     node, placed = locator.node(table, where)
     if "direction" not in table:
@@ -536,53 +568,115 @@ def _dof_entries(spec: _Spec, locator: _Locator, table: dict, where: str, dof_of
                                     "in the DOF table); a sensor or excitation must be on a free DOF")
         rows.append(row)
         values.append(weight * direction[c])
-    return rows, values, placed
+    return rows, values, placed, direction
+
+
+#: Keys that tie a sensor or an excitation to the test's geometry (UFF58 nodes and directions).
+TEST_KEYS = {"test_node", "test_direction"}
+_TEST_DIRECTIONS = {"x": 1, "y": 2, "z": 3}
+
+
+def _test_dof(spec: _Spec, table: dict, where: str, direction: np.ndarray | None) -> tuple[int, int] | None:
+    """``(test node, signed UFF58 direction code)`` of a sensor or excitation, or None without ``test_node``.
+
+    ``test_direction`` (``"+z"``, ``"-x"``, or a code 1..3 with a sign) is the direction the test system
+    calls this DOF; by default the model direction itself when it is x, y or z.
+    """
+    if "test_node" not in table:
+        if "test_direction" in table:
+            raise spec.error(f"{where}.test_direction", "needs test_node (the test's node id)")
+        return None
+    node = _get(spec, table, "test_node", where, (int,))
+    if node < 1:
+        raise spec.error(f"{where}.test_node", f"must be a node id >= 1 (UFF58 node 0 means 'none'), got {node}")
+    value = table.get("test_direction")
+    if value is None:
+        axis = None if direction is None else np.flatnonzero(np.abs(direction) > 1e-12)
+        if axis is None or axis.size != 1:
+            raise spec.error(f"{where}.test_direction", "is needed when the direction is not x, y or z: the test "
+                                                       "system's direction of this DOF, e.g. \"+z\" in its local "
+                                                       "system")
+        code = int(axis[0]) + 1
+        return node, code if direction[axis[0]] > 0 else -code
+    if isinstance(value, int) and not isinstance(value, bool) and 1 <= abs(value) <= 3:
+        return node, value
+    if isinstance(value, str):
+        text = value.strip().lower()
+        sign = -1 if text.startswith("-") else 1
+        axis = text.lstrip("+-")
+        if axis in _TEST_DIRECTIONS:
+            return node, sign * _TEST_DIRECTIONS[axis]
+    raise spec.error(f"{where}.test_direction", f"must be +x, -x, +y, -y, +z, -z (or +-1, +-2, +-3), got {value!r}")
+
+
+def _unique_test_dofs(spec: _Spec, dofs: list, what: str) -> None:
+    seen = {}
+    for k, dof in enumerate(dofs):
+        if dof is None:
+            continue
+        key = (dof[0], abs(dof[1]))
+        if key in seen:
+            axis = "xyz"[abs(dof[1]) - 1]
+            raise spec.error(f"{what}[{k}].test_node", f"test node {dof[0]} direction {axis} is also that of "
+                                                       f"{what}[{seen[key]}]; one {what[:-1]} per test DOF")
+        seen[key] = k
 
 
 def _sensors_and_excitation(spec: _Spec, locator: _Locator, dof_of, n_free: int):
     sensors = _tables(spec, "sensors")
-    cols, rows, vals, names, placements = [], [], [], [], []
+    cols, rows, vals, names, placements, sensor_tests = [], [], [], [], [], []
     for j, tab in enumerate(sensors):
         where = f"sensors[{j}]"
         name = _get(spec, tab, "name", where, (str,), f"sensor {j + 1}")
         if name in names:
             raise spec.error(f"{where}.name", f"sensor name {name!r} is used twice")
-        r, v, placed = _dof_entries(spec, locator, tab, where, dof_of, weighted=False)
+        r, v, placed, direction = _dof_entries(spec, locator, tab, where, dof_of, weighted=False, test_keys=True)
         rows += r
         vals += v
         cols += [j] * len(r)
         names.append(name)
+        sensor_tests.append(_test_dof(spec, tab, where, direction))
         placements.append(f"sensor {j + 1} {name!r}: {placed}")
     outputs = sp.csr_matrix((vals, (rows, cols)), shape=(n_free, len(sensors)))
+    _unique_test_dofs(spec, sensor_tests, "sensors")
 
     excitations = _tables(spec, "excitations")
-    exc_names = []
+    exc_names, exc_tests = [], []
     loads = []
     for k, tab in enumerate(excitations):
         where = f"excitations[{k}]"
-        exc_names.append(_get(spec, tab, "name", where, (str,), f"excitation {k + 1}"))
+        name = _get(spec, tab, "name", where, (str,), f"excitation {k + 1}")
+        if name in exc_names:
+            raise spec.error(f"{where}.name", f"excitation name {name!r} is used twice")
+        exc_names.append(name)
         entries = tab.get("dofs")
         if entries is None:
             entries, base = [tab], where
         elif not (isinstance(entries, list) and entries and all(isinstance(e, dict) for e in entries)):
             raise spec.error(f"{where}.dofs", "must be a non-empty array of tables {node|point, direction, weight}")
         else:
-            _keys(spec, tab, {"name", "dofs"}, where)
+            _keys(spec, tab, {"name", "dofs"} | TEST_KEYS, where)
             base = f"{where}.dofs"
         F = np.zeros(n_free)
+        single = entries is not tab.get("dofs")
+        direction = None
         for e, entry in enumerate(entries):
-            at = base if entries is not tab.get("dofs") else f"{base}[{e}]"
-            r, v, placed = _dof_entries(spec, locator, entry, at, dof_of, weighted=True)
+            at = base if single else f"{base}[{e}]"
+            r, v, placed, direction = _dof_entries(spec, locator, entry, at, dof_of, weighted=True, test_keys=single)
             np.add.at(F, r, v)
             placements.append(f"excitation {exc_names[-1]!r}: {placed}")
+        exc_tests.append(_test_dof(spec, tab, where, direction if single else None))
         loads.append(F)
+    _unique_test_dofs(spec, exc_tests, "excitations")
     chosen = _get(spec, spec.data, "excitation", "", (str,), exc_names[0] if len(exc_names) == 1 else None)
     if chosen is None:
         raise spec.error("excitation", f"{len(exc_names)} excitations ({', '.join(exc_names)}): name the one "
                                        "that drives the measured FRF")
     if chosen not in exc_names:
         raise spec.error("excitation", f"no excitation {chosen!r} (excitations: {', '.join(exc_names)})")
-    return outputs, loads[exc_names.index(chosen)], names, placements, chosen
+    extra = dict(excitation_loads=np.column_stack(loads), excitation_names=exc_names, sensor_test_dofs=sensor_tests,
+                 excitation_test_dofs=exc_tests)
+    return outputs, loads[exc_names.index(chosen)], names, placements, chosen, extra
 
 
 def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> ParametricModel:
@@ -620,13 +714,13 @@ def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
     K_full, M_full, names = [], [], []
     for i, seg in enumerate(seg_tables):
         where = f"segments[{i}]"
-        _keys(spec, seg, {"name", "stiffness", "mass", "bounds"}, where)
+        _keys(spec, seg, {"name", "stiffness", "mass", "bounds", "update", "mass_bounds"}, where)
         names.append(_get(spec, seg, "name", where, (str,)))
         K_full.append(matrix(f"{where}.stiffness", _get(spec, seg, "stiffness", where, (str,))))
         M_full.append(matrix(f"{where}.mass", _get(spec, seg, "mass", where, (str,))))
     K0 = matrix("matrices.stiffness", mat["stiffness"]) if "stiffness" in mat else None
     M0 = matrix("matrices.mass", mat["mass"]) if "mass" in mat else None
-    bounds = _segments_bounds(spec, seg_tables, names)
+    mass_parameters, bounds = _segment_parameters(spec, seg_tables, names)
 
     key_of = {(int(nd), int(c)): r for r, (nd, c) in enumerate(table)}
     fixed = []
@@ -659,7 +753,7 @@ def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
         r = key_of.get((node, component), -1)
         return int(position[r]) if r >= 0 else -1
 
-    outputs, load, snames, placements, exc_name = _sensors_and_excitation(spec, locator, dof_of, free.size)
+    outputs, load, snames, placements, exc_name, extra = _sensors_and_excitation(spec, locator, dof_of, free.size)
     return ParametricModel(
         mesh=None, free_dofs=free,
         stiffness_segments=SegmentedMatrix.from_matrices([restrict(K) for K in K_full], restrict(K0)),
@@ -667,7 +761,7 @@ def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
         segment_names=names, damping=damping, segment_masses=masses, outputs=outputs, load=load,
         sensor_names=snames, excitation_name=exc_name, n_total_dofs=n, parameter_bounds=bounds,
         source=str(spec.path), remainder_mass=float(ux @ (M0 @ ux)) if M0 is not None else 0.0,
-        placements=placements, dof_table=table,
+        placements=placements, dof_table=table, mass_parameters=mass_parameters, **extra,
     )
 
 

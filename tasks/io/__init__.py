@@ -3,11 +3,11 @@
 Modules
 -------
 measured
-    The measured-FRF format: ``read_measured``, ``write_measured``,
-    ``MeasuredFRF`` and ``MeasuredDataError``; ``python -m tasks.io.measured
-    PATH`` validates a file from the command line.
+    Measured FRFs, one module per format (``table``: CSV and Parquet, ``uff``:
+    UFF58) around one internal form (``frf.MeasuredFRF``): ``read_measured``,
+    ``write_measured``, ``MeasuredFRF`` and ``MeasuredDataError``;
+    ``python -m tasks.io.measured PATH`` validates a file from the command line.
 
-Import from the modules themselves (``from tasks.io.measured import
-read_measured``); this package re-exports nothing, so that ``python -m
-tasks.io.measured`` does not import the module twice.
+Import from the package itself (``from tasks.io.measured import
+read_measured``); this package re-exports nothing.
 """

@@ -52,9 +52,9 @@ class ReportError(ValueError):
 
 
 def param_columns(df: pd.DataFrame) -> list[str]:
-    """``alpha_1 .. alpha_m`` columns of a table, in numeric order."""
-    cols = [c for c in df.columns if re.fullmatch(r"alpha_\d+", str(c))]
-    return sorted(cols, key=lambda c: int(c.split("_")[1]))
+    """``alpha_1 .. alpha_m`` columns of a table, in numeric order, then ``gamma_j`` (updated mass factors)."""
+    cols = [c for c in df.columns if re.fullmatch(r"(alpha|gamma)_\d+", str(c))]
+    return sorted(cols, key=lambda c: (c.startswith("gamma"), int(c.split("_")[1])))
 
 
 def _read_json(path: Path) -> dict | None:

@@ -83,13 +83,19 @@ def _bottom_labels_only(axes, n: int, ncols: int) -> None:
             ax.set_xlabel("")
 
 
+def _measured_style(n_points: int) -> dict:
+    """Squares for a few measured lines, small dots for a test's hundreds or thousands."""
+    return MEASURED_STYLE if n_points <= 100 else dict(MEASURED_STYLE, marker=".", ms=2.5, mfc="C3")
+
+
 def _param_label(name: str) -> str:
-    return name.replace("alpha_", "alpha ")
+    return name.replace("alpha_", "alpha ").replace("gamma_", "gamma ")
 
 
 # -- Figure 3: FRF amplitude ----------------------------------------------------------------------
 def plot_frf_overview(dense: pd.DataFrame, measured: pd.DataFrame, path: Path,
-                      windows: list[tuple[float, float]] | None = None, title: str | None = None) -> Path:
+                      windows: list[tuple[float, float]] | None = None, title: str | None = None,
+                      labels: dict | None = None) -> Path:
     """Figure 3: measured points and the dense initial/updated FRF amplitude, one panel per sensor.
 
     Parameters
@@ -100,6 +106,8 @@ def plot_frf_overview(dense: pd.DataFrame, measured: pd.DataFrame, path: Path,
         ``frequency_hz, sensor, amplitude`` (m/N).
     windows : list of (low, high), Hz
         Measurement windows, shaded.
+    labels : dict of int to str, optional
+        Panel title per sensor (channel) number, e.g. ``"s2 / hammer"``; default ``"sensor <n>"``.
     """
     sensors = sorted(measured["sensor"].unique())
     nrows, ncols = _grid(len(sensors), 2)
@@ -113,8 +121,8 @@ def plot_frf_overview(dense: pd.DataFrame, measured: pd.DataFrame, path: Path,
             if not c.empty:
                 ax.semilogy(c["frequency_hz"], c["amplitude"], **style)
         m = measured[measured["sensor"] == s]
-        ax.semilogy(m["frequency_hz"], m["amplitude"], **MEASURED_STYLE)
-        ax.set_title(f"sensor {s}", fontsize=10)
+        ax.semilogy(m["frequency_hz"], m["amplitude"], **_measured_style(len(m)))
+        ax.set_title((labels or {}).get(s, f"sensor {s}"), fontsize=10)
         ax.set_ylabel("|Z| (m/N)")
         ax.grid(True, which="major", alpha=0.3)
     for ax in axes[len(sensors):]:
@@ -128,7 +136,7 @@ def plot_frf_overview(dense: pd.DataFrame, measured: pd.DataFrame, path: Path,
 
 
 def plot_frf_zoom(dense: pd.DataFrame, measured: pd.DataFrame, path: Path,
-                  windows: list[tuple[float, float]]) -> Path:
+                  windows: list[tuple[float, float]], labels: dict | None = None) -> Path:
     """Figure 3, zoomed: each measurement window of each sensor, measured points against both models."""
     sensors = sorted(measured["sensor"].unique())
     nrows, ncols = len(sensors), len(windows)
@@ -143,11 +151,11 @@ def plot_frf_zoom(dense: pd.DataFrame, measured: pd.DataFrame, path: Path,
                 if not c.empty:
                     ax.semilogy(c["frequency_hz"], c["amplitude"], **style)
             m = measured[(measured["sensor"] == s) & measured["frequency_hz"].between(lo, hi)]
-            ax.semilogy(m["frequency_hz"], m["amplitude"], **MEASURED_STYLE)
+            ax.semilogy(m["frequency_hz"], m["amplitude"], **_measured_style(len(m)))
             ax.set_xlim(lo, hi)
             ax.grid(True, which="both", alpha=0.25)
             if j == 0:
-                ax.set_ylabel(f"sensor {s}\n|Z| (m/N)")
+                ax.set_ylabel(f"{(labels or {}).get(s, f'sensor {s}')}\n|Z| (m/N)")
             if i == nrows - 1:
                 ax.set_xlabel("frequency (Hz)")
             if i == 0:

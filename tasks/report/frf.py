@@ -61,23 +61,31 @@ def zoom_windows(freqs_hz) -> list[tuple[float, float]]:
     return out
 
 
-def dense_frf(model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndarray, cache: Path) -> pd.DataFrame:
+def dense_frf(model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndarray, cache: Path,
+              channels: tuple[np.ndarray, np.ndarray] | None = None, names: list[str] | None = None) -> pd.DataFrame:
     """FRF amplitude of each named parameter vector at every frequency, from the cache when valid.
 
     Parameters
     ----------
     model_name : str
         As in the run's manifest (``three_plate``).
-    vectors : dict of str to ndarray, shape (m,)
-        Curve name -> alpha, e.g. ``{"initial": zeros, "updated": alpha}``.
+    vectors : dict of str to ndarray, shape (n_parameters,)
+        Curve name -> parameter vector, e.g. ``{"initial": zeros, "updated": alpha}``.
     freqs_hz : ndarray
     cache : Path
         Parquet file; rewritten when a curve is missing or differs.
+    channels : (responses, references), optional
+        The run's measured channels (model sensor and excitation indices,
+        :func:`tasks.report.lines.channels_of_run`); default the model's sensors
+        under its default excitation. Column ``sensor`` is the channel number.
+    names : list of str, optional
+        The parameters' names (the run's sample columns: ``alpha_*``, then ``gamma_*``); ``alpha_1 ..``
+        by default.
 
     Returns
     -------
     DataFrame
-        ``curve, frequency_hz, sensor, real, imag, amplitude`` plus the curve's ``alpha_*``.
+        ``curve, frequency_hz, sensor, real, imag, amplitude`` plus the curve's parameters (``alpha_*``, ``gamma_*``).
     """
     from tasks.stages import load_model  # the run's FE model by name
 
@@ -92,11 +100,12 @@ def dense_frf(model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndar
     model = None
     for name, alpha in vectors.items():
         alpha = np.asarray(alpha, dtype=float)
-        cols = [f"alpha_{i + 1}" for i in range(alpha.size)]
-        hit = _cached_curve(cached, model_name, name, alpha, cols, freqs_hz)
+        cols = list(names) if names is not None else [f"alpha_{i + 1}" for i in range(alpha.size)]
+        key = "" if channels is None else repr([list(map(int, c)) for c in channels])
+        hit = _cached_curve(cached, model_name, name, alpha, cols, freqs_hz, key)
         if hit is None:
             model = model or load_model(model_name)
-            Z = model.frf(alpha, freqs_hz)  # (p, n_sensors), m/N
+            Z = model.parameter_frf(alpha, freqs_hz, channels)  # (p, n_channels), m/N
             p, n = Z.shape
             hit = pd.DataFrame({
                 "model": model_name,
@@ -105,6 +114,7 @@ def dense_frf(model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndar
                 "sensor": np.tile(np.arange(1, n + 1), p).astype(np.int64),
                 "real": Z.real.ravel(),
                 "imag": Z.imag.ravel(),
+                "channels": key,
             })
             for c, v in zip(cols, alpha):
                 hit[c] = v
@@ -117,10 +127,11 @@ def dense_frf(model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndar
     return out
 
 
-def _cached_curve(cached, model_name, name, alpha, cols, freqs_hz):
+def _cached_curve(cached, model_name, name, alpha, cols, freqs_hz, key=""):
     if cached is None or not set(cols + ["curve", "model"]) <= set(cached.columns):
         return None
-    part = cached[(cached["curve"] == name) & (cached["model"] == model_name)]
+    channels = cached["channels"] if "channels" in cached.columns else pd.Series("", index=cached.index)
+    part = cached[(cached["curve"] == name) & (cached["model"] == model_name) & (channels == key)]
     if part.empty or not np.array_equal(part[cols].iloc[0].to_numpy(float), alpha):
         return None
     f = np.unique(part["frequency_hz"].to_numpy())

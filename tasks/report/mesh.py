@@ -154,10 +154,11 @@ def plot_mesh_segments(model, path: Path, view: MeshView | None = None, title: s
     return _save(fig, path)
 
 
-def plot_mesh_factors(model, alpha, path: Path, gamma=None, view: MeshView | None = None) -> Path:
+def plot_mesh_factors(model, alpha, path: Path, gamma=None, view: MeshView | None = None,
+                      title: str | None = None) -> Path:
     """The updated stiffness factors (and mass factors) as colours on the surface, with a colour bar.
 
-    alpha, gamma : array_like, shape (n_segments,); the fixed remainder is grey.
+    alpha, gamma : array_like, shape (n_segments,); the fixed remainder is grey. ``title``: above the panels.
     """
     view = view or MeshView(model)
     factors = {"alpha (stiffness factor)": np.asarray(alpha, float)}
@@ -181,7 +182,9 @@ def plot_mesh_factors(model, alpha, path: Path, gamma=None, view: MeshView | Non
         for v in values:
             bar.ax.axhline(v, color="k", lw=0.8)
         _segment_labels(ax, view, seg, [f"{s + 1}: {v:+.3f}" for s, v in enumerate(values)])
-    fig.subplots_adjust(left=0.0, right=0.97, bottom=0.03, top=0.93, wspace=0.05)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.subplots_adjust(left=0.0, right=0.97, bottom=0.03, top=0.9 if title else 0.93, wspace=0.05)
     return _save(fig, path)
 
 
@@ -226,10 +229,8 @@ def mesh_section(data, out: Path) -> Section:
     if model.mesh is None:
         return Section(title=title, notes=[f"No mesh pictures: the model {name} is given as matrices (no node "
                                            "coordinates or cells to draw), and no model.vtu is written for it."])
-    _, alpha, _ = data.best()
-    params = dict(zip(data.names, alpha))
-    params.update({k: v for k, v in (data.summary or {}).get("parameters", {}).items() if k.startswith("gamma_")})
-    alpha, gamma = factors_from_parameters(params, model.n_segments)
+    _, theta, _ = data.best()
+    alpha, gamma = factors_from_parameters(dict(zip(data.names, theta)), model)
     view = MeshView(model)
     fig1 = plot_mesh_segments(model, out / SEGMENTS_PNG, view)
     fig2 = plot_mesh_factors(model, alpha, out / FACTORS_PNG, gamma, view)

@@ -71,10 +71,14 @@ def frf_section(data: RunData, out: Path, label: str = "") -> Section:
     freqs = data.frequencies
     grid = dense_frequencies(freqs)
     windows = zoom_windows(freqs)
-    dense = dense_frf(data.config.get("model", "three_plate"), {"initial": initial, "updated": updated}, grid,
-                      out / CACHE / "frf_dense.parquet")
-    fig1 = figures.plot_frf_overview(dense, data.measured, out / "frf_overview.png", windows)
-    fig2 = figures.plot_frf_zoom(dense, data.measured, out / "frf_zoom.png", windows)
+    model_name = data.config.get("model", "three_plate")
+    dense = dense_frf(model_name, {"initial": initial, "updated": updated}, grid, out / CACHE / "frf_dense.parquet",
+                      channels=_run_channels(data, model_name), names=names)
+    info = data.manifest.get("measured_data") or {}
+    labels = None if info.get("form", "legacy").startswith("legacy") else {
+        j + 1: f"{c['label']} ({c['sensor']} / {c['excitation']})" for j, c in enumerate(info["channels"])}
+    fig1 = figures.plot_frf_overview(dense, data.measured, out / "frf_overview.png", windows, labels=labels)
+    fig2 = figures.plot_frf_zoom(dense, data.measured, out / "frf_zoom.png", windows, labels=labels)
     # Residuals of both models at the measured points (the dense grid holds them exactly).
     maps, rows = {}, []
     for name in ("initial", "updated"):
@@ -104,6 +108,17 @@ def frf_section(data: RunData, out: Path, label: str = "") -> Section:
                  (fig2, "Each measurement window per sensor"),
                  (fig3, "Where each model misses the measurement")],
     )
+
+
+def _run_channels(data: RunData, model_name: str):
+    """The run's measured channels on the model (None: its sensors under its default excitation)."""
+    info = data.manifest.get("measured_data")
+    if not info or info["form"].startswith("legacy"):  # the model's own FRF: no model needed to say so
+        return None
+    from tasks.report.lines import channels_of_run
+    from tasks.stages import load_model
+
+    return channels_of_run(data.manifest, load_model(model_name))
 
 
 # -- Figures 4, 5 ---------------------------------------------------------------------------------

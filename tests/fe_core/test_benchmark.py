@@ -8,6 +8,9 @@ import pytest
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ, sensor_positions
 
 REFERENCE_RTOL = 1e-6  # SPEC.md: an identical formulation agrees to about 1e-6 or better
+#: Node coordinates come from a few arithmetic operations on the SPEC's dimensions: within a few
+#: ulps of 0.3 m on any CPU, against decimals stored in expected.json.
+COORDINATE_ATOL = 1e-12
 
 
 def test_mesh_and_dof_counts_match_reference(benchmark_model, expected):
@@ -31,8 +34,8 @@ def test_total_mass_matches_reference_and_rho_v(benchmark_model, expected):
 
 def test_sensors_sit_at_the_specified_nodes(benchmark_model, expected):
     nodes = benchmark_model.mesh.nodes[benchmark_model.sensor_nodes]
-    np.testing.assert_allclose(nodes, expected["frf"]["sensor_xyz_m"], atol=1e-12)
-    np.testing.assert_allclose(nodes, sensor_positions(), atol=1e-12)
+    np.testing.assert_allclose(nodes, expected["frf"]["sensor_xyz_m"], atol=COORDINATE_ATOL)
+    np.testing.assert_allclose(nodes, sensor_positions(), atol=COORDINATE_ATOL)
 
 
 @pytest.mark.parametrize("case", ["nominal", "actual"])

@@ -40,11 +40,15 @@ def test_the_benchmark_model_file_against_expected_json():
     expected = json.loads((REPO.parent / "shared" / "benchmark" / "expected.json").read_text())
     spec = tomllib.loads((REPO / "data" / "benchmark" / "model.toml").read_text())
     xyz = np.array(expected["frf"]["sensor_xyz_m"])
+    # Decimal literals in two text files, parsed to the nearest double on any CPU: equal to round-off.
     np.testing.assert_allclose([s["point"] for s in spec["sensors"]], xyz, rtol=0, atol=1e-12)
     np.testing.assert_allclose([d["point"] for d in spec["excitations"][0]["dofs"]], xyz, rtol=0, atol=1e-12)
     model = read_model(REPO / "data" / "benchmark" / "model.toml")
     amp = np.abs(model.frf(expected["actual"]["alpha"], expected["frf"]["frequencies_Hz"]))
+    # The SPEC's agreement between identical formulations (about 1e-6 or better), not one CPU's round-off.
     np.testing.assert_allclose(amp, expected["frf"]["amplitude_m_per_N"], rtol=1e-6)
+    # Mass = rho x volume of brick cells summed (round-off ~1e-15 on any CPU); the SPEC states 5.83726 kg,
+    # which is exact for these plates, so 1e-9 bounds the summation, not a machine.
     assert model.total_mass() == pytest.approx(expected["total_mass_kg"], rel=1e-9)
 
 
@@ -268,6 +272,41 @@ def test_imported_scikit_fem_matrices_give_scikit_fems_frf(tmp_path):
     freqs_, shapes, labels = model.modes(alpha, 3)
     assert labels == ["mode 1", "mode 2", "mode 3"] and shapes.shape == (3, fem["basis"].N)
     assert model.total_mass() == pytest.approx(7850.0 * 1.0 * 0.08 * 0.05, rel=1e-12)
+
+
+def _update_masses(text: str, names, bounds=(-0.3, 0.3)) -> str:
+    """A model file's text with the mass factors of the named segments updated too."""
+    for name in names:
+        text = text.replace(f'name = "{name}"\n',
+                            f'name = "{name}"\nupdate = ["stiffness", "mass"]\nmass_bounds = {list(bounds)}\n')
+    return text
+
+
+def test_segment_mass_factors_are_updated_where_asked_and_recovered_from_scikit_fems_frf(tmp_path):
+    """``update = ["stiffness", "mass"]`` on seg2 and seg3: the parameter vector is [alpha_1..4, gamma_2, gamma_3];
+    scikit-fem's own FRF with those segments' mass matrices scaled (an independent path) is the model's, and
+    least squares from the nominal model (exact Jacobian with the gamma columns) recovers every factor."""
+    from benchmarks.make_matrix_example import skfem_frf, skfem_model, write_files
+    from fe_core.intervals import fit_log_amplitudes
+
+    fem = skfem_model(n_x=10, n_y=1, n_z=1)
+    write_files(fem, tmp_path)
+    (tmp_path / "model.toml").write_text(_update_masses((tmp_path / "model.toml").read_text(), ("seg2", "seg3")))
+    model = read_model(tmp_path / "model.toml")
+    assert model.parameter_names == ["alpha_1", "alpha_2", "alpha_3", "alpha_4", "gamma_2", "gamma_3"]
+    np.testing.assert_array_equal(model.parameter_bounds, [[-0.5, 0.5]] * 4 + [[-0.3, 0.3]] * 2)
+    alpha, gamma = np.array([-0.1, 0.1, 0.05, -0.05]), np.array([0.0, 0.15, -0.1, 0.0])
+    theta = np.concatenate([alpha, gamma[1:3]])
+    assert model.total_mass(model.factors(theta)[1]) == pytest.approx(
+        sum((1 + g) * M.sum() / 3 for g, M in zip(np.append(gamma, 0.0), fem["M"])), rel=1e-12)
+    f0 = model.natural_frequencies(alpha, 5, gamma)
+    freqs = np.round(np.concatenate([f * np.array([0.9, 0.95, 1.0, 1.05, 1.1]) for f in f0[[0, 2, 4]]]), 1)
+    ref = skfem_frf(fem, alpha, freqs, gamma)
+    assert np.max(np.abs(model.parameter_frf(theta, freqs) - ref) / np.abs(ref)) <= 1e-8  # as the import test
+    lower, upper = model.parameter_bounds.T
+    fit = fit_log_amplitudes(model, freqs, np.abs(ref), np.zeros(6), lower, upper, max_fe_runs=30)
+    # noise-free data: the optimum is the truth, to the solver's step tolerance
+    np.testing.assert_allclose(fit.alpha, theta, rtol=0, atol=1e-6)
 
 
 def test_npz_matrices_read_as_the_mtx_ones(tmp_path):

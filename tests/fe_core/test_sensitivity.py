@@ -84,6 +84,30 @@ def test_log_amplitude_jacobian_is_the_derivative_of_log_abs_frf(benchmark_model
         np.testing.assert_allclose(J[:, i], (up - down) / (2 * h), atol=1e-5 * np.abs(J[:, i]).max())
 
 
+def test_the_jacobian_of_updated_mass_factors_matches_central_differences(benchmark_model):
+    """Mass factors of segments 2 and 5 updated too: their columns against differences of the direct solver
+    driven by gamma explicitly (not through the parameter vector)."""
+    import dataclasses
+
+    model = dataclasses.replace(benchmark_model, mass_parameters=[1, 4])
+    assert model.parameter_names[6:] == ["gamma_2", "gamma_5"]
+    theta = np.concatenate([ALPHA_ACTUAL, [0.2, -0.1]])
+    gamma = np.array([0, 0.2, 0, 0, -0.1, 0])
+    freqs = MEASUREMENT_FREQUENCIES_HZ[[0, 3, 6, 9]]
+    Z, dZ = frf_jacobian(model, theta, freqs)
+    assert dZ.shape == (4, 6, 8)
+    np.testing.assert_allclose(Z, benchmark_model.frf(ALPHA_ACTUAL, freqs, gamma, method="direct"), rtol=1e-9)
+    h = 1e-4
+    for k, seg in ((6, 1), (7, 4)):
+        e = np.zeros(6)
+        e[seg] = h
+        fd = (benchmark_model.frf(ALPHA_ACTUAL, freqs, gamma + e, method="direct")
+              - benchmark_model.frf(ALPHA_ACTUAL, freqs, gamma - e, method="direct")) / (2 * h)
+        assert np.abs(fd - dZ[:, :, k]).max() <= 1e-5 * np.abs(dZ[:, :, k]).max(), k
+    with pytest.raises(ValueError, match="8 entries"):
+        frf_jacobian(model, ALPHA_ACTUAL, freqs)  # the parameter vector, not alpha alone
+
+
 def test_frf_jacobian_refuses_parameters_outside_the_domain(benchmark_model):
     with pytest.raises(ValueError, match="alpha_2"):
         frf_jacobian(benchmark_model, [0, -1.0, 0, 0, 0, 0], [100.0])

@@ -83,6 +83,29 @@ def _renumber_sensor(old: int, new: int) -> str:
     return _csv(out)
 
 
+def _channels(response=None, reference=None, frequencies=(100.0, 110.0), comments=None, extra_rows=(),
+              coherence=None) -> str:
+    """A hammer test as a channel table: s1..s6 under 'hammer' (lines 2-7 at 100 Hz, 8-13 at 110 Hz).
+
+    ``response`` / ``reference``: {sensor number: label} replacing a channel's labels on all its rows;
+    ``comments``: {line before which to insert: text}; ``coherence``: {line: value}.
+    """
+    lines = ["response,reference,frequency_hz,real,imag,coherence"]
+    for f in frequencies:
+        for j in range(1, 7):
+            resp = (response or {}).get(j, f"s{j}")
+            ref = (reference or {}).get(j, "hammer")
+            lines.append(f"{resp},{ref},{f!r},{1e-6 * j!r},{-2e-7 * j!r},0.99")
+    for line, value in (coherence or {}).items():
+        cells = lines[line - 1].split(",")
+        cells[5] = value
+        lines[line - 1] = ",".join(cells)
+    lines += list(extra_rows)
+    for before, text in sorted((comments or {}).items(), reverse=True):
+        lines.insert(before - 1, text)
+    return _csv(lines)
+
+
 # (id, measured file name, its content (str, bytes or a writer), config lines, extra CLI args, message parts).
 # "{measured}" and "{config}" in message parts are replaced by the paths.
 BAD_INPUTS = [
@@ -99,6 +122,34 @@ BAD_INPUTS = [
     ("frequency above the model's range", "m.csv", lambda p: _scaled_frequencies(p, 100.0), "", [],
      ["{measured}", "frequency_hz 28500.0", "above 13"]),
     ("empty file", "m.csv", "", "", [], ["{measured}", "empty file"]),
+    ("unknown response", "m.csv", _channels(response={3: "s9"}), "", [],
+     ["{measured}", "line 4", "unknown response 's9'", "'s1', 's2'"]),
+    ("unknown reference", "m.csv", _channels(reference={1: "shaker"}), "", [],
+     ["{measured}", "line 2", "unknown reference 'shaker'", "'combined', 'hammer'"]),
+    ("a direction the model cannot measure", "m.csv", _channels(response={3: "3:+x"}), "", [],
+     ["{measured}", "line 4", "response '3:+x': a direction the model cannot measure", "3:+z ('s3')"]),
+    ("mixed FRF kinds without a kind column", "m.csv",
+     _channels(comments={1: "# kind = accelerance", 8: "# kind = mobility"}), "", [],
+     ["{measured}", "line 9 declares mobility", "line 1 declared accelerance", "mixed FRF kinds"]),
+    ("line above the model's band", "m.csv", _channels(frequencies=(100.0, 20000.0)), "", [],
+     ["{measured}", "line 8: frequency_hz 20000.0 is above 13"]),
+    ("coherence above 1", "m.csv", _channels(coherence={5: "1.5"}), "", [],
+     ["{measured}", "line 5: coherence 1.5 is outside [0, 1]"]),
+    ("coherence below 0", "m.csv", _channels(coherence={12: "-0.2"}), "", [],
+     ["{measured}", "line 12: coherence -0.2 is outside [0, 1]"]),
+    ("duplicated response, reference, frequency", "m.csv",
+     _channels(extra_rows=["s2,hammer,100.0,3e-6,1e-7,0.9"]), "", [],
+     ["{measured}", "line 3 and line 14 both give response 's2', reference 'hammer' at frequency_hz 100.0"]),
+    ("config windows without windows", None, None, 'lines = "windows"', [],
+     ["{config}", "key 'line_windows'", "is required with lines = 'windows'"]),
+    ("config complex residuals on amplitudes", "m.csv", _amplitude_only(3, "1e-6"), 'residuals = "complex"', [],
+     ["key 'residuals'", "amplitudes only", "{measured}"]),
+    ("config bad window", None, None, "line_windows = [[120.0, 100.0]]", [],
+     ["{config}", "key 'line_windows'", "window 1"]),
+    ("command line coherence above 1", None, None, "", ["--min-coherence", "1.5"],
+     ["command line", "key 'min_coherence'"]),
+    ("command line bad windows", None, None, "", ["--lines", "windows", "--line-windows", "100:120"],
+     ["command line", "key 'line_windows'", "'100:120'"]),
     ("binary file", "m.csv", bytes(range(256)) * 4, "", [], ["{measured}", "not a CSV"]),
     ("binary parquet", "m.parquet", b"PAR1" + os.urandom(64), "", [], ["{measured}", "not a Parquet"]),
     ("missing file", None, None, "", ["--measured", "nowhere/m.csv"], ["nowhere/m.csv", "no such file"]),

@@ -147,8 +147,34 @@ CASES = [
     ("unknown direction", lambda t: _mesh_case(t, toml=BENCH_TOML.replace('direction = "z"', 'direction = "w"', 1)),
      BENCH_M, ["{model}", "key 'sensors[0].direction'", "'w'"]),
     ("not TOML", lambda t: _mesh_case(t, toml="units = = 3\n"), BENCH_M, ["{model}", "not valid TOML"]),
+    ("test direction without a test node", lambda t: _mesh_case(t, toml=BENCH_TOML.replace(
+        "test_node = 2  #", 'test_direction = "+z"  #', 1)), BENCH_M,
+     ["{model}", "key 'sensors[1].test_direction'", "needs test_node"]),
+    ("test node 0", lambda t: _mesh_case(t, toml=BENCH_TOML.replace("test_node = 3  #", "test_node = 0  #", 1)),
+     BENCH_M, ["{model}", "key 'sensors[2].test_node'", ">= 1"]),
+    ("one test DOF for two sensors", lambda t: _mesh_case(t, toml=BENCH_TOML.replace(
+        "test_node = 4  #", "test_node = 3  #", 1)), BENCH_M,
+     ["{model}", "key 'sensors[3].test_node'", "test node 3 direction z is also that of sensors[2]"]),
+    ("unknown test direction", lambda t: _mesh_case(t, toml=BENCH_TOML.replace(
+        "test_node = 5\n", 'test_node = 5\ntest_direction = "up"\n', 1)), BENCH_M,
+     ["{model}", "key 'excitations[1].test_direction'", "'up'"]),
+    ("vector direction without a test direction", lambda t: _mesh_case(t, toml=BENCH_TOML.replace(
+        'direction = "z"\ntest_node = 1', 'direction = [0.0, 0.6, 0.8]\ntest_node = 1', 1)), BENCH_M,
+     ["{model}", "key 'sensors[0].test_direction'", "not x, y or z"]),
+    ("two excitations of one name", lambda t: _mesh_case(t, toml=BENCH_TOML.replace('name = "hammer"',
+                                                                                    'name = "combined"')),
+     BENCH_M, ["{model}", "key 'excitations[1].name'", "used twice"]),
     ("missing mesh file", lambda t: _mesh_case(t, toml=BENCH_TOML.replace("three_plate.inp", "nowhere.msh")), BENCH_M,
      ["{model}", "key 'mesh'", "nowhere.msh", "does not exist"]),
+    ("mass factor without the stiffness factor", lambda t: _matrices_case(t, toml=MATRICES_TOML.replace(
+        'name = "seg2"', 'name = "seg2"\nupdate = ["mass"]')), MATRICES_M,
+     ["{model}", "key 'segments[1].update'", "'seg2'", "always updated"]),
+    ("mass bounds of a mass not updated", lambda t: _mesh_case(t, toml=BENCH_TOML.replace(
+        'set = "segment2"', 'set = "segment2"\nmass_bounds = [-0.2, 0.2]')), BENCH_M,
+     ["{model}", "key 'segments[1].mass_bounds'", "not updated", 'update = ["stiffness", "mass"]']),
+    ("mass bounds outside the domain", lambda t: _mesh_case(t, toml=BENCH_TOML.replace(
+        'set = "segment2"', 'set = "segment2"\nupdate = ["stiffness", "mass"]\nmass_bounds = [-1.5, 0.2]')),
+     BENCH_M, ["{model}", "key 'segments[1].mass_bounds'", "gamma > -1 keeps the mass positive"]),
 ]
 
 
@@ -170,6 +196,19 @@ def test_bad_model_exits_2_names_file_and_key_writes_nothing(case, tmp_path, cap
     for needle in needles:
         assert needle.format(model=model) in err, err
     assert "Traceback" not in err
+    assert not (runs / "new").exists()
+
+
+def test_closing_the_loop_on_a_model_with_mass_factors_is_refused_before_any_work(tmp_path, capsys):
+    """The closure refits alpha only: a model file that updates a mass factor cannot be closed (flows.diagnose
+    refuses such a finished run too); said before the update, not after it."""
+    model = _matrices_case(tmp_path, toml=MATRICES_TOML.replace('name = "seg2"',
+                                                                'name = "seg2"\nupdate = ["stiffness", "mass"]'))
+    runs = tmp_path / "runs"
+    code = update.main(["--model", str(model), "--measured", MATRICES_M, "--runs-dir", str(runs), "--run-id", "new",
+                        "--close-loop"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--close-loop" in err and "gamma_2" in err and "alpha only" in err, err
     assert not (runs / "new").exists()
 
 

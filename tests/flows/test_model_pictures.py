@@ -111,22 +111,36 @@ def test_a_matrices_model_gets_no_vtu_and_no_mesh_pictures(tmp_path, prefect_har
     assert len(notes) == 1 and "given as matrices" in notes[0]
 
 
-def test_the_factors_of_a_summary():
-    alpha, gamma = factors_from_parameters({"alpha_1": 0.1, "alpha_2": -0.2}, 2)
+def _with_masses(model_file: Path, segments=("root", "middle")) -> Path:
+    """The box model file with the mass factors of ``segments`` updated too."""
+    text = model_file.read_text()
+    for name in segments:
+        text = text.replace(f'set = "{name}"', f'set = "{name}"\nupdate = ["stiffness", "mass"]')
+    model_file.write_text(text)
+    return model_file
+
+
+def test_the_factors_of_a_summary(box_model_file):
+    from fe_core.io import read_model
+
+    alpha, gamma = factors_from_parameters({"alpha_1": 0.1, "alpha_2": -0.2}, read_model(box_model_file))
     assert alpha.tolist() == [0.1, -0.2] and gamma is None
-    alpha, gamma = factors_from_parameters({"alpha_1": 0.1, "alpha_2": -0.2, "gamma_2": 0.3, "gamma_1": 0.0}, 2)
-    assert gamma.tolist() == [0.0, 0.3]
-    with pytest.raises(ValueError, match="gamma_2"):
-        factors_from_parameters({"alpha_1": 0.1, "alpha_2": -0.2, "gamma_1": 0.3}, 2)
-    with pytest.raises(ValueError, match="alpha"):
-        factors_from_parameters({"gamma_1": 0.3}, 1)
+    with pytest.raises(ValueError, match="gamma_1: not parameters of the model"):
+        factors_from_parameters({"alpha_1": 0.1, "alpha_2": -0.2, "gamma_1": 0.3}, read_model(box_model_file))
+    model = read_model(_with_masses(box_model_file, ("middle",)))  # gamma_2 only: gamma_1 stays 0
+    alpha, gamma = factors_from_parameters({"alpha_1": 0.1, "alpha_2": -0.2, "gamma_2": 0.3}, model)
+    assert alpha.tolist() == [0.1, -0.2] and gamma.tolist() == [0.0, 0.3]
+    with pytest.raises(ValueError, match="lack gamma_2"):
+        factors_from_parameters({"alpha_1": 0.1, "alpha_2": -0.2}, model)
+    with pytest.raises(ValueError, match="lack alpha_1, alpha_2"):
+        factors_from_parameters({"gamma_2": 0.3}, model)
 
 
 def test_the_vtu_is_renamed_into_place_and_gamma_is_written(box_model_file, tmp_path):
     root = tmp_path / "run"
     root.mkdir()
-    path = write_model_vtu(root, str(box_model_file), {"alpha_1": 0.1, "alpha_2": 0.2, "gamma_1": -0.1,
-                                                       "gamma_2": 0.05}, n_modes=2)
+    path = write_model_vtu(root, str(_with_masses(box_model_file)), {"alpha_1": 0.1, "alpha_2": 0.2,
+                                                                      "gamma_1": -0.1, "gamma_2": 0.05}, n_modes=2)
     assert path == root / VTU_NAME and sorted(p.name for p in root.iterdir()) == [VTU_NAME]
     back = meshio.read(path)
     assert set(back.cell_data) == {"segment", "alpha", "gamma"} and len(back.point_data) == 2

@@ -1,0 +1,272 @@
+"""Long tables of measured FRFs: CSV and Parquet, one row per channel and frequency line.
+
+Columns (any order; ``response`` or the legacy ``sensor``)::
+
+    response,reference,frequency_hz,real,imag,coherence
+    s1,hammer,0.25,1.2e-07,-3.1e-09,0.41
+    3:+z,1:+z,0.25,...
+
+=================  ============  ================================================================
+column             unit          meaning
+=================  ============  ================================================================
+``sensor``         -             legacy form: 1-based model sensor, the model's default excitation
+``response``       -             a sensor name of the model file, or ``NODE:DIR`` (a test node, e.g.
+                                 ``101:+z``, matched through the model's ``test_node`` keys)
+``reference``      -             optional: an excitation name or ``NODE:DIR``; empty or absent =
+                                 the model's default excitation (its ``excitation`` key)
+``frequency_hz``   Hz            > 0; 0 is allowed (and dropped) for mobility and accelerance
+``amplitude``      kind's unit   modulus of the FRF, > 0
+``real``, ``imag`` kind's unit   the complex FRF (both or neither); with ``amplitude`` the two must
+                                 agree to ``AMPLITUDE_RTOL``; either ``amplitude`` or both
+``coherence``      -             optional, ordinary coherence in [0, 1]
+``kind``           -             optional, per row: receptance (m/N), mobility ((m/s)/N) or
+                                 accelerance ((m/s^2)/N), or those units
+=================  ============  ================================================================
+
+The kind of a whole file: a comment line ``# kind = accelerance`` before the
+first data row (CSV; other ``#`` lines are comments), or the Parquet schema
+metadata key ``kind``. Without either the data are receptance. One file holds
+one declared kind: several kinds need the ``kind`` column; a second, different
+declaration is refused (the mark of two exports pasted together).
+
+Places: CSV ``line k`` counts every line of the file (header and comments
+included) from 1; Parquet ``row k`` counts data rows from 1.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+
+import numpy as np
+
+from .frf import KINDS, MeasuredDataError, MeasuredFRF, from_receptance, grid_from_rows, kind_of
+
+__all__ = ["read_csv", "read_parquet", "write_csv", "write_parquet", "table_columns", "LEGACY_COLUMNS", "COLUMNS"]
+
+LEGACY_COLUMNS = ("sensor", "frequency_hz", "amplitude", "real", "imag")
+COLUMNS = LEGACY_COLUMNS + ("response", "reference", "coherence", "kind")
+TEXT_COLUMNS = ("response", "reference", "kind")
+_DECLARATION = re.compile(r"^#\s*kind\s*[=:]\s*(.*?)\s*$", re.IGNORECASE)
+
+
+def _check_header(names, source):
+    duplicated = sorted({name for name in names if names.count(name) > 1})
+    if duplicated:
+        raise MeasuredDataError(f"{source}: column {duplicated[0]!r} appears more than once")
+    unknown = [name for name in names if name not in COLUMNS]
+    if unknown:
+        raise MeasuredDataError(
+            f"{source}: unknown column(s) {', '.join(map(repr, unknown))};"
+            f" allowed columns: {', '.join(COLUMNS)}"
+        )
+    if ("sensor" in names) == ("response" in names):
+        what = "both" if "sensor" in names else "neither"
+        raise MeasuredDataError(f"{source}: {what} of the columns 'sensor' (legacy: model sensor number) and "
+                                "'response' (sensor name or NODE:DIR): give exactly one")
+    missing = [name for name in ("frequency_hz",) if name not in names]
+    if "amplitude" not in names and not {"real", "imag"} & set(names):
+        missing.append("amplitude")
+    if missing:
+        listed = ", ".join(map(repr, missing))
+        raise MeasuredDataError(f"{source}: missing required column(s) {listed}"
+                                + (" (or 'real' and 'imag')" if "amplitude" in missing else ""))
+    if ("real" in names) != ("imag" in names):
+        raise MeasuredDataError(f"{source}: columns 'real' and 'imag' go together, one is missing")
+    if "reference" in names and "sensor" in names:
+        raise MeasuredDataError(f"{source}: column 'reference' needs 'response' (the legacy 'sensor' form is "
+                                "measured under the model's default excitation)")
+
+
+def _to_float(cells, name, where, source):
+    """Parse cells one by one so that a bad one can be named."""
+    values = np.empty(len(cells))
+    for i, cell in enumerate(cells):
+        if cell is None or (isinstance(cell, str) and not cell.strip()):
+            raise MeasuredDataError(f"{source}: {where[i]}: {name} is empty")
+        try:
+            values[i] = float(cell)
+        except (TypeError, ValueError):
+            message = f"{source}: {where[i]}: {name} {cell!r} is not a number"
+            raise MeasuredDataError(message) from None
+    return values
+
+
+def _to_text(cells, name, where, source):
+    out = np.empty(len(cells), dtype=object)
+    for i, cell in enumerate(cells):
+        if cell is None:
+            cell = ""
+        if not isinstance(cell, str):
+            raise MeasuredDataError(f"{source}: {where[i]}: {name} {cell!r} is not text")
+        out[i] = cell.strip()
+    return out
+
+
+def _kinds(columns, where, source, declared, declared_at):
+    """The kind of each row: the ``kind`` column, else the file's declaration, else receptance."""
+    r = len(where)
+    if "kind" not in columns:
+        return np.full(r, declared or "receptance", dtype=object)
+    kinds = np.empty(r, dtype=object)
+    for i, cell in enumerate(columns.pop("kind")):
+        kind = kind_of(cell) if cell else (declared or "receptance")
+        if kind is None:
+            raise MeasuredDataError(f"{source}: {where[i]}: kind {cell!r} is not one of {', '.join(KINDS)} "
+                                    "(or m/N, m/s/N, m/s^2/N)")
+        if declared and kind != declared:
+            raise MeasuredDataError(f"{source}: {where[i]}: kind {kind}, but {declared_at} declares {declared} "
+                                    "for the whole file")
+        kinds[i] = kind
+    return kinds
+
+
+def _rows(names, records, where, source, declared=None, declared_at=""):
+    columns = {}
+    for name, cells in zip(names, records):
+        reader = _to_text if name in TEXT_COLUMNS else _to_float
+        columns[name] = reader(cells, name, where, source)
+    kinds = _kinds(columns, where, source, declared, declared_at)
+    return grid_from_rows(columns, where, str(source), kinds=kinds,
+                          file_notes=[f"{declared_at} declares the file's kind: {declared}"] if declared else [])
+
+
+# -- CSV ---------------------------------------------------------------------------------------
+def read_csv(path) -> MeasuredFRF:
+    records, where = [], []
+    declared, declared_at = None, ""
+    try:
+        # utf-8-sig: spreadsheet programs put a byte-order mark before the header.
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            text = fh.read()
+        if "\x00" in text:
+            raise csv.Error("NUL byte in the file")
+        reader = csv.reader(io.StringIO(text, newline=""))
+        for record in reader:
+            if not record or (len(record) == 1 and not record[0].strip()):
+                continue
+            if record[0].lstrip().startswith("#"):
+                match = _DECLARATION.match(",".join(record).strip())
+                if match:
+                    declared, declared_at = _declaration(match.group(1), f"line {reader.line_num}", path,
+                                                         declared, declared_at, len(records) > 1)
+                continue
+            records.append(record)
+            where.append(f"line {reader.line_num}")
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise MeasuredDataError(f"{path}: not a CSV text table ({exc})") from None
+    if not records:
+        raise MeasuredDataError(f"{path}: empty file (no header line)")
+    names = [name.strip() for name in records[0]]
+    _check_header(names, path)
+    for record, place in zip(records[1:], where[1:]):
+        if len(record) != len(names):
+            raise MeasuredDataError(
+                f"{path}: {place}: {len(record)} fields, the header has {len(names)}"
+            )
+    where = where[1:]
+    cells = list(zip(*records[1:])) or [()] * len(names)
+    return _rows(names, cells, where, path, declared, declared_at)
+
+
+def _declaration(text, place, path, declared, declared_at, after_data):
+    kind = kind_of(text)
+    if kind is None:
+        raise MeasuredDataError(f"{path}: {place}: kind {text!r} is not one of {', '.join(KINDS)} "
+                                "(or m/N, m/s/N, m/s^2/N)")
+    if declared is not None and kind != declared:
+        raise MeasuredDataError(f"{path}: {place} declares {kind}, {declared_at} declared {declared}: mixed FRF "
+                                "kinds in one file need a 'kind' column saying which row is which")
+    if declared is None and after_data:
+        raise MeasuredDataError(f"{path}: {place} declares {kind} after data rows of no declared kind "
+                                "(receptance): mixed FRF kinds in one file need a 'kind' column")
+    return kind, declared_at or place
+
+
+# -- Parquet -----------------------------------------------------------------------------------
+def read_parquet(path) -> MeasuredFRF:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError) as exc:
+        raise MeasuredDataError(f"{path}: not a Parquet table ({exc})") from None
+    names = list(table.column_names)
+    _check_header(names, path)
+    where = [f"row {i + 1}" for i in range(table.num_rows)]
+    metadata = table.schema.metadata or {}
+    declared = None
+    if b"kind" in metadata:
+        text = metadata[b"kind"].decode("utf-8", errors="replace")
+        declared = kind_of(text)
+        if declared is None:
+            raise MeasuredDataError(f"{path}: schema metadata 'kind' = {text!r} is not one of {', '.join(KINDS)}")
+    cells = []
+    for name in names:
+        values = table.column(name).to_numpy(zero_copy_only=False)
+        if name not in TEXT_COLUMNS and values.dtype.kind in "iuf":
+            values = values.astype(float)
+        cells.append(values)
+    columns = {}
+    for name, values in zip(names, cells):
+        if name in TEXT_COLUMNS:
+            columns[name] = _to_text(values, name, where, path)
+        elif values.dtype.kind == "f":
+            columns[name] = values
+        else:
+            columns[name] = _to_float(values, name, where, path)
+    kinds = _kinds(columns, where, path, declared, "the schema metadata")
+    return grid_from_rows(columns, where, str(path), kinds=kinds,
+                          file_notes=[f"the schema metadata declares the file's kind: {declared}"] if declared
+                          else [])
+
+
+# -- writing -----------------------------------------------------------------------------------
+def table_columns(measured: MeasuredFRF, kind: str | None = None) -> dict:
+    """The long table of ``measured``, rows frequency-major, values in each channel's kind.
+
+    ``kind`` writes every channel as that kind instead of the one it was read as.
+    The legacy form without coherence or other kinds gives exactly the legacy
+    columns ``sensor, frequency_hz, amplitude[, real, imag]``.
+    """
+    p, n = measured.amplitude.shape
+    f = measured.frequencies_hz
+    kinds = [kind] * n if kind else list(measured.kinds or ["receptance"] * n)
+    amplitude = np.column_stack([from_receptance(measured.amplitude[:, j], f, kinds[j]) for j in range(n)])
+    columns = {}
+    if measured.legacy:
+        columns["sensor"] = np.tile(measured.sensors, p)
+    else:
+        columns["response"] = np.tile(np.array(measured.responses, dtype=object), p)
+        if any(r is not None for r in measured.references):
+            refs = np.array(["" if r is None else r for r in measured.references], dtype=object)
+            columns["reference"] = np.tile(refs, p)
+    columns["frequency_hz"] = np.repeat(f, n)
+    columns["amplitude"] = amplitude.ravel()
+    if measured.complex_frf is not None:
+        frf = np.column_stack([from_receptance(measured.complex_frf[:, j], f, kinds[j]) for j in range(n)])
+        columns.update(real=frf.real.ravel(), imag=frf.imag.ravel())
+    if measured.coherence is not None:
+        columns["coherence"] = measured.coherence.ravel()
+    if any(k != "receptance" for k in kinds):
+        columns["kind"] = np.tile(np.array(kinds, dtype=object), p)
+    return columns
+
+
+def write_csv(path, measured: MeasuredFRF, kind: str | None = None) -> None:
+    columns = table_columns(measured, kind)
+    with open(path, "x", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(columns)
+        # tolist() gives Python floats, which csv writes with repr: exact round trip.
+        writer.writerows(zip(*(values.tolist() for values in columns.values())))
+
+
+def write_parquet(path, measured: MeasuredFRF, kind: str | None = None) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    columns = table_columns(measured, kind)
+    pq.write_table(pa.table({k: (v.astype(str) if v.dtype == object else v) for k, v in columns.items()}), path)
