@@ -56,7 +56,7 @@ from flows.config import REPO  # noqa: E402
 from tasks import closure as ct  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
 
-__all__ = ["diagnose_flow", "diagnose", "run_folder", "main", "print_closure"]
+__all__ = ["diagnose_flow", "diagnose", "run_folder", "main", "print_closure", "print_closure_intervals"]
 
 
 class DiagnoseError(ValueError):
@@ -234,6 +234,7 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
               f"{after[k]:>11.4g}", file=file)
     print("(run: the updating run's result; before: alpha-only least squares from it; after: with the effect)",
           file=file)
+    print_closure_intervals(summary, file)
     print("candidates (best first):", file=file)
     for c in summary["candidates"][:6]:
         score = (f"explains {c['explained']:.1%}, dEBIC {c['delta_ebic']:+.1f}" if c["checked"]
@@ -242,6 +243,28 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
               file=file)
     if "wall_seconds" in summary:
         print(f"{summary['fe_solves']} FE solves, {summary['wall_seconds']:.1f} s", file=file)
+
+
+def print_closure_intervals(summary: dict, file=sys.stdout) -> None:
+    """The 95 % intervals of the extended model's parameters (issue 19), if closure.json has them."""
+    iv = summary.get("intervals")
+    if not iv:
+        return
+    d, cost = summary["interval_details"], summary["interval_cost"]
+    print(f"95 % intervals after the closure: {summary['interval_method']} (Gauss-Newton) at the least-squares "
+          f"optimum of the extended model, noise {100 * summary['noise_sigma']:.3g} % ({d['noise_source']}, "
+          f"{d['distribution']} quantile {d['quantile']:.3f}); exact Jacobian columns for alpha and every effect; "
+          f"cost {cost['jacobians']} Jacobian(s), {cost['seconds']:.2f} s", file=file)
+    print(f"{'parameter':<22} {'LS optimum':>11} {'95 % interval':>27} {'std':>10}", file=file)
+    for name, (lo, hi) in iv.items():
+        est, std = d["estimate"][name], d["std"][name]
+        text = "unbounded" if lo is None else f"[{lo:.4g}, {hi:.4g}]"
+        print(f"{name:<22} {est:>11.4g} {text:>27} {'inf' if std is None else f'{std:.3g}':>10}", file=file)
+    for line in d["flags"]:
+        print(line, file=file)
+    if not cost["at_optimum"]:
+        print("warning: the Gauss-Newton steps did not settle at the optimum; the intervals are approximate",
+              file=file)
 
 
 def add_closure_arguments(p: argparse.ArgumentParser) -> None:

@@ -382,6 +382,12 @@ def decide_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndarra
     summary = _closure_json(store, settings, run_info, base, final, chosen, before, after, ranked, library, u,
                             sensors, freqs, before_info)
     summary.update(_verdict_json(verdict, steps, implausible, library, final, sel))
+    # Issue 19: 95 % intervals and the covariance of alpha and every added effect's value (the effects of the
+    # forward selection, in the order added, as in parameters_after).
+    from tasks.closure_intervals import closure_interval_fields
+
+    summary.update(closure_interval_fields(model, freqs, u, final, list(summary["parameters_after"]),
+                                           settings["noise"], settings["alpha_bounds"]))
     atomic_write_bytes(store.root / "frf_closure.parquet", _parquet_bytes(pd.DataFrame({
         "frequency_hz": np.repeat(freqs, len(sensors)), "sensor": np.tile(np.asarray(sensors, np.int64), len(freqs)),
         "measured": u.ravel(), "alpha_only": base.model_amplitude.ravel(), "extended": final.model_amplitude.ravel()})))

@@ -692,9 +692,11 @@ def plot_singular_values(results: dict[str, object], path: Path) -> Path:
 
 
 def plot_intervals(names: list[str], estimate, std, low, high, correlation, path: Path, truth=None,
-                   bounds: tuple[float, float] | None = None, title: str = "") -> Path:
-    """Marginal posteriors (Laplace: normal, mean ``estimate``, sd ``std``) with their 95 % intervals,
-    and the pairwise correlations of the parameter estimates.
+                   bounds: tuple[float, float] | None = None, title: str = "", samples=None, weights=None,
+                   laplace_std=None) -> Path:
+    """Marginal posteriors (Laplace: normal, mean ``estimate``, sd ``std``; sampled: weighted histograms of
+    ``samples``, with the Laplace normal of ``laplace_std`` dashed) with their 95 % intervals, and the
+    pairwise correlations of the parameter estimates.
 
     Parameters
     ----------
@@ -705,10 +707,15 @@ def plot_intervals(names: list[str], estimate, std, low, high, correlation, path
     truth : array_like (m,), optional
     bounds : (lower, upper), optional
         The search box, drawn as grey lines where it falls inside a panel.
+    samples : array_like, shape (n, m), optional
+        Points of a sampled posterior, with ``weights`` (shape (n,)).
+    laplace_std : array_like, shape (m,), optional
+        The Laplace standard deviations, drawn dashed beside a sampled posterior.
     """
     m = len(names)
     est, sd, lo, hi = (np.asarray(v, float) for v in (estimate, std, low, high))
     corr = np.asarray(correlation, float)
+    sampled = samples is not None and weights is not None
     ncols = min(m, 3)
     nrows = -(-m // ncols)
     fig = Figure(figsize=(4.0 * ncols + 4.6, 2.5 * nrows + 0.6), layout="constrained")
@@ -717,7 +724,17 @@ def plot_intervals(names: list[str], estimate, std, low, high, correlation, path
         ax = fig.add_subplot(grid[i // ncols, i % ncols])
         if np.isfinite(sd[i]) and sd[i] > 0:
             x = np.linspace(est[i] - 4 * sd[i], est[i] + 4 * sd[i], 201)
-            ax.plot(x, np.exp(-0.5 * ((x - est[i]) / sd[i]) ** 2) / (sd[i] * np.sqrt(2 * np.pi)), color="C0")
+            if sampled:
+                ax.hist(np.asarray(samples)[:, i], bins=30, weights=np.asarray(weights), density=True, color="C0",
+                        alpha=0.45, label="sampled posterior")
+                lsd = np.asarray(laplace_std, float)[i] if laplace_std is not None else np.nan
+                if np.isfinite(lsd) and lsd > 0:
+                    x = np.linspace(est[i] - 4 * lsd, est[i] + 4 * lsd, 201)
+                    ax.plot(x, np.exp(-0.5 * ((x - est[i]) / lsd) ** 2) / (lsd * np.sqrt(2 * np.pi)), color="C1",
+                            ls="--", lw=1.2, label="Laplace")
+                    ax.set_xlim(x[0], x[-1])  # samples of negligible weight far out would stretch the panel
+            else:
+                ax.plot(x, np.exp(-0.5 * ((x - est[i]) / sd[i]) ** 2) / (sd[i] * np.sqrt(2 * np.pi)), color="C0")
             ax.axvspan(lo[i], hi[i], color="C0", alpha=0.15, label="95 % interval")
             if bounds is not None:
                 for b in bounds:
