@@ -192,10 +192,28 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
     verdict = summary.get("verdict")
     if verdict is not None:
         print(f"verdict: {verdict}", file=file)
-        word = "added" if verdict == "explained" else "candidate (structure remains, not a finding)"
         for e in summary.get("effects", []):
-            print(f"  {e['step']}. {word}: {e['type']} at {e['location']}, {e['parameter']} = {e['value']:.4g} "
-                  f"{e['unit']}, explains {e['explained']:.1%} of the residual then", file=file)
+            evidence = f", evidence {e['evidence']:.0%}" if "evidence" in e else ""
+            if verdict not in ("explained", "ambiguous"):
+                word = "candidate (structure remains, not a finding)"
+            else:
+                word = "added" if e.get("identified", True) else "added, not singled out"
+            moved = f" (moved from {', '.join(e['moved_from'])})" if e.get("moved_from") else ""
+            print(f"  {e['step']}. {word}: {e['type']} at {e['location']}{moved}, {e['parameter']} = {e['value']:.4g} "
+                  f"{e['unit']}, explains {e['explained']:.1%} of the residual then{evidence}", file=file)
+            if e.get("locations_95", 0) > 1:
+                far = f", up to {e['spread_mm']:.0f} mm away" if e.get("spread_mm") is not None else ""
+                pinned = "" if e.get("located", True) else ": the location is not pinned down"
+                print(f"       where: {e['locations_95']} locations of this kind hold 95 % of the evidence{far}"
+                      f"{pinned}", file=file)
+            for r in e.get("rivals", []):
+                print(f"       or {r['type']} at {r['location']} = {r['value']:.4g} {r['unit']} (extended BIC "
+                      f"{r['delta_ebic']:+.1f}, evidence {r['evidence']:.0%})", file=file)
+        if verdict == "ambiguous":
+            print("  the data cannot tell an added effect from its rivals or its place from others far off: "
+                  "none of them is a finding", file=file)
+        for s in summary.get("swaps", []):
+            print(f"  swapped: {s}", file=file)
         for e in summary.get("implausible", []):
             print(f"  implausible (fit ends on a plausibility bound): {e['type']} at {e['location']}, "
                   f"{e['parameter']} = {e['value']:.4g} {e['unit']}", file=file)
@@ -257,7 +275,7 @@ def add_closure_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--effects", metavar="A,B", help="effect types to consider (default all registered: "
                                                     + ", ".join(registered_effects()) + ")")
     p.add_argument("--per-type", type=int, help="candidates per effect type given a full FE check (default 1)")
-    p.add_argument("--restarts", type=int, help="extra Sobol starts of the alpha-only baseline fit (default 2)")
+    p.add_argument("--restarts", type=int, help="extra Sobol starts of the alpha-only baseline fit (default 8)")
     p.add_argument("--closure-name", metavar="NAME", help="sub-folder of the run for the closure (default closure)")
 
 

@@ -361,7 +361,13 @@ def closure_section(data: RunData, out: Path) -> Section | None:
     if c.get("verdict"):
         paragraphs.append(f"Verdict: {c['verdict']}. " + "; ".join(
             f"{e['step']}. {e['type']} at {e['location']} = {e['value']:.4g} {e['unit']} "
-            f"({e['explained']:.0%} of the residual then)" for e in c.get("effects", []) if isinstance(e, dict)))
+            f"({e['explained']:.0%} of the residual then"
+            + (f", evidence {e['evidence']:.0%}" if "evidence" in e else "") + ")"
+            + "".join(f" or {r['type']} at {r['location']} = {r['value']:.4g} {r['unit']} "
+                      f"(evidence {r['evidence']:.0%})" for r in e.get("rivals", []))
+            for e in c.get("effects", []) if isinstance(e, dict))
+            + (" The data cannot tell an added effect from its rivals: none of them is a finding."
+               if c["verdict"] == "ambiguous" else ""))
     ranked = _candidate_table(c.get("candidates"))
     if ranked is not None:
         df, score = ranked

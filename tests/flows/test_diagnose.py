@@ -58,6 +58,10 @@ def test_the_closure_of_a_reduced_run_names_the_point_mass_and_writes_its_tables
     # Issue 18: the verdict, the effects in the order added, and the FRF of both models.
     assert on_disk["verdict"] == "explained" and [e["type"] for e in on_disk["effects"]] == ["point_mass"]
     assert on_disk["effects"][0]["value"] == pytest.approx(effect["value"], rel=1e-12)
+    # Its kind holds the evidence in its place, and its node is among the locations that hold 95 % of it.
+    first = on_disk["effects"][0]
+    assert first["identified"] and first["evidence"] >= 0.95
+    assert first["location"] in [loc["location"] for loc in first["locations"]] or first["locations_95"] > 10
     frf = pd.read_parquet(closure / on_disk["frf_table"])
     rel = (frf["extended"] - frf["measured"]).abs() / frf["measured"]
     assert rel.mean() == pytest.approx(on_disk["error_after"], rel=1e-9)
@@ -104,6 +108,39 @@ def test_closure_json_has_intervals_and_covariance_of_alpha_and_the_effect(diagn
     out = io.StringIO()
     dg.print_closure(on_disk, file=out)
     assert "95 % intervals after the closure" in out.getvalue() and "point_mass.mass" in out.getvalue()
+
+
+def test_closure_intervals_cover_every_effect_of_a_forward_selection(benchmark_model):
+    """Issues 18 + 19: the intervals of a two-effect final fit (as forward selection leaves it: an earlier
+    effect refitted with the new one) are named as closure.json's parameters_after and hold the truth.
+
+    Noise-free data of the true alpha, a 0.12 kg mass and a 4e5 N/m spring (direct solver); the fit starts
+    off (mass 0.06 kg, spring 2e5 N/m) and ends at the truth; the intervals at 0.5 % noise must hold it and
+    tell both effects from their absence.
+    """
+    from fe_core.benchmark import ALPHA_ACTUAL
+    from fe_core.closure import fit_update
+    from fe_core.effects import Applied, build_library, extended_frf
+    from tasks.closure import _params
+    from tasks.closure_intervals import closure_interval_fields
+
+    library = {e.kind: e for e in build_library(benchmark_model, ["point_mass", "grounded_spring"])}
+    pm, gs = library["point_mass"], library["grounded_spring"]
+    freqs = np.linspace(20, 400, 40)
+    truth = [Applied(pm, "node 337", np.array([0.12])), Applied(gs, "node 919", np.array([4e5]))]
+    u = np.abs(extended_frf(benchmark_model, ALPHA_ACTUAL, freqs, truth, method="direct"))
+    final = fit_update(benchmark_model, freqs, u, ALPHA_ACTUAL, gs, "node 919", [2e5],
+                       prior=[Applied(pm, "node 337", np.array([0.06]))], max_evaluations=300)
+    names = list(_params(final, library))
+    assert names[6:] == ["point_mass.mass", "grounded_spring.k"]
+    fields = closure_interval_fields(benchmark_model, freqs, u, final, names, 0.005, (-0.95, 1.0))
+    assert list(fields["intervals"]) == names
+    theta = np.r_[ALPHA_ACTUAL, 0.12, 4e5]
+    for name, t in zip(names, theta):
+        lo, hi = fields["intervals"][name]
+        assert lo <= t <= hi, (name, lo, t, hi)
+    assert fields["intervals"]["point_mass.mass"][0] > 0 and fields["intervals"]["grounded_spring.k"][0] > 0
+    assert not any(n in fields["interval_details"]["unpinned"] for n in names[6:])
 
 
 @pytest.mark.slow
