@@ -69,15 +69,20 @@ def sensor_positions() -> np.ndarray:
     return np.array([[x0 + 0.25 * (x1 - x0), SENSOR_Y, THICKNESS] for x0, x1 in segment_bounds()])
 
 
-@lru_cache(maxsize=2)
-def three_plate(formulation: str = "incompatible") -> ParametricModel:
-    """The benchmark model (cached per formulation; treat it as read-only).
+@lru_cache(maxsize=4)
+def three_plate(formulation: str = "incompatible", refine: tuple[int, int, int] = (1, 1, 1)) -> ParametricModel:
+    """The benchmark model (cached per formulation and refinement; treat it as read-only).
 
     Parameters
     ----------
     formulation : {"incompatible", "plain"}
         hex8 stiffness formulation. The benchmark uses the incompatible-modes
         element; the plain one locks (150.7 / 389.3 Hz instead of 112.2 / 291.4).
+    refine : (int, int, int)
+        Elements per benchmark element along x, y and through the thickness:
+        (1, 1, 1) is the SPEC's mesh; a finer mesh of the same plates (same
+        segments, clamps and sensor points, which stay on nodes) is an
+        independent reference for it (``benchmarks/closure.py --discretisation``).
 
     Returns
     -------
@@ -85,14 +90,17 @@ def three_plate(formulation: str = "incompatible") -> ParametricModel:
         Node sets ``clamped``, ``top``, ``sensors``; cell sets ``plate1..3``
         and ``segment1..6``.
     """
+    fx, fy, fz = (int(f) for f in refine)
+    if min(fx, fy, fz) < 1:
+        raise ValueError(f"refine factors must be positive integers, got {refine!r}")
     blocks = []
     for k, (x0, x1, half) in enumerate(PLATES, start=1):
-        n_y = int(round(2 * half / ELEMENT_SIZE_Y))
+        n_y = int(round(2 * half / ELEMENT_SIZE_Y)) * fy
         blocks.append(
             Block(
-                x=np.linspace(x0, x1, ELEMENTS_ALONG_X + 1),
+                x=np.linspace(x0, x1, ELEMENTS_ALONG_X * fx + 1),
                 y=np.linspace(-half, half, n_y + 1),
-                z=np.array([0.0, THICKNESS]),
+                z=np.linspace(0.0, THICKNESS, fz + 1),
                 name=f"plate{k}",
             )
         )

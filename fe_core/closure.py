@@ -23,16 +23,22 @@ Steps (each a plain function, so a flow can store and resume them one by one):
    fit too). An effect is added only if the residual before it is
    structure (chi-square test) and its extended BIC beats the model without it.
 
-5. Forward selection (:func:`close_loop`): steps 2-4 repeat with the
-   effects added so far in the model, all of them refitted together with
-   alpha at every step, while the residual is structure and an effect
-   improves the extended BIC (up to ``max_effects``). A fit that ends on an
-   effect's plausibility bound (:meth:`fe_core.effects.Effect.bounds_at`) is
-   reported implausible and never added.
+5. Forward selection (:func:`fe_core.selection.forward_select`): steps 2-4
+   repeat with the effects added so far in the model, all of them refitted
+   together with alpha at every step, while the residual is structure and an
+   effect improves the extended BIC (up to ``max_effects``); with two or more
+   effects, each is swapped for the best alternative in its place while that
+   improves the extended BIC. A fit that ends on an effect's plausibility
+   bound (:meth:`fe_core.effects.Effect.bounds_at`) is reported implausible
+   and never added.
 6. The verdict: ``noise`` (the residual before was noise, nothing to add),
-   ``explained`` (effects were added and the residual after them is noise),
-   ``partly explained`` (structure remains: what was added and the best
-   candidates are candidates, not findings).
+   ``explained`` (effects were added, the residual after them is noise and
+   each effect's kind holds at least 95 % of the evidence among the kinds
+   checked in its place, its location pinned down), ``ambiguous`` (noise
+   after, but a rival kind or a distant location fits about as well: listed,
+   not a finding), ``partly
+   explained`` (structure remains: what was added and the best candidates
+   are candidates, not findings).
 
 The candidates' ranking is by extended BIC for checked candidates, then by
 the extended BIC predicted by the linearisation.
@@ -70,6 +76,7 @@ __all__ = [
     "pick_for_check",
     "check",
     "decide",
+    "score",
     "close_loop",
     "scores",
     "rank",
@@ -93,7 +100,7 @@ FD_STEP = 1e-4
 #: a segment's stiffness vanishes and the least-squares landscape turns steep and ill-conditioned.
 ALPHA_BOUNDS = (-0.95, 1.0)
 #: The three verdicts of a closure.
-VERDICTS = ("noise", "explained", "partly explained")
+VERDICTS = ("noise", "explained", "ambiguous", "partly explained")
 
 
 @dataclass
@@ -193,6 +200,17 @@ class ClosureResult:
     verdict: str = "noise"
     implausible: list[Candidate] = field(default_factory=list)
     rounds: list[list[Candidate]] = field(default_factory=list)
+    #: Per added effect: its kind's share of the evidence among the kinds checked in its place, and
+    #: the rivals (:class:`fe_core.selection.Rival`) holding at least 1 % of it.
+    weights: list[float] = field(default_factory=list)
+    rivals: list[list] = field(default_factory=list)
+    #: Swaps made by the swap passes and moves of earlier effects (joint relocation), as text.
+    swaps: list[str] = field(default_factory=list)
+    moves: list[str] = field(default_factory=list)
+    #: Per added effect: the locations of its kind holding 95 % of the linearised evidence, with weights,
+    #: and whether they lie close together (:func:`fe_core.selection.located`).
+    spreads: list[list[tuple[str, float]]] = field(default_factory=list)
+    located: list[bool] = field(default_factory=list)
 
 
 # -- fitting ------------------------------------------------------------------------------------------
@@ -202,23 +220,30 @@ def _amplitudes(model, alpha, freqs, applied) -> np.ndarray:
 
 def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effect | None = None,
                location: str | None = None, value0=None, *, max_evaluations: int = 600, tol: float = 1e-8,
-               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, prior: Sequence[Applied] = ()) -> Fit:
+               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, prior: Sequence[Applied] = (),
+               jacobian: str = "exact") -> Fit:
     """Least squares on the FE model over alpha (and the effects' parameters) from a start point.
 
     Minimises ``sum ln(|Z_model| / u)^2`` with scipy's trust-region
     reflective method (``least_squares``, ``trf``) in parameters scaled by
-    their typical size, with forward differences of step ``FD_STEP`` = 1e-4 of that size
-    (1e-5 in alpha); the parameters stay inside their valid domains. The step is set by
-    the FRF's accuracy, not by round-off of one CPU: the Krylov FRF agrees with the direct
-    solve to 1e-10 on the benchmark's banded path but only to ~1e-8 on PARDISO's
-    (``fe_core.frf.STAGNATION_RTOL``), and a forward difference over a step h carries
-    that error divided by h. At 1e-7 in alpha (the step before) the Jacobian of the
-    cantilever example was 0.4 % wrong, and on another CPU's BLAS kernels the fit
-    stopped early (``xtol``) at a cost 42 % above the optimum; at 1e-5 the error is
-    3e-4 (truncation and round-off balanced; 2e-5 on the benchmark) and the fit
-    reaches the same optimum from either CPU, in fewer evaluations. (The exact Jacobian of
-    :class:`fe_core.effects.LinearisedResponse` costs more than the seven
-    extra FRFs of a difference Jacobian, so it is kept for screening.)
+    their typical size, by default (``jacobian="exact"``) with the exact Jacobian of
+    :class:`fe_core.effects.LinearisedResponse` (one Krylov space of the load
+    and the sensor loads per point gives the FRF and its derivatives with
+    respect to every parameter, about 1.3 FRF costs, where forward
+    differences cost one FRF per parameter); the parameters stay inside their
+    valid domains. The exact derivatives are those of the reduced model whose
+    FRF is returned, so they carry no difference error at all.
+
+    ``jacobian="difference"`` is the reference: forward differences of step
+    ``FD_STEP`` = 1e-4 of each parameter's scale (1e-5 in alpha). That step is
+    set by the FRF's accuracy, not by round-off of one CPU: the Krylov FRF
+    agrees with the direct solve to 1e-10 on the benchmark's banded path but
+    only to ~1e-8 on PARDISO's (``fe_core.frf.STAGNATION_RTOL``), and a forward
+    difference over a step h carries that error divided by h. At 1e-7 in alpha
+    the Jacobian of the cantilever example was 0.4 % wrong, and on another
+    CPU's BLAS kernels the fit stopped early (``xtol``) at a cost 42 % above
+    the optimum; at 1e-5 the error is 3e-4 (truncation and round-off balanced;
+    2e-5 on the benchmark) and the fit reaches the same optimum from either CPU.
 
     Parameters
     ----------
@@ -231,7 +256,8 @@ def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effe
     value0 : array_like, shape (k,), optional
         Start of the effect's parameters (zero by default).
     max_evaluations : int
-        Budget of FE evaluations, difference columns included.
+        Budget of FE evaluations (each a Krylov space that gives the FRF and the Jacobian; with
+        ``jacobian="difference"`` one FRF, difference columns included).
     tol : float
         ``ftol``, ``xtol`` and ``gtol`` of the optimiser.
     alpha_bounds : (float, float)
@@ -239,8 +265,12 @@ def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effe
     prior : sequence of Applied
         Effects added before: refitted together with alpha (and ``effect``),
         from their values. Their refitted values are in ``Fit.prior``.
+    jacobian : {"exact", "difference"}
+        The derivatives: exact on the Krylov space (default) or forward differences of step ``FD_STEP``.
     """
     t0 = time.perf_counter()
+    if jacobian not in ("exact", "difference"):
+        raise ValueError(f"unknown Jacobian {jacobian!r}; choose 'exact' or 'difference'")
     if not alpha_bounds[0] > -1.0:
         raise ValueError(f"the lower bound of alpha must be above -1, got {alpha_bounds[0]}")
     freqs = np.asarray(freqs_hz, float)
@@ -263,16 +293,40 @@ def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effe
     # Strictly inside the box (least_squares' requirement), by a hair of each scale.
     theta0 = np.clip(theta0, lo + 1e-6 * scale, hi - 1e-6 * scale)
     count = [0]
+    last: dict = {}
+
+    def response(x) -> LinearisedResponse:
+        """The FRF and its derivatives at x (the last point is kept: trf asks for the Jacobian where it
+        has just evaluated the residual)."""
+        if last.get("x") is None or not np.array_equal(last["x"], x):
+            theta = np.clip(theta0 + scale * x, lo, hi)
+            count[0] += 1
+            last["x"] = np.array(x, copy=True)
+            last["lin"] = LinearisedResponse(model, theta[:m], freqs, applied_at(theta))
+        return last["lin"]
 
     def fun(x):
+        return log_residual(response(x).amplitude, u).ravel()
+
+    def fun_difference(x):
         theta = np.clip(theta0 + scale * x, lo, hi)
         count[0] += 1
         return log_residual(_amplitudes(model, theta[:m], freqs, applied_at(theta)), u).ravel()
 
+    def jac(x):
+        lin = response(x)
+        cols = [lin.alpha_derivatives()] + [lin.effect_derivatives(a.effect, a.location) for a in lin.applied]
+        return np.column_stack(cols) * scale[None, :]
+
     with np.errstate(invalid="ignore"):
         lb, ub = (lo - theta0) / scale, (hi - theta0) / scale
-    result = least_squares(fun, np.zeros(theta0.size), bounds=(lb, ub), method="trf", diff_step=FD_STEP,
-                           ftol=tol, xtol=tol, gtol=tol, max_nfev=max(1, max_evaluations // (theta0.size + 1)))
+    if jacobian == "exact":
+        result = least_squares(fun, np.zeros(theta0.size), jac=jac, bounds=(lb, ub), method="trf",
+                               ftol=tol, xtol=tol, gtol=tol, max_nfev=max(1, max_evaluations // 2))
+    else:
+        result = least_squares(fun_difference, np.zeros(theta0.size), bounds=(lb, ub), method="trf",
+                               diff_step=FD_STEP, ftol=tol, xtol=tol, gtol=tol,
+                               max_nfev=max(1, max_evaluations // (theta0.size + 1)))
     theta = np.clip(theta0 + scale * result.x, lo, hi)
     r = result.fun.reshape(u.shape)
     applied = applied_at(theta)
@@ -390,22 +444,41 @@ def screen(model: ParametricModel, freqs_hz, base: Fit, library: Sequence[Effect
     out = []
     for effect in library:
         locations = effect.locations()
-        for loc in locations:
-            if (effect.kind, loc) in taken:
-                continue
-            s = effect.scale_at(loc)
-            cols = np.column_stack([lin.derivative(effect.derivative(base.alpha, loc, i)).ravel() * s[i]
-                                    for i in range(effect.n_parameters)])
-            lo, hi = effect.bounds_at(loc)
-            d, rss = _best_linear(r_perp, q, cols, lo / s, hi / s)
-            bic, ebic = scores(max(rss, 1e-300), n, base.n_parameters + effect.n_parameters,
-                               len(locations))
+        free = [loc for loc in locations if (effect.kind, loc) not in taken]
+        if not free:
+            continue
+        d, rss = _linear_fits(lin, effect, free, r_perp, q)
+        bic = n * np.log(np.maximum(rss, 1e-300) / n) + (base.n_parameters + effect.n_parameters) * np.log(n)
+        ebic = bic + 2.0 * np.log(len(locations))  # as scores()
+        for k, loc in enumerate(free):
             out.append(Candidate(effect=effect.kind, location=loc, n_locations=len(locations),
-                                 linear_values=d * s, linear_rss=rss,
-                                 linear_explained=1.0 - rss / rss0 if rss0 > 0 else 0.0,
-                                 linear_delta_bic=bic - bic0, linear_delta_ebic=ebic - bic0))
+                                 linear_values=d[k], linear_rss=float(rss[k]),
+                                 linear_explained=1.0 - rss[k] / rss0 if rss0 > 0 else 0.0,
+                                 linear_delta_bic=float(bic[k] - bic0), linear_delta_ebic=float(ebic[k] - bic0)))
     out.sort(key=lambda c: -c.linear_explained)
     return out
+
+
+def _linear_fits(lin: LinearisedResponse, effect: Effect, locations: Sequence[str], r_perp: np.ndarray,
+                 q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounded linear least squares of ``r_perp`` on each location's projected columns: values
+    (L, k) in the effect's units and residual sums of squares (L,)."""
+    scale = np.array([effect.scale_at(loc) for loc in locations])  # (L, k)
+    bounds = [effect.bounds_at(loc) for loc in locations]
+    lo = np.array([b[0] for b in bounds]) / scale
+    hi = np.array([b[1] for b in bounds]) / scale
+    cols = lin.batch_derivatives(effect, locations) * scale[:, None, :]  # (L, N, k)
+    if effect.n_parameters == 1:
+        j = cols[:, :, 0]
+        j = j - (j @ q) @ q.T  # alpha (and the effects refitted with it) projected out
+        jj = np.einsum("ln,ln->l", j, j)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = np.where(jj > 0, -(j @ r_perp) / jj, 0.0)
+        d = np.clip(d, lo[:, 0], hi[:, 0])
+        res = r_perp[None, :] + d[:, None] * j
+        return (d[:, None] * scale), np.einsum("ln,ln->l", res, res)
+    out = [_best_linear(r_perp, q, cols[k], lo[k], hi[k]) for k in range(len(locations))]
+    return np.array([v for v, _ in out]) * scale, np.array([r for _, r in out])
 
 
 def _refitted_columns(lin: LinearisedResponse, applied: Sequence[Applied]) -> np.ndarray:
@@ -430,9 +503,12 @@ def at_bound(effect: Effect, location: str, values, rtol: float = 1e-2) -> bool:
     return bool(np.any(hit_lo | hit_hi))
 
 
-def pick_for_check(candidates: Sequence[Candidate], per_type: int = 2, factor: float = 10.0) -> list[Candidate]:
+def pick_for_check(candidates: Sequence[Candidate], per_type: int = 2, factor: float = 10.0,
+                   always: Sequence[str] = ("sensor_mass",)) -> list[Candidate]:
     """Candidates worth a full FE check: the ``per_type`` best-screened of each effect type, of those
-    whose linearised unexplained share is within ``factor`` of the best candidate's."""
+    whose linearised unexplained share is within ``factor`` of the best candidate's, and the best of
+    each kind in ``always`` whatever its screening (the transducers' mass, the commonest effect of all:
+    a linearisation far from its basin can hide it)."""
     if not candidates:
         return []
     best_left = min(1.0 - c.linear_explained for c in candidates)
@@ -443,6 +519,11 @@ def pick_for_check(candidates: Sequence[Candidate], per_type: int = 2, factor: f
         if seen.get(c.effect, 0) < per_type and c.linear_explained > 0 and left <= factor * max(best_left, 1e-6):
             seen[c.effect] = seen.get(c.effect, 0) + 1
             picked.append(c)
+    for kind in always:
+        if kind not in seen:
+            first = next((c for c in sorted(candidates, key=lambda c: -c.linear_explained) if c.effect == kind), None)
+            if first is not None:
+                picked.append(first)
     return picked
 
 
@@ -463,24 +544,29 @@ def scores(rss: float, n_values: int, n_parameters: int, n_locations: int = 1) -
     return float(bic), float(bic + 2.0 * np.log(n_locations))
 
 
-def _relocation_target(model, freqs, fit: Fit, effect: Effect, candidates: list[str]):
-    """Linearised best move of the fitted effect to one of ``candidates``: (location, values, predicted RSS)."""
-    here = Applied(effect, fit.location, fit.values)
-    lin = LinearisedResponse(model, fit.alpha, freqs, fit.prior + [here])
+def _relocation_fits(model, freqs, fit: Fit, effect: Effect, candidates: list[str], index: int | None = None):
+    """Linearised fits of one fitted effect moved to each of ``candidates``: values (L, k) and RSS (L,).
+
+    ``index`` is the effect's place in ``fit.applied`` (the newest by default); the other effects
+    and alpha are refitted in the prediction.
+    """
+    applied = fit.applied
+    j = len(applied) - 1 if index is None else index
+    here, others = applied[j], applied[:j] + applied[j + 1:]
+    lin = LinearisedResponse(model, fit.alpha, freqs, applied)
     r = fit.residual.ravel()
-    q = _projector(_refitted_columns(lin, fit.prior))
+    q = _projector(_refitted_columns(lin, others))
     # Take the effect away where it is (linear in its values), then add it at the candidate.
-    r_moved = r - lin.effect_derivatives(effect, fit.location) @ fit.values
+    r_moved = r - lin.effect_derivatives(here.effect, here.location) @ here.values
     r_perp = r_moved - q @ (q.T @ r_moved)
-    best = None
-    for loc in candidates:
-        s = effect.scale_at(loc)
-        cols = lin.effect_derivatives(effect, loc) * s
-        lo, hi = effect.bounds_at(loc)
-        d, rss = _best_linear(r_perp, q, cols, lo / s, hi / s)
-        if best is None or rss < best[2]:
-            best = (loc, d * s, rss)
-    return best
+    return _linear_fits(lin, effect, candidates, r_perp, q)
+
+
+def _relocation_target(model, freqs, fit: Fit, effect: Effect, candidates: list[str], index: int | None = None):
+    """Linearised best move of one fitted effect to one of ``candidates``: (location, values, predicted RSS)."""
+    d, rss = _relocation_fits(model, freqs, fit, effect, candidates, index)
+    k = int(np.argmin(rss))
+    return candidates[k], d[k], float(rss[k])
 
 
 def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect, candidate: Candidate,
@@ -542,13 +628,9 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
     return candidate
 
 
-def decide(base: Fit, before: ResidualAnalysis, checked: Sequence[Candidate]) -> Candidate | None:
-    """Score the checked candidates against the model without the new effect; the chosen one, or None.
-
-    Sets ``bic``, ``ebic``, their differences to the base model, the
-    explained share and ``implausible`` (the fit ends on a plausibility bound
-    of any of its effects) on each candidate; an implausible one is never chosen.
-    """
+def score(base: Fit, checked: Sequence[Candidate]) -> None:
+    """Set ``bic``, ``ebic``, their differences to ``base`` (the model without the candidate), the
+    explained share and ``implausible`` (the fit ends on a plausibility bound of any of its effects)."""
     n = base.residual.size
     bic0, _ = scores(base.rss, n, base.n_parameters)
     for c in checked:
@@ -556,6 +638,14 @@ def decide(base: Fit, before: ResidualAnalysis, checked: Sequence[Candidate]) ->
         c.delta_bic, c.delta_ebic = c.bic - bic0, c.ebic - bic0
         c.explained = 1.0 - c.fit.rss / base.rss if base.rss > 0 else 0.0
         c.implausible = any(at_bound(a.effect, a.location, a.values) for a in c.fit.applied)
+
+
+def decide(base: Fit, before: ResidualAnalysis, checked: Sequence[Candidate]) -> Candidate | None:
+    """Score the checked candidates against the model without the new effect; the chosen one, or None.
+
+    Sets the scores of :func:`score` on each candidate; an implausible one is never chosen.
+    """
+    score(base, checked)
     plausible = [c for c in checked if not c.implausible]
     if not plausible or not before.structured:
         return None
@@ -563,11 +653,15 @@ def decide(base: Fit, before: ResidualAnalysis, checked: Sequence[Candidate]) ->
     return best if best.delta_ebic < 0 else None
 
 
-def verdict(before: ResidualAnalysis, after: ResidualAnalysis, n_added: int) -> str:
-    """``noise`` (nothing to explain), ``explained`` (effects added, noise after) or ``partly explained``."""
+def verdict(before: ResidualAnalysis, after: ResidualAnalysis, n_added: int, identified: bool = True) -> str:
+    """``noise`` (nothing to explain), ``explained`` (effects added, noise after, each effect singled out
+    by the data), ``ambiguous`` (noise after, but a rival explanation fits about as well) or
+    ``partly explained`` (structure remains)."""
     if not before.structured:
         return "noise"
-    return "explained" if n_added > 0 and not after.structured else "partly explained"
+    if n_added > 0 and not after.structured:
+        return "explained" if identified else "ambiguous"
+    return "partly explained"
 
 
 def rank(candidates: Sequence[Candidate]) -> list[Candidate]:
@@ -581,7 +675,8 @@ def rank(candidates: Sequence[Candidate]) -> list[Candidate]:
 def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library: Sequence[Effect] | None = None,
                noise: float | None = None, significance: float = 0.01, per_type: int = 2,
                max_moves: int = 6, restarts: int = 0, seed: int = 0, check_noise: bool = False,
-               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, max_effects: int = 3) -> ClosureResult:
+               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, max_effects: int = 3,
+               swaps: bool = True) -> ClosureResult:
     """Baseline fit, residual analysis, then forward selection: screening, checks and a decision per step.
 
     Parameters
@@ -615,7 +710,11 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     max_effects : int
         Most effects added (forward selection stops earlier at noise or when
         no effect improves the extended BIC).
+    swaps : bool
+        Swap passes after each addition (:func:`fe_core.selection.swap_pass`).
     """
+    from .selection import forward_select
+
     times = {"baseline": 0.0, "screen": 0.0, "check": 0.0}
     t = time.perf_counter()
     library = build_library(model) if library is None else list(library)
@@ -626,69 +725,20 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     log.info("baseline: %s", before.summary())
     sel = forward_select(model, freqs, u, base, before, library, significance=significance, per_type=per_type,
                          max_moves=max_moves, check_noise=check_noise, alpha_bounds=alpha_bounds,
-                         max_effects=max_effects, times=times)
+                         max_effects=max_effects, times=times, swaps=swaps)
     return ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
-                         sel.final, sel.after, times, sel.steps, verdict(before, sel.after, len(sel.steps)),
-                         sel.implausible, sel.rounds)
+                         sel.final, sel.after, times, sel.steps,
+                         verdict(before, sel.after, len(sel.steps), sel.identified), sel.implausible, sel.rounds,
+                         sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads, sel.located)
 
 
-@dataclass
-class Selection:
-    """What :func:`forward_select` added (in order), each round's ranking and the final fit."""
+def __getattr__(name: str):
+    """``forward_select`` and ``Selection`` live in :mod:`fe_core.selection`, which builds on this module."""
+    if name in ("forward_select", "Selection"):
+        from . import selection
 
-    steps: list[Candidate]
-    rounds: list[list[Candidate]]
-    implausible: list[Candidate]
-    final: Fit
-    after: ResidualAnalysis
-
-
-def forward_select(model: ParametricModel, freqs_hz, amplitude, start: Fit, analysis: ResidualAnalysis,
-                   library: Sequence[Effect], *, significance: float = 0.01, per_type: int = 2, max_moves: int = 6,
-                   check_noise: bool = False, alpha_bounds: tuple[float, float] = ALPHA_BOUNDS,
-                   max_effects: int = 3, times: dict | None = None) -> Selection:
-    """Add effects one at a time from ``start`` (a fit with or without effects, ``analysis`` its residual).
-
-    Each round screens every candidate with the effects so far in the model,
-    checks the best few in full (all effects refitted with alpha) and adds the
-    one that lowers the extended BIC most, if any and if plausible; it stops at
-    noise (chi-square test with the noise level of ``analysis``), when nothing
-    improves, or after ``max_effects`` rounds. ``times`` (seconds per stage)
-    is added to if given.
-    """
-    times = {} if times is None else times
-    freqs = np.asarray(freqs_hz, float)
-    u = np.asarray(amplitude, float)
-    by_kind = {e.kind: e for e in library}
-    current, sigma = start, analysis.sigma
-    steps: list[Candidate] = []
-    implausible: list[Candidate] = []
-    rounds: list[list[Candidate]] = []
-    for _ in range(max_effects):
-        t = time.perf_counter()
-        screened = screen(model, freqs, current, library)
-        times["screen"] = times.get("screen", 0.0) + time.perf_counter() - t
-        t = time.perf_counter()
-        checked = []
-        if analysis.structured or (check_noise and not steps):
-            for c in pick_for_check(screened, per_type):
-                checked.append(check(model, freqs, u, current, by_kind[c.effect], c, max_moves, alpha_bounds))
-        times["check"] = times.get("check", 0.0) + time.perf_counter() - t
-        checked = dedupe(checked)
-        chosen = decide(current, analysis, checked)
-        implausible += [c for c in checked if c.implausible]
-        rounds.append(rank(merge(checked, screened)))
-        if chosen is None:
-            break
-        steps.append(chosen)
-        current = chosen.fit
-        analysis = analyse_residual(current.residual, freqs, current.n_parameters, sigma, significance,
-                                    current.relative(u))
-        log.info("step %d: added %s at %s = %s (%.0f %% of the residual); %s", len(steps), chosen.effect,
-                 chosen.location, chosen.fit.values, 100 * chosen.explained, analysis.summary())
-        if not analysis.structured:
-            break
-    return Selection(steps, rounds, implausible, current, analysis)
+        return getattr(selection, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def dedupe(checked: Sequence[Candidate]) -> list[Candidate]:

@@ -42,7 +42,8 @@ Plausibility: every effect's fit box (:meth:`Effect.bounds_at`) is its
 :meth:`Effect.set_limits`. Defaults: a point mass at most 20 % of the
 structure's mass, the sensor masses together at most 20 %, a grounded spring
 at most 1e8 N/m, a sensor gain within +-50 %, factors above -1 (kept off by a
-margin) and at most 10. A fit that ends on such a bound is not a finding
+margin), a band's or patch's stiffness at most doubled (+1), a segment's mass
+factor at most 10. A fit that ends on such a bound is not a finding
 (:func:`fe_core.closure.at_bound`).
 
 Every extension keeps K symmetric positive definite and M positive definite
@@ -187,6 +188,16 @@ class Effect(abc.ABC):
     def describe(self, location: str) -> dict:
         """Extra facts about a location for reports (coordinates, cells...)."""
         return {}
+
+    def position(self, location: str) -> np.ndarray | None:
+        """Where a location is, shape (3,), m (a node, a band's centroid); None if it has no place."""
+        return None
+
+    def diagonal(self, locations: Sequence[str]) -> tuple[str, np.ndarray] | None:
+        """For a one-parameter effect whose unit terms are ones on a few diagonal entries of K or M:
+        ``("stiffness" | "mass", rows)`` with ``rows`` (len(locations), k) free-DOF indices, -1 padded
+        (the screening then derives every location in one product); None otherwise."""
+        return None
 
     def neighbours(self, location: str) -> list[str]:
         """Locations next to ``location`` (used to refine a searched location); none by default."""
@@ -374,6 +385,9 @@ class _NodalEffect(Effect):
         x, y, z = self.model.mesh.nodes[n]
         return {"node": n, "x_m": float(x), "y_m": float(y), "z_m": float(z)}
 
+    def position(self, location) -> np.ndarray | None:
+        return None if self.model.mesh is None else self.model.mesh.nodes[self.node(location)].copy()
+
     def neighbours(self, location) -> list[str]:
         """Candidate nodes sharing a cell with this node (without a mesh: coupled to it in K)."""
         n = self.node(location)
@@ -401,6 +415,10 @@ class PointMass(_NodalEffect):
     lower = (0.0,)
     upper = (np.inf,)
     scale = (0.1,)
+
+    def diagonal(self, locations):
+        rows = np.array([_rows_of(self.model, self.node(loc)) for loc in locations]).reshape(-1, DOFS_PER_NODE)
+        return "mass", np.where(rows >= 0, rows, -1)
 
     def __init__(self, model: ParametricModel, nodes: Sequence[int] | None = None):
         super().__init__(model, nodes)
@@ -432,6 +450,10 @@ class GroundedSpring(_NodalEffect):
 
     def _candidates(self) -> np.ndarray:
         return candidate_nodes(self.model, self.node_set, self.component)
+
+    def diagonal(self, locations):
+        rows = np.array([_rows_of(self.model, self.node(loc))[self.component] for loc in locations]).reshape(-1, 1)
+        return "stiffness", np.where(rows >= 0, rows, -1)
 
     def terms(self, alpha, location, values) -> Terms:
         row = _rows_of(self.model, self.node(location))[self.component]
@@ -504,7 +526,9 @@ class ElementBand(Effect):
     parameters = ("beta",)
     units = ("-",)
     lower = (-1.0,)
-    upper = (10.0,)
+    #: A band more than twice as stiff as the plate it is part of needs material the model lacks (a
+    #: stiffener), not damage or a joint's flexibility: implausible by default (``set_limits`` widens it).
+    upper = (1.0,)
     scale = (0.1,)
     margin = (1e-3,)
 
@@ -537,6 +561,9 @@ class ElementBand(Effect):
 
     def alpha_derivative(self, alpha, location, values, index) -> Terms:
         return Terms(stiffness=float(values[0]) * self._matrices[location].segment(index))
+
+    def position(self, location) -> np.ndarray:
+        return self.model.mesh.centroids[self.bands[location]].mean(axis=0)
 
     def describe(self, location) -> dict:
         cells = self.bands[location]
@@ -632,6 +659,9 @@ class SensorMass(Effect):
 
     def locations(self) -> list[str]:
         return ["all sensors"]
+
+    def diagonal(self, locations):
+        return "mass", np.tile(self._rows, (len(locations), 1))
 
     def terms(self, alpha, location, values) -> Terms:
         return Terms(mass=_diag(self.model.n_dofs, self._rows, np.full(self._rows.size, float(values[0]))))
@@ -895,6 +925,17 @@ def extended_frf(model: ParametricModel, alpha, freqs_hz, applied: Sequence[Appl
     return (Z @ model._out_weights) * (1.0 + sensor_gain(model, alpha, applied))[None, :]
 
 
+def segment_stiffness(model: ParametricModel, i: int) -> sp.csr_matrix:
+    """Segment ``i``'s stiffness at alpha = 0 without the common pattern's explicit zeros (cached on the
+    model): a derivative with respect to alpha_i touches only the segment's rows."""
+    cache = model.__dict__.setdefault("_segment_stiffness_cache", {})
+    if i not in cache:
+        K = model.stiffness_segments.segment(i).copy()  # the segment shares the pattern's index arrays
+        K.eliminate_zeros()
+        cache[i] = K
+    return cache[i]
+
+
 def sensor_gain(model: ParametricModel, alpha, applied: Sequence[Applied] = ()) -> np.ndarray:
     """Sum of the applied sensor gains, shape (n_sensors,) (zero without any)."""
     g = np.zeros(model.n_sensors)
@@ -912,9 +953,10 @@ class LinearisedResponse:
     vectors ``l_s``, the field is ``h = D^-1 F``, ``Z_s = l_s^T h`` and
     ``dZ_s = -l_s^T D^-1 dD h``. D is complex symmetric, so ``l_s^T D^-1`` is
     the response ``X_s`` to a unit load along ``l_s`` (reciprocity), and
-    ``dZ_s = -X_s^T (dD h)``: one solve with F and the sensor loads gives the
-    sensitivity to *every* candidate, e.g. a point mass at each of hundreds of
-    nodes, without a solve per candidate.
+    ``dZ_s = -X_s^T (dD h)``: one Krylov space of F and the sensor loads
+    (:class:`fe_core.adjoint.ReducedResponse`) gives the sensitivity to *every*
+    candidate, e.g. a point mass at each of hundreds of nodes, without a solve
+    per candidate.
 
     Parameters
     ----------
@@ -926,50 +968,27 @@ class LinearisedResponse:
     """
 
     def __init__(self, model: ParametricModel, alpha, freqs_hz, applied: Sequence[Applied] = ()):
+        from .adjoint import ReducedResponse
+
         self.model = model
         self.alpha = check_parameters(alpha, model.n_segments, "alpha")
         self.freqs_hz = np.asarray(freqs_hz, float)
         self.omegas = hz_to_rad(self.freqs_hz)
         self.applied = list(applied)
         self.K, self.M, self.a, self.b = extended_matrices(model, alpha, applied)
-        everything = np.arange(model.n_dofs)
-        # X[f, :, s]: field response to a unit load along output vector s; field: to the model's load F.
-        loads = np.column_stack([model.combined_load(), model.sensor_loads()])
-        both = krylov_frf(self.K, self.M, self.a, self.b, loads, self.omegas, everything)
-        self.field, self.X = both[:, :, 0], both[:, :, 1:]  # (p, n), (p, n, n_s)
-        self.Z = model.read_outputs(self.field)  # (p, n_s)
         self.gain = sensor_gain(model, self.alpha, self.applied)
+        self.reduced = ReducedResponse(self.K, self.M, self.a, self.b, model.combined_load(), model.outputs,
+                                       self.omegas, self.gain)
+        self.Z = self.reduced.Z  # (p, n_s), without the gains
+
+    @property
+    def amplitude(self) -> np.ndarray:
+        """The compared amplitude ``|Z| (1 + gain)``, shape (p, n_sensors), m/N."""
+        return self.reduced.amplitude
 
     def derivative(self, terms: Terms) -> np.ndarray:
         """``d ln|Z_s(f)|`` per unit of the change described by ``terms``, shape (p, n_sensors)."""
-        w = self.omegas
-        p, n = self.field.shape
-        dK, dM = terms.stiffness, terms.mass
-        out = np.zeros((p, self.model.n_sensors))
-        if terms.gain is not None:  # ln(|Z| (1 + g)): d/dg = 1 / (1 + g)
-            out += (np.asarray(terms.gain, float) / (1.0 + self.gain))[None, :]
-        rows = []
-        for A in (dK, dM):
-            if A is not None:
-                A = sp.csr_matrix(A)
-                rows.append(np.flatnonzero(np.diff(A.indptr)))
-        if terms.damping_a or terms.damping_b:
-            rows.append(np.arange(n))
-        if not rows:
-            return out
-        rows = np.unique(np.concatenate(rows))
-        v = np.zeros((rows.size, p), dtype=complex)  # (dD Z)[rows], per frequency
-        Zt = self.field.T  # (n, p)
-        if dK is not None:
-            v += (sp.csr_matrix(dK)[rows] @ Zt) * (1.0 + 1j * w * self.b)[None, :]
-        if dM is not None:
-            v += (sp.csr_matrix(dM)[rows] @ Zt) * (-(w**2) + 1j * w * self.a)[None, :]
-        if terms.damping_a:
-            v += terms.damping_a * (self.M[rows] @ Zt) * (1j * w)[None, :]
-        if terms.damping_b:
-            v += terms.damping_b * (self.K[rows] @ Zt) * (1j * w)[None, :]
-        dZ = -np.einsum("prs,rp->ps", self.X[:, rows, :], v)
-        return out + np.real(dZ / self.Z)
+        return self.reduced.dlog(terms.stiffness, terms.mass, terms.damping_a, terms.damping_b, terms.gain)
 
     def alpha_derivatives(self) -> np.ndarray:
         """``d ln|Z| / d alpha_i``, shape (p * n_sensors, n_segments), frequency-major rows.
@@ -979,13 +998,23 @@ class LinearisedResponse:
         """
         cols = []
         for i in range(self.model.n_segments):
-            dK = self.model.stiffness_segments.segment(i)
+            dK = segment_stiffness(self.model, i)
             for item in self.applied:
                 extra = item.effect.alpha_derivative(self.alpha, item.location, item.values, i)
                 if extra is not None and extra.stiffness is not None:
                     dK = dK + extra.stiffness
             cols.append(self.derivative(Terms(stiffness=dK)).ravel())
         return np.column_stack(cols)
+
+    def batch_derivatives(self, effect: Effect, locations: Sequence[str]) -> np.ndarray:
+        """``d ln|Z| / d values`` of an effect at many locations, shape (L, p * n_sensors, k): in one
+        product for a diagonal effect (:meth:`Effect.diagonal`), else location by location."""
+        diag = effect.diagonal(locations) if effect.n_parameters == 1 else None
+        if diag is not None:
+            d = self.reduced.diagonal_dlog(*diag)
+            return d.reshape(len(locations), -1, 1)
+        return np.stack([self.effect_derivatives(effect, loc) for loc in locations]) if locations else \
+            np.zeros((0, self.Z.size, effect.n_parameters))
 
     def effect_derivatives(self, effect: Effect, location: str) -> np.ndarray:
         """``d ln|Z| / d values`` of an effect at a location, shape (p * n_sensors, k)."""

@@ -21,7 +21,9 @@ Two solvers with one signature:
     responses at all requested frequencies stop changing to ``rtol``
     entry-wise, so the result carries its own convergence check. The reduced
     pencil is diagonalised once, after which any number of frequencies costs
-    a few small matrix products.
+    a few small matrix products. The space is grown by :class:`BlockKrylov`,
+    the one builder that :mod:`fe_core.frf_derivatives` and
+    :mod:`fe_core.adjoint` use as well.
 
     The factorisation at ``sigma = 0`` (K positive-definite) is a LAPACK banded
     Cholesky when the bandwidth is small (the structured meshes here number
@@ -45,7 +47,16 @@ from scipy.linalg import lapack
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["direct_frf", "krylov_frf", "KrylovInfo", "hz_to_rad", "spd_solver"]
+__all__ = [
+    "direct_frf",
+    "krylov_frf",
+    "krylov_space",
+    "KrylovSpace",
+    "BlockKrylov",
+    "KrylovInfo",
+    "hz_to_rad",
+    "spd_solver",
+]
 
 log = logging.getLogger(__name__)
 
@@ -166,64 +177,199 @@ def krylov_frf(
     KrylovInfo
         Only if ``return_info``.
     """
+    space = krylov_space(K, M, a, b, F, omegas, out_dofs, rtol=rtol, sigma=sigma, max_dimension=max_dimension,
+                         check_every=check_every)
+    info = space.info
+    if info.converged:
+        return (space.responses, info) if return_info else space.responses
+    log.warning(
+        "Krylov FRF did not converge to rtol=%g within %d vectors (last change %.2e); "
+        "falling back to the direct solver",
+        rtol,
+        info.dimension,
+        info.change,
+    )
+    C = a * M + b * K
+    result = direct_frf(K, M, C, _as_load_matrix(F), np.asarray(omegas, dtype=float), out_dofs)
+    return (result, info) if return_info else result
+
+
+@dataclass(frozen=True)
+class KrylovSpace:
+    """The converged projection space of :func:`krylov_space`.
+
+    Attributes
+    ----------
+    basis : ndarray, shape (n, d)
+        Orthonormal columns spanning the block Krylov space of the loads.
+    stiffness, mass : ndarray, shape (d, d)
+        ``basis^T K basis`` and ``basis^T M basis`` (symmetrised).
+    responses : ndarray, shape (p, n_out, n_loads), complex, m/N
+        The projected responses at ``out_dofs`` (what :func:`krylov_frf` returns).
+    info : KrylovInfo
+        ``converged`` is False if ``max_dimension`` was reached first (everything
+        above is then the last, unconverged space).
+    """
+
+    basis: np.ndarray
+    stiffness: np.ndarray
+    mass: np.ndarray
+    responses: np.ndarray
+    info: KrylovInfo
+
+
+def krylov_space(
+    K: sp.spmatrix,
+    M: sp.spmatrix,
+    a: float,
+    b: float,
+    F: np.ndarray,
+    omegas: np.ndarray,
+    out_dofs: np.ndarray,
+    *,
+    rtol: float = 1e-10,
+    sigma: float | None = None,
+    max_dimension: int = 240,
+    check_every: int = 8,
+) -> KrylovSpace:
+    """The converged projection space of :func:`krylov_frf` (same arguments), for reuse.
+
+    Grown by :class:`BlockKrylov` until the responses at ``out_dofs`` to every
+    column of F stop changing (``rtol``, or the round-off floor
+    ``STAGNATION_RTOL``), checked every ``check_every`` new vectors.
+    """
     F = _as_load_matrix(F)
     omegas = np.asarray(omegas, dtype=float)
-    K = sp.csr_matrix(K)
-    M = sp.csr_matrix(M)
-    solve, sigma = _shifted_solver(K, M, sigma, float(omegas.min() * omegas.max()))
-
     n, n_loads = F.shape
+    builder = BlockKrylov(K, M, F, sigma, float(omegas.min() * omegas.max()), max_dimension)
     lam = (omegas**2 - 1j * omegas * a) / (1.0 + 1j * omegas * b)
     scale = 1.0 / (1.0 + 1j * omegas * b)
-
-    basis = np.empty((n, min(max_dimension, n)))
-    dim = 0
-    block = solve(F)
     previous = None
+    current = None
     change = np.inf
     next_check = check_every
-    while True:
-        # Block Gram-Schmidt, twice, against the whole basis (full
-        # re-orthogonalisation keeps the projection exact to round-off).
-        for _ in range(2):
-            block -= basis[:, :dim] @ (basis[:, :dim].T @ block)
-        q, r = np.linalg.qr(block)
-        keep = np.abs(np.diag(r)) > 1e-13 * max(1.0, np.abs(r).max())
-        q = q[:, keep]
-        room = basis.shape[1] - dim
-        if q.shape[1] == 0 or room == 0:
-            break
-        q = q[:, :room]
-        basis[:, dim : dim + q.shape[1]] = q
-        dim += q.shape[1]
-        if dim >= next_check:
-            next_check = dim + check_every
-            current = _project(K, M, basis[:, :dim], F, lam, scale, out_dofs)
+
+    def space(info: KrylovInfo) -> KrylovSpace:
+        d = builder.dim
+        Kr, Mr = builder.reduced[0, :d, :d], builder.reduced[1, :d, :d]
+        return KrylovSpace(builder.basis[:, :d], _symmetric(Kr), _symmetric(Mr), current, info)
+
+    def responses() -> np.ndarray:
+        d, V = builder.dim, builder.basis[:, : builder.dim]
+        return _project(builder.reduced[0, :d, :d], builder.reduced[1, :d, :d], V[out_dofs], V.T @ F, lam, scale)
+
+    while builder.grow():
+        if builder.dim >= next_check:
+            next_check = builder.dim + check_every
+            current = responses()
             if previous is not None:
                 last_change, change = change, _relative_change(current, previous)
                 # Converged, or stagnated at the round-off floor of an ill-conditioned
                 # pencil (parameters near -1), where more vectors cannot help.
                 if change <= rtol or (change <= STAGNATION_RTOL and change >= 0.5 * last_change):
-                    info = KrylovInfo(dim, change, True, sigma)
-                    return (current, info) if return_info else current
+                    return space(KrylovInfo(builder.dim, change, True, builder.sigma))
             previous = current
-        block = solve(M @ q)
 
-    if dim >= n:  # the space is everything: the projection is exact
-        current = _project(K, M, basis[:, :dim], F, lam, scale, out_dofs)
-        info = KrylovInfo(dim, 0.0, True, sigma)
-        return (current, info) if return_info else current
-    log.warning(
-        "Krylov FRF did not converge to rtol=%g within %d vectors (last change %.2e); "
-        "falling back to the direct solver",
-        rtol,
-        dim,
-        change,
-    )
-    C = a * M + b * K
-    result = direct_frf(K, M, C, F, omegas, out_dofs)
-    info = KrylovInfo(dim, change, False, sigma)
-    return (result, info) if return_info else result
+    if builder.dim >= n:  # the space is everything: the projection is exact
+        current = responses()
+        return space(KrylovInfo(builder.dim, 0.0, True, builder.sigma))
+    return space(KrylovInfo(builder.dim, change, False, builder.sigma))
+
+
+class BlockKrylov:
+    """The block Krylov space of ``(K - sigma M)^-1 M`` from ``(K - sigma M)^-1 start``, grown a block at a time.
+
+    The one builder of projection spaces in the code base: :func:`krylov_space`
+    (and so :func:`krylov_frf` and :class:`fe_core.adjoint.ReducedResponse`) and
+    :func:`fe_core.frf_derivatives.krylov_frf_derivatives` grow their spaces
+    with it and differ only in what they test for convergence between blocks.
+
+    Each block is orthogonalised twice against the whole basis (full
+    re-orthogonalisation keeps the projection exact to round-off) and reduced by
+    a column-pivoted QR, whose leading columns span the block even when it is
+    rank-deficient (the benchmark's load is the sum of its sensor loads). The
+    reduced matrices ``V^T A V`` of K, M and the ``extra`` matrices grow with the
+    space (each new block is multiplied by every matrix once), so a convergence
+    check costs a small eigenproblem, not a projection of the whole space.
+
+    Parameters
+    ----------
+    K, M : sparse, shape (n, n)
+        Symmetric stiffness (N/m) and mass (kg).
+    start : ndarray, shape (n, k)
+        The starting loads.
+    sigma : float or None
+        Shift of the factorised pencil (see :func:`krylov_frf`); ``centre`` is the shift used when K
+        is not positive-definite and ``sigma`` is None.
+    max_dimension : int
+        Upper bound on the space's size.
+    extra : sequence of sparse (n, n)
+        Further matrices whose reduced forms are kept (``reduced[2:]``, in order).
+
+    Attributes
+    ----------
+    basis : ndarray, shape (n, cap)
+        Orthonormal columns; the first ``dim`` are the space.
+    reduced : ndarray, shape (2 + len(extra), cap, cap)
+        ``basis^T A basis`` for K, M and the extra matrices (the leading ``dim x dim`` block).
+    dim, width, solves, sigma
+        The space's size, the first block's width, the right-hand sides solved and the shift used.
+    """
+
+    def __init__(self, K, M, start, sigma: float | None, centre: float, max_dimension: int, extra=()):
+        K = sp.csr_matrix(K, dtype=float)
+        M = sp.csr_matrix(M, dtype=float)
+        self.solve, self.sigma = _shifted_solver(K, M, sigma, centre)
+        n = K.shape[0]
+        self.cap = min(max_dimension, n)
+        self.basis = np.empty((n, self.cap))
+        self.mats = [K, M, *extra]
+        self.reduced = np.zeros((len(self.mats), self.cap, self.cap))
+        self.dim = 0
+        self.width = None
+        start = _as_load_matrix(start)
+        self.solves = start.shape[1]
+        self._block = self.solve(start)
+        self._next = None  # M q of the last block: the next block is its solve, done when asked for
+
+    def grow(self) -> bool:
+        """Add the next block; False (and no change) when the space cannot grow: the new block
+        lies in the space, or ``max_dimension`` is reached."""
+        if self._next is not None:
+            self._block = self.solve(self._next)
+            self.solves += self._next.shape[1]
+            self._next = None
+        block, dim, basis = self._block, self.dim, self.basis
+        if block is None:
+            return False
+        for _ in range(2):
+            block -= basis[:, :dim] @ (basis[:, :dim].T @ block)
+        q, r, _ = sla.qr(block, mode="economic", pivoting=True)
+        d = np.abs(np.diag(r))
+        rank = int(np.sum(d > 1e-13 * max(1.0, d.max(initial=0.0))))
+        room = self.cap - dim
+        if rank == 0 or room == 0:
+            self._block = None
+            return False
+        q = q[:, : min(rank, room)]
+        k = q.shape[1]
+        if self.width is None:
+            self.width = k
+        basis[:, dim : dim + k] = q
+        products = [A @ q for A in self.mats]
+        cols = basis[:, : dim + k].T @ np.hstack(products)  # the new rows and columns of every V^T A V
+        for t in range(len(self.mats)):
+            col = cols[:, t * k : (t + 1) * k]
+            self.reduced[t, : dim + k, dim : dim + k] = col
+            self.reduced[t, dim : dim + k, :dim] = col[:dim].T
+        self.dim = dim + k
+        self._block = None
+        self._next = products[1]
+        return True
+
+
+def _symmetric(A: np.ndarray) -> np.ndarray:
+    return 0.5 * (A + A.T)
 
 
 #: A change this small that stops decreasing is accepted as the round-off floor. PARDISO's
@@ -308,15 +454,12 @@ def spd_solver(A: sp.spmatrix):
     return solve
 
 
-def _project(K, M, V, F, lam, scale, out_dofs) -> np.ndarray:
-    """Responses of the Galerkin-reduced pencil at all shifts, shape (p, n_out, n_loads)."""
-    Kr = V.T @ (K @ V)
-    Mr = V.T @ (M @ V)
-    Kr = 0.5 * (Kr + Kr.T)
-    Mr = 0.5 * (Mr + Mr.T)
-    mu, phi = sla.eigh(Kr, Mr)  # phi^T Mr phi = I
-    left = V[out_dofs] @ phi  # (n_out, m)
-    right = phi.T @ (V.T @ F)  # (m, n_loads)
+def _project(Kr, Mr, V_out, VF, lam, scale) -> np.ndarray:
+    """Responses of the reduced pencil (Kr, Mr) at all shifts, shape (p, n_out, n_loads), from the
+    basis rows at the outputs ``V_out`` and the projected loads ``VF``."""
+    mu, phi = sla.eigh(_symmetric(Kr), _symmetric(Mr))  # phi^T Mr phi = I
+    left = V_out @ phi  # (n_out, m)
+    right = phi.T @ VF  # (m, n_loads)
     weights = scale[:, None] / (mu[None, :] - lam[:, None])  # (p, m)
     return np.einsum("om,pm,ml->pol", left, weights, right)
 

@@ -49,7 +49,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .frf import STAGNATION_RTOL, _shifted_solver
+from .frf import STAGNATION_RTOL, BlockKrylov
 
 __all__ = ["Direction", "krylov_frf_derivatives", "direct_frf_derivatives", "DerivativeInfo"]
 
@@ -194,57 +194,34 @@ def krylov_frf_derivatives(
     Ld = _dense_columns(L, n)
     dK, dM, da, db = _parts(directions)
     m = len(dK)
-    solve, sigma = _shifted_solver(K, M, sigma, float(omegas.min() * omegas.max()))
 
     lam = (omegas**2 - 1j * omegas * a) / (1.0 + 1j * omegas * b)
     scale = 1.0 / (1.0 + 1j * omegas * b)
-    cap = min(max_dimension, n)
-    basis = np.empty((n, cap))
-    # Reduced matrices, filled block by block as the space grows: V^T A V for K, M and every dK_i, dM_i.
-    mats = [K, M] + [A for A in dK if A is not None] + [A for A in dM if A is not None]
-    reduced = np.zeros((len(mats), cap, cap))
+    # The space and its reduced matrices V^T A V for K, M and every dK_i, dM_i (fe_core.frf.BlockKrylov).
+    extra = [A for A in dK if A is not None] + [A for A in dM if A is not None]
     k_index = {i: 2 + j for j, i in enumerate(i for i in range(m) if dK[i] is not None)}
     n_k = len(k_index)
     m_index = {i: 2 + n_k + j for j, i in enumerate(i for i in range(m) if dM[i] is not None)}
-
-    start = np.hstack([F, Ld])
-    block = solve(start)
-    solves = start.shape[1]
-    width = None
-    dim = 0
+    builder = BlockKrylov(K, M, np.hstack([F, Ld]), sigma, float(omegas.min() * omegas.max()), max_dimension,
+                          extra=extra)
+    sigma = builder.sigma
     previous = None
     change = dchange = np.inf
     last = (np.inf, np.inf)
-    next_check = 0
-    while True:
-        for _ in range(2):  # block Gram-Schmidt, twice (full re-orthogonalisation)
-            block -= basis[:, :dim] @ (basis[:, :dim].T @ block)
-        # Column-pivoted QR: the kept columns span the block even when it is rank-deficient
-        # (the benchmark's load is the sum of its outputs).
-        q, r, _ = sla.qr(block, mode="economic", pivoting=True)
-        d = np.abs(np.diag(r))
-        rank = int(np.sum(d > 1e-13 * max(1.0, d.max(initial=0.0))))
-        room = cap - dim
-        if rank == 0 or room == 0:
-            break
-        q = q[:, : min(rank, room)]
-        if width is None:
-            width = q.shape[1]
-            every = check_every or max(8, width)
+    next_check = every = None
+
+    def response():
+        d = builder.dim
+        return _reduced_response(builder.basis[:, :d], builder.reduced[:, :d, :d], F, Ld, L_sparse, k_index,
+                                 m_index, da, db, m, omegas, a, b, lam, scale)
+
+    while builder.grow():
+        if every is None:
+            every = check_every or max(8, builder.width)
             next_check = every
-        k = q.shape[1]
-        basis[:, dim : dim + k] = q
-        products = [A @ q for A in mats]  # products[1] = M q starts the next block
-        cols = basis[:, : dim + k].T @ np.hstack(products)  # new rows and columns of every V^T A V
-        for t in range(len(mats)):
-            col = cols[:, t * k : (t + 1) * k]
-            reduced[t, : dim + k, dim : dim + k] = col
-            reduced[t, dim : dim + k, :dim] = col[:dim].T
-        dim += k
-        if dim >= next_check:
-            next_check = dim + every
-            current = _reduced_response(basis[:, :dim], reduced[:, :dim, :dim], F, Ld, L_sparse, k_index, m_index,
-                                        da, db, m, omegas, a, b, lam, scale)
+        if builder.dim >= next_check:
+            next_check = builder.dim + every
+            current = response()
             if previous is not None:
                 last = (change, dchange)
                 change = _relative_change(current[0], previous[0])
@@ -253,15 +230,13 @@ def krylov_frf_derivatives(
                 # Or stalled at the round-off floor of an ill-conditioned pencil (as krylov_frf).
                 floor = max(change, dchange) <= STAGNATION_RTOL and max(change, dchange) >= 0.5 * max(last)
                 if settled or floor:
-                    info = DerivativeInfo(dim, change, dchange, True, sigma, solves)
+                    info = DerivativeInfo(builder.dim, change, dchange, True, sigma, builder.solves)
                     return (*current, info) if return_info else current
             previous = current
-        block = solve(products[1])
-        solves += k
 
+    dim, solves = builder.dim, builder.solves
     if dim >= n:  # the space is everything: the reduced model is the model
-        current = _reduced_response(basis[:, :dim], reduced[:, :dim, :dim], F, Ld, L_sparse, k_index, m_index,
-                                    da, db, m, omegas, a, b, lam, scale)
+        current = response()
         info = DerivativeInfo(dim, 0.0, 0.0, True, sigma, solves)
         return (*current, info) if return_info else current
     log.warning("Krylov FRF derivatives did not converge to rtol=%g within %d vectors (last changes %.2e, %.2e); "

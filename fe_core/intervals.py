@@ -19,7 +19,7 @@ likelihood used here is therefore the Gaussian one of the log residual::
 whose maximum is the least-squares optimum ``alpha^`` of ``||r||^2``
 (noise-weighted: ``||r / sigma||^2``; one sigma for every value, since the
 noise is relative). Near ``alpha^`` the model is linearised with the exact
-Jacobian ``J = d ln|Z| / d alpha`` (adjoint,
+Jacobian ``J = d ln|Z| / d alpha`` (adjoint, on one Krylov space with the FRF:
 :func:`fe_core.sensitivity.log_amplitude_jacobian`), which gives the
 Gauss-Newton (Laplace) covariance::
 
@@ -44,7 +44,7 @@ Plain numpy/scipy.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import optimize, stats
@@ -56,6 +56,7 @@ __all__ = [
     "fit_log_amplitudes",
     "RefinedIntervals",
     "parameter_intervals",
+    "extended_intervals",
     "WIDTH_THRESHOLD",
     "METHOD",
 ]
@@ -96,6 +97,10 @@ class Intervals:
     near_bound, unpinned : ndarray of bool, shape (m,)
     width_threshold : float
     method : str
+    absent_at_zero : ndarray of bool, shape (m,), or None
+        Parameters whose zero means "absent" (an added effect's value): for
+        them ``unpinned`` means the interval contains zero (the data do not
+        tell the effect from its absence) instead of the width test.
     """
 
     names: list
@@ -115,6 +120,7 @@ class Intervals:
     unpinned: np.ndarray
     width_threshold: float
     method: str = METHOD
+    absent_at_zero: np.ndarray | None = None
 
     @property
     def half_width(self) -> np.ndarray:
@@ -130,7 +136,10 @@ class Intervals:
         lines = []
         pct = f"{self.level:.0%}"
         for i, name in enumerate(self.names):
-            if self.unpinned[i]:
+            if self.unpinned[i] and self.absent_at_zero is not None and self.absent_at_zero[i]:
+                lines.append(f"{name}'s {pct} interval [{self.low[i]:.3g}, {self.high[i]:.3g}] contains zero: "
+                             "the data do not tell this effect from its absence.")
+            elif self.unpinned[i]:
                 width = "unbounded" if not np.isfinite(self.std[i]) else f"{self.high[i] - self.low[i]:.3g} wide"
                 lines.append(f"{name} is not pinned down by this measurement: its {pct} interval is {width} "
                              f"(threshold {self.width_threshold:g}).")
@@ -291,8 +300,8 @@ class LogFit:
     fe_runs : int
         FRF evaluations (Krylov) of the fit, finite-difference ones included.
     jacobians : int
-        Adjoint Jacobian evaluations (each one complex LU per frequency), the
-        final one at ``alpha`` included.
+        Exact Jacobian evaluations (each about 2 Krylov FRFs of time on the
+        benchmark), the final one at ``alpha`` included.
     status : str
         scipy's message.
     """
@@ -311,10 +320,10 @@ def fit_log_amplitudes(model, freqs_hz, measured_amplitude, alpha0, lower, upper
 
     ``scipy.optimize.least_squares`` (trust region reflective, bounds
     ``[lower, upper]``). The search's Jacobian is the exact adjoint one
-    (:func:`fe_core.sensitivity.log_amplitude_jacobian`, one complex LU per
-    frequency: about 0.65 s on the benchmark) or, with ``search_jacobian =
-    "2-point"``, forward differences of step 1e-6 (m Krylov FRFs, about 0.16 s
-    there; the same optimum to the accuracy of the differences).
+    (:func:`fe_core.sensitivity.log_amplitude_jacobian` on a Krylov space,
+    about 2 Krylov FRFs of time on the benchmark) or, with ``search_jacobian =
+    "2-point"``, forward differences of step 1e-6 (m Krylov FRFs; the same
+    optimum to the accuracy of the differences).
     The returned Jacobian is always the exact one at the optimum.
     A local search: start it in the basin (the update's result).
 
@@ -386,8 +395,12 @@ class RefinedIntervals:
         (taken or not): below ``step_tolerance`` the estimate is at the
         optimum as far as the intervals can tell.
     at_optimum : bool
-    fe_runs, jacobians : int
-        FRF evaluations and adjoint Jacobians the intervals cost.
+    fe_runs : int
+        FRF evaluations besides the Jacobians (0: each Jacobian brings its FRF).
+    jacobians : int
+        Exact Jacobians (with their FRF) the intervals cost.
+    jacobian : ndarray, shape (p * n, m)
+        ``d residual / d alpha`` at the estimate.
     """
 
     intervals: Intervals
@@ -397,6 +410,7 @@ class RefinedIntervals:
     at_optimum: bool
     fe_runs: int
     jacobians: int
+    jacobian: np.ndarray | None = None
 
 
 def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, upper, noise: float | None = None,
@@ -412,8 +426,10 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     ``||r||^2``, until the step is below ``step_tolerance`` standard
     deviations in every parameter or ``max_jacobians`` Jacobians are spent.
     The intervals (:func:`laplace_intervals`) then use the Jacobian and the
-    residual at the final estimate. Cost: one FE run plus one Jacobian when
-    the start is already at the optimum, one more of each per step.
+    residual at the final estimate. Each point costs one Jacobian, whose
+    Krylov space gives the FRF (hence the residual) too: one Jacobian (about
+    2 FE runs of time on the benchmark) when the start is already at the
+    optimum, one more per step.
 
     Parameters
     ----------
@@ -434,32 +450,114 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     """
     from .sensitivity import log_amplitude_jacobian
 
+    freqs, lo, hi, _ = _log_problem(model, freqs_hz, measured_amplitude, lower, upper)
+    log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
+
+    def at(alpha):  # residual and Jacobian from one Krylov space
+        J, Z = log_amplitude_jacobian(model, alpha, freqs, return_frf=True)
+        return np.log(np.abs(Z)).ravel() - log_u, J
+
+    return _gauss_newton_intervals(at, alpha0, lo, hi, model.parameter_names, noise, level, width_threshold,
+                                   max_jacobians, step_tolerance)
+
+
+def _gauss_newton_intervals(at, start, lo, hi, names, noise, level, width_threshold, max_jacobians, step_tolerance,
+                            absent_at_zero=None) -> RefinedIntervals:
+    """Gauss-Newton steps from ``start`` (``at(theta) -> (residual, jacobian)``), then Laplace intervals."""
     if max_jacobians < 1:
         raise ValueError(f"max_jacobians must be at least 1, got {max_jacobians}")
-    freqs, lo, hi, residual = _log_problem(model, freqs_hz, measured_amplitude, lower, upper)
-    start = np.clip(np.asarray(alpha0, float), lo, hi)
-    a, r = start, residual(start)
-    J = log_amplitude_jacobian(model, a, freqs)
-    fe_runs, jacobians = 1, 1
-    while True:
-        iv = laplace_intervals(r, J, a, names=model.parameter_names, noise=noise, level=level, lower=lo, upper=hi,
+    start = np.clip(np.asarray(start, float), lo, hi)
+    a = start
+    r, J = at(a)
+    jacobians = 1
+
+    def intervals(r, J, a):
+        iv = laplace_intervals(r, J, a, names=names, noise=noise, level=level, lower=lo, upper=hi,
                                width_threshold=width_threshold)
+        if absent_at_zero is None:
+            return iv
+        absent = np.asarray(absent_at_zero, bool)
+        unpinned = np.where(absent, (iv.low <= 0) & (0 <= iv.high), iv.unpinned)
+        return replace(iv, unpinned=unpinned, absent_at_zero=absent)
+
+    while True:
+        iv = intervals(r, J, a)
         step = np.linalg.lstsq(J, -r, rcond=None)[0]
         with np.errstate(divide="ignore", invalid="ignore"):
             in_std = float(np.nanmax(np.abs(step) / iv.std)) if np.isfinite(iv.std).any() else float("inf")
         if in_std <= step_tolerance or jacobians >= max_jacobians:
             break
         a_new = np.clip(a + step, lo, hi)
-        r_new = residual(a_new)
-        fe_runs += 1
+        r_new, J_new = at(a_new)
+        jacobians += 1
         if not r_new @ r_new < r @ r:
             log.warning("intervals: a Gauss-Newton step of %.3g standard deviations did not lower the residual; "
                         "the linearisation is poor here", in_std)
             break
-        a, r = a_new, r_new
-        J = log_amplitude_jacobian(model, a, freqs)
-        jacobians += 1
-    log.info("intervals: %d FE runs, %d Jacobians, last Gauss-Newton step %.3g standard deviations", fe_runs,
+        a, r, J = a_new, r_new, J_new
+    log.info("intervals: %d Jacobians (each with its FRF), last Gauss-Newton step %.3g standard deviations",
              jacobians, in_std)
     return RefinedIntervals(intervals=iv, start=start, residual=r, last_step_in_std=in_std,
-                            at_optimum=bool(in_std <= step_tolerance), fe_runs=fe_runs, jacobians=jacobians)
+                            at_optimum=bool(in_std <= step_tolerance), fe_runs=0, jacobians=jacobians, jacobian=J)
+
+
+def extended_intervals(model, freqs_hz, measured_amplitude, alpha0, applied, alpha_bounds=(-0.95, 1.0),
+                       noise: float | None = None, level: float = 0.95, width_threshold: float = WIDTH_THRESHOLD,
+                       max_jacobians: int = 3, step_tolerance: float = 0.1, names=None) -> RefinedIntervals:
+    """Laplace intervals of alpha *and* the values of added effects (a closure's extended model).
+
+    The same as :func:`parameter_intervals` on ``theta = [alpha, values of
+    each applied effect in order]``, with the exact Jacobian of the extended
+    model (:func:`fe_core.sensitivity.extended_log_jacobian`: every column,
+    effects' included, a derivative on one Krylov space; a sensor gain's
+    analytic). The box is ``alpha_bounds`` for alpha and each effect's
+    plausible range (:meth:`fe_core.effects.Effect.bounds_at`); an effect
+    value whose interval contains zero is flagged (the data do not tell the
+    effect from its absence), alpha as in :func:`laplace_intervals`.
+
+    Parameters
+    ----------
+    model : ParametricModel
+    freqs_hz : array_like, shape (p,), Hz
+    measured_amplitude : array_like, shape (p, n), m/N
+    alpha0 : array_like, shape (m,)
+    applied : sequence of fe_core.effects.Applied
+        The effects with their fitted values (the start of the steps).
+    alpha_bounds : (float, float)
+    noise, level, width_threshold, max_jacobians, step_tolerance
+        As in :func:`parameter_intervals`.
+    names : list of str, optional
+        Of the m + k parameters; ``alpha_i`` and ``<kind>.<parameter>`` by default.
+
+    Returns
+    -------
+    RefinedIntervals
+        ``intervals.estimate`` is the refined ``theta``.
+    """
+    from .effects import Applied
+    from .sensitivity import extended_log_jacobian
+
+    applied = list(applied)
+    m = model.n_segments
+    freqs, lo_a, hi_a, _ = _log_problem(model, freqs_hz, measured_amplitude, alpha_bounds[0], alpha_bounds[1])
+    log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
+    sizes = np.cumsum([m] + [item.effect.n_parameters for item in applied])
+    bounds = [item.effect.bounds_at(item.location) for item in applied]
+    lo = np.concatenate([lo_a] + [b[0] for b in bounds])
+    hi = np.concatenate([hi_a] + [b[1] for b in bounds])
+    start = np.concatenate([np.asarray(alpha0, float)] + [np.atleast_1d(np.asarray(item.values, float))
+                                                            for item in applied])
+    if names is None:
+        names = [f"alpha_{i + 1}" for i in range(m)] + [f"{item.effect.kind}.{p}" for item in applied
+                                                        for p in item.effect.parameters]
+    if len(names) != start.size:
+        raise ValueError(f"{len(names)} names for {start.size} parameters")
+
+    def at(theta):
+        now = [Applied(item.effect, item.location, theta[a:b]) for item, a, b in zip(applied, sizes[:-1], sizes[1:])]
+        J, Z = extended_log_jacobian(model, theta[:m], freqs, now)
+        return np.log(np.abs(Z)).ravel() - log_u, J
+
+    absent = np.arange(start.size) >= m
+    return _gauss_newton_intervals(at, start, lo, hi, names, noise, level, width_threshold, max_jacobians,
+                                   step_tolerance, absent_at_zero=absent)

@@ -118,8 +118,13 @@ class UpdateConfig:
     intervals : bool
         After the polish, 95 % intervals and the covariance of the
         parameters (:mod:`tasks.intervals`: Gauss-Newton steps to the
-        log-amplitude least-squares optimum, exact adjoint Jacobian, at most
-        3 Jacobians and 3 FE runs), written to ``summary.json``.
+        log-amplitude least-squares optimum, exact Jacobian, at most
+        3 Jacobians), written to ``summary.json``.
+    posterior_fe : int
+        FE runs of the sampled posterior (:mod:`fe_core.posterior`) that
+        replaces the Laplace intervals where their linearisation fails its
+        check (an interval crossing the box, a curved valley); 0 = never
+        sample. Default 400.
     noise : float or None
         Relative noise of the measured amplitudes (standard deviation, e.g.
         0.01 = 1 %) for the intervals; None (default) estimates it from the
@@ -195,6 +200,7 @@ class UpdateConfig:
     outputs: str = "auto"
     intervals: bool = True
     noise: float | None = None
+    posterior_fe: int = 400
     lines: str = "all"
     line_windows: list[list[float]] | None = field(default=None)
     resonance_widen: float = 2.0
@@ -262,6 +268,9 @@ class UpdateConfig:
             raise bad("outputs", f"unknown output model {self.outputs!r}; choose one of {', '.join(OUTPUTS)}")
         if self.noise is not None and not (isinstance(self.noise, (int, float)) and 0 < self.noise < 1):
             raise bad("noise", f"must be a relative amplitude noise in (0, 1), e.g. 0.01 = 1 %, got {self.noise!r}")
+        if not (isinstance(self.posterior_fe, int) and self.posterior_fe >= 0):
+            raise bad("posterior_fe", f"must be a whole number of FE runs >= 0 (0 = never sample), "
+                                      f"got {self.posterior_fe!r}")
         self._validate_lines(bad)
         if self.run_id is not None and (not self.run_id or "/" in self.run_id or self.run_id.startswith(".")):
             raise bad("run_id", f"must be a plain folder name, got {self.run_id!r}")

@@ -56,7 +56,7 @@ from flows.config import REPO  # noqa: E402
 from tasks import closure as ct  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
 
-__all__ = ["diagnose_flow", "diagnose", "run_folder", "main", "print_closure"]
+__all__ = ["diagnose_flow", "diagnose", "run_folder", "main", "print_closure", "print_closure_intervals"]
 
 
 class DiagnoseError(ValueError):
@@ -192,10 +192,28 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
     verdict = summary.get("verdict")
     if verdict is not None:
         print(f"verdict: {verdict}", file=file)
-        word = "added" if verdict == "explained" else "candidate (structure remains, not a finding)"
         for e in summary.get("effects", []):
-            print(f"  {e['step']}. {word}: {e['type']} at {e['location']}, {e['parameter']} = {e['value']:.4g} "
-                  f"{e['unit']}, explains {e['explained']:.1%} of the residual then", file=file)
+            evidence = f", evidence {e['evidence']:.0%}" if "evidence" in e else ""
+            if verdict not in ("explained", "ambiguous"):
+                word = "candidate (structure remains, not a finding)"
+            else:
+                word = "added" if e.get("identified", True) else "added, not singled out"
+            moved = f" (moved from {', '.join(e['moved_from'])})" if e.get("moved_from") else ""
+            print(f"  {e['step']}. {word}: {e['type']} at {e['location']}{moved}, {e['parameter']} = {e['value']:.4g} "
+                  f"{e['unit']}, explains {e['explained']:.1%} of the residual then{evidence}", file=file)
+            if e.get("locations_95", 0) > 1:
+                far = f", up to {e['spread_mm']:.0f} mm away" if e.get("spread_mm") is not None else ""
+                pinned = "" if e.get("located", True) else ": the location is not pinned down"
+                print(f"       where: {e['locations_95']} locations of this kind hold 95 % of the evidence{far}"
+                      f"{pinned}", file=file)
+            for r in e.get("rivals", []):
+                print(f"       or {r['type']} at {r['location']} = {r['value']:.4g} {r['unit']} (extended BIC "
+                      f"{r['delta_ebic']:+.1f}, evidence {r['evidence']:.0%})", file=file)
+        if verdict == "ambiguous":
+            print("  the data cannot tell an added effect from its rivals or its place from others far off: "
+                  "none of them is a finding", file=file)
+        for s in summary.get("swaps", []):
+            print(f"  swapped: {s}", file=file)
         for e in summary.get("implausible", []):
             print(f"  implausible (fit ends on a plausibility bound): {e['type']} at {e['location']}, "
                   f"{e['parameter']} = {e['value']:.4g} {e['unit']}", file=file)
@@ -216,6 +234,7 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
               f"{after[k]:>11.4g}", file=file)
     print("(run: the updating run's result; before: alpha-only least squares from it; after: with the effect)",
           file=file)
+    print_closure_intervals(summary, file)
     print("candidates (best first):", file=file)
     for c in summary["candidates"][:6]:
         score = (f"explains {c['explained']:.1%}, dEBIC {c['delta_ebic']:+.1f}" if c["checked"]
@@ -226,6 +245,28 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
         print(f"{summary['fe_solves']} FE solves, {summary['wall_seconds']:.1f} s", file=file)
 
 
+def print_closure_intervals(summary: dict, file=sys.stdout) -> None:
+    """The 95 % intervals of the extended model's parameters (issue 19), if closure.json has them."""
+    iv = summary.get("intervals")
+    if not iv:
+        return
+    d, cost = summary["interval_details"], summary["interval_cost"]
+    print(f"95 % intervals after the closure: {summary['interval_method']} (Gauss-Newton) at the least-squares "
+          f"optimum of the extended model, noise {100 * summary['noise_sigma']:.3g} % ({d['noise_source']}, "
+          f"{d['distribution']} quantile {d['quantile']:.3f}); exact Jacobian columns for alpha and every effect; "
+          f"cost {cost['jacobians']} Jacobian(s), {cost['seconds']:.2f} s", file=file)
+    print(f"{'parameter':<22} {'LS optimum':>11} {'95 % interval':>27} {'std':>10}", file=file)
+    for name, (lo, hi) in iv.items():
+        est, std = d["estimate"][name], d["std"][name]
+        text = "unbounded" if lo is None else f"[{lo:.4g}, {hi:.4g}]"
+        print(f"{name:<22} {est:>11.4g} {text:>27} {'inf' if std is None else f'{std:.3g}':>10}", file=file)
+    for line in d["flags"]:
+        print(line, file=file)
+    if not cost["at_optimum"]:
+        print("warning: the Gauss-Newton steps did not settle at the optimum; the intervals are approximate",
+              file=file)
+
+
 def add_closure_arguments(p: argparse.ArgumentParser) -> None:
     """Options of the closure, shared with ``flows.update --close-loop``."""
     p.add_argument("--noise", type=float, metavar="SIGMA",
@@ -234,7 +275,7 @@ def add_closure_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--effects", metavar="A,B", help="effect types to consider (default all registered: "
                                                     + ", ".join(registered_effects()) + ")")
     p.add_argument("--per-type", type=int, help="candidates per effect type given a full FE check (default 1)")
-    p.add_argument("--restarts", type=int, help="extra Sobol starts of the alpha-only baseline fit (default 2)")
+    p.add_argument("--restarts", type=int, help="extra Sobol starts of the alpha-only baseline fit (default 8)")
     p.add_argument("--closure-name", metavar="NAME", help="sub-folder of the run for the closure (default closure)")
 
 

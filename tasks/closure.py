@@ -35,6 +35,7 @@ from prefect.cache_policies import NO_CACHE
 
 from fe_core import closure as core
 from fe_core.effects import Applied, build_library, extended_frf, registered_effects
+from fe_core.selection import IDENTIFIED, forward_select, spread_mm
 from fe_core.residual import analyse_residual, log_residual, overall_error, per_sensor_error
 from tasks.runstore import atomic_write_bytes, atomic_write_json
 from tasks.stages import load_model
@@ -54,6 +55,8 @@ log = logging.getLogger(__name__)
 STEP_RECORD = "_step.json"
 #: Candidates listed in closure.json (all of them are in candidates.parquet).
 CANDIDATES_IN_JSON = 25
+#: Locations of an added effect's kind listed with their evidence (of those holding 95 % of it).
+LOCATIONS_IN_JSON = 10
 
 
 def _logger():
@@ -75,7 +78,7 @@ class ClosureSettings(dict):
     ``alpha_bounds`` (pair), ``n_jobs``, ``max_effects`` (forward selection).
     """
 
-    DEFAULTS = dict(noise=None, significance=0.01, per_type=1, max_moves=6, restarts=2, seed=0, effects=None,
+    DEFAULTS = dict(noise=None, significance=0.01, per_type=1, max_moves=6, restarts=8, seed=0, effects=None,
                     alpha_bounds=list(core.ALPHA_BOUNDS), n_jobs=1, check_noise=False,
                     max_effects=3)
 
@@ -353,16 +356,18 @@ def decide_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndarra
                              final.relative(u))
     ranked = core.rank(core.merge(checked, list(screened.values())))
     steps, implausible = ([chosen] if chosen is not None else []), [c for c in checked if c.implausible]
-    if chosen is not None and after.structured and settings.get("max_effects", 3) > 1:
-        # Forward selection beyond the first effect (all effects refitted at each step), in one call.
-        sel = core.forward_select(model, freqs, u, final, after, list(library.values()),
-                                  significance=settings["significance"], per_type=settings["per_type"],
-                                  max_moves=settings["max_moves"], alpha_bounds=tuple(settings["alpha_bounds"]),
-                                  max_effects=settings.get("max_effects", 3) - 1)
-        steps += sel.steps
-        implausible += sel.implausible
+    sel = None
+    if chosen is not None:
+        # Forward selection beyond the first effect (all effects refitted at each step, swaps), in one call;
+        # with the first round's checks as the rivals of the first effect.
+        sel = forward_select(model, freqs, u, final, after, list(library.values()),
+                             significance=settings["significance"], per_type=settings["per_type"],
+                             max_moves=settings["max_moves"], alpha_bounds=tuple(settings["alpha_bounds"]),
+                             max_effects=settings.get("max_effects", 3), steps=[chosen], rounds=[ranked])
+        steps = sel.steps
+        implausible += [c for c in sel.implausible if all(c is not d for d in implausible)]
         final, after = sel.final, sel.after
-    verdict = core.verdict(before, after, len(steps))
+    verdict = core.verdict(before, after, len(steps), True if sel is None else sel.identified)
     cand_df = _candidates_frame(ranked, library)
     if not store.is_finished("decide"):
         store.write_table("decide", "candidates", cand_df)
@@ -376,7 +381,13 @@ def decide_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndarra
         atomic_write_bytes(store.root / f"{name}.parquet", store.path(step, name).read_bytes())
     summary = _closure_json(store, settings, run_info, base, final, chosen, before, after, ranked, library, u,
                             sensors, freqs, before_info)
-    summary.update(_verdict_json(verdict, steps, implausible, library, final))
+    summary.update(_verdict_json(verdict, steps, implausible, library, final, sel))
+    # Issue 19: 95 % intervals and the covariance of alpha and every added effect's value (the effects of the
+    # forward selection, in the order added, as in parameters_after).
+    from tasks.closure_intervals import closure_interval_fields
+
+    summary.update(closure_interval_fields(model, freqs, u, final, list(summary["parameters_after"]),
+                                           settings["noise"], settings["alpha_bounds"]))
     atomic_write_bytes(store.root / "frf_closure.parquet", _parquet_bytes(pd.DataFrame({
         "frequency_hz": np.repeat(freqs, len(sensors)), "sensor": np.tile(np.asarray(sensors, np.int64), len(freqs)),
         "measured": u.ravel(), "alpha_only": base.model_amplitude.ravel(), "extended": final.model_amplitude.ravel()})))
@@ -420,14 +431,30 @@ def _effect_entry(c: core.Candidate, library: dict, values=None) -> dict:
             "parameter": eff.parameters[0], "unit": _unit(eff, c.location), "details": eff.describe(c.location)}
 
 
-def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, final: core.Fit) -> dict:
+def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, final: core.Fit, sel=None) -> dict:
     """``verdict``, ``effects`` (in the order added, values of the final joint fit, each with the share of
-    the residual it explained when added) and ``implausible`` (fits that ended on a plausibility bound)."""
+    the residual it explained when added, its kind's share of the evidence among the kinds checked in
+    its place and the rivals holding at least 1 % of it), ``implausible`` (fits that ended on a
+    plausibility bound), ``swaps`` and ``moves`` (effects replaced or relocated on the way)."""
     finals = [a.values for a in final.applied] if steps else []
-    effects = [{**_effect_entry(c, library, v), "explained": c.explained, "delta_ebic": c.delta_ebic, "step": k}
-               for k, (c, v) in enumerate(zip(steps, finals), start=1)]
+    weights = sel.weights if sel is not None else [1.0] * len(steps)
+    rivals = sel.rivals if sel is not None else [[] for _ in steps]
+    spreads = sel.spreads if sel is not None else [[] for _ in steps]
+    where = sel.located if sel is not None else [True] * len(steps)
+    effects = []
+    for k, (c, v, w, rv, sp, at) in enumerate(zip(steps, finals, weights, rivals, spreads, where), start=1):
+        entry = {**_effect_entry(c, library, v), "explained": c.explained, "delta_ebic": c.delta_ebic, "step": k,
+                 "moved_from": list(c.moved_from),
+                 "evidence": w, "located": bool(at), "identified": bool(w >= IDENTIFIED and at),
+                 "rivals": [{"type": r.effect, "location": r.location, "value": float(r.values[0]),
+                             "unit": _unit(library[r.effect], r.location), "delta_ebic": r.delta_ebic,
+                             "evidence": r.weight} for r in rv],
+                 "locations_95": len(sp), "spread_mm": spread_mm(library[c.effect], c.location, sp) if sp else None,
+                 "locations": [{"location": loc, "evidence": wl} for loc, wl in sp[:LOCATIONS_IN_JSON]]}
+        effects.append(entry)
     return {"verdict": verdict, "effects": effects,
-            "implausible": [{**_effect_entry(c, library), "explained": c.explained} for c in implausible]}
+            "implausible": [{**_effect_entry(c, library), "explained": c.explained} for c in implausible],
+            "swaps": list(sel.swaps) if sel is not None else [], "moves": list(sel.moves) if sel is not None else []}
 
 
 def _unit(effect, location) -> str:

@@ -1,14 +1,22 @@
 """The intervals stage: 95 % intervals and the covariance of the updated parameters.
 
 After the polish, :func:`fe_core.intervals.parameter_intervals` takes
-Gauss-Newton steps with the exact adjoint Jacobian from the run's best
+Gauss-Newton steps with the exact Jacobian (Krylov, with its FRF) from the run's best
 parameters to the least-squares optimum of the log-amplitude residual and
 computes the Laplace intervals there (noise from ``config.noise`` or
-estimated from the residual). Written to
+estimated from the residual). Where the Laplace approximation flags a
+parameter (an interval wider than the threshold or crossing the search box),
+the linearity check of :mod:`fe_core.posterior` looks along it (two FE runs
+each); if the check fails, a posterior sampled on the FE model (importance
+sampling, ``config.posterior_fe`` FE runs) gives the intervals instead, and
+the summary says which method was used and why
+(``interval_details.method_reason``). Written to
 ``iteration=<K>/stage=intervals/intervals.parquet`` (one row per parameter:
-estimate, interval, standard deviation, the covariance row) with the summary
-fields in the stage record; a resumed run reads them back unless ``noise``
-changed (the only setting a resume may change that the intervals depend on).
+estimate, interval, standard deviation, the covariance row, the Laplace
+interval; ``posterior.parquet``: the sampled points and their weights, when
+sampled) with the summary fields in the stage record; a resumed run reads
+them back unless ``noise`` or ``posterior_fe`` changed (the settings a resume
+may change that the intervals depend on).
 """
 
 from __future__ import annotations
@@ -21,13 +29,16 @@ from prefect import task
 from prefect.cache_policies import NO_CACHE
 
 from fe_core.intervals import parameter_intervals
+from fe_core.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
 from tasks import stages
 from tasks.polish import polish_lower_bound
 from tasks.runstore import RunStore
 
-__all__ = ["INTERVALS_STAGE", "intervals_task"]
+__all__ = ["INTERVALS_STAGE", "POSTERIOR_TABLE", "intervals_task"]
 
 INTERVALS_STAGE = "intervals"
+#: The sampled posterior's FE-evaluated points and normalised weights (when it was used).
+POSTERIOR_TABLE = "posterior"
 
 
 @task(name="intervals", task_run_name="iteration-{iteration}-intervals", cache_policy=NO_CACHE)
@@ -37,7 +48,8 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
 
     The info holds the ``summary.json`` fields (``intervals``, ``covariance``,
     ``interval_method``, ``noise_sigma``, ``interval_details``) and the cost
-    (``interval_cost``: FE runs, Jacobians, seconds).
+    (``interval_cost``: Jacobians, FE runs besides them, seconds; the flow adds the
+    cost in FE runs of the update).
 
     With ``data`` (:class:`tasks.update_data.UpdateData`): the log amplitudes of its
     channels on the lines where every channel is kept (coherence), through the model
@@ -47,14 +59,16 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
     """
     store = RunStore(root)
     logger = stages._logger()
+    settings = {"noise_config": config.noise, "posterior_fe_config": config.posterior_fe}
     if store.is_finished(iteration, INTERVALS_STAGE):
         info = store.stage_info(iteration, INTERVALS_STAGE)
-        if info.get("noise_config") == config.noise:
+        old = {k: info.get(k) for k in settings}  # a record from before the sampled posterior: computed again
+        if old == settings:
             logger.info("iteration %d, stage intervals: finished earlier, read back", iteration)
             return info
-        logger.info("iteration %d, stage intervals: noise changed from %s to %s, computed again", iteration,
-                    info.get("noise_config"), config.noise)
-    model = stages.load_model(config.model)
+        logger.info("iteration %d, stage intervals: settings changed from %s to %s, computed again", iteration,
+                    old, settings)
+    model = full_model = stages.load_model(config.model)
     if data is not None:
         try:
             model = data.single_reference_model(model)
@@ -66,25 +80,92 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
     m = model.n_parameters
     lower, upper = stages.parameter_box(config, m)
     lower = np.maximum(lower, polish_lower_bound(-1.0))
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     refined = parameter_intervals(model, freqs_hz, measured_amplitude, np.asarray(start, float), lower, upper,
                                   noise=config.noise)
-    seconds = time.perf_counter() - t0
+    jacobian_seconds = time.perf_counter() - t0
     iv = refined.intervals
+    fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config)
+    seconds = time.perf_counter() - t0
     cols = model.parameter_names
-    table = pd.DataFrame({"parameter": cols, "start": refined.start, "estimate": iv.estimate, "low": iv.low,
-                          "high": iv.high, "std": iv.std, "unpinned": iv.unpinned, "near_bound": iv.near_bound})
+    reported = np.array(fields["covariance"], float)
+    low, high = np.array([fields["intervals"][c] for c in cols], dtype=float).T
+    table = pd.DataFrame({"parameter": cols, "start": refined.start, "estimate": iv.estimate, "low": low,
+                          "high": high, "std": np.sqrt(np.diag(reported)), "unpinned": iv.unpinned,
+                          "near_bound": iv.near_bound, "laplace_low": iv.low, "laplace_high": iv.high,
+                          "laplace_std": iv.std})
     for j, c in enumerate(cols):
-        table[f"cov_{c}"] = iv.covariance[:, j]
+        table[f"cov_{c}"] = reported[:, j]
     store.write_table(iteration, INTERVALS_STAGE, INTERVALS_STAGE, table)
-    info = {**iv.to_summary(), "noise_config": config.noise,
-            "interval_cost": {"fe_runs": refined.fe_runs, "jacobians": refined.jacobians,
-                              "seconds": round(seconds, 3), "at_optimum": refined.at_optimum,
+    names = [INTERVALS_STAGE]
+    if post is not None:  # the weighted samples, for the report's marginal posteriors
+        samples = pd.DataFrame(post.samples, columns=cols).assign(weight=post.weights)
+        store.write_table(iteration, INTERVALS_STAGE, POSTERIOR_TABLE, samples)
+        names.append(POSTERIOR_TABLE)
+    fe_runs = refined.fe_runs + (check.fe_runs if check is not None else 0) + (post.fe_runs if post else 0)
+    if data is None:
+        # The paper's errors at the least-squares optimum, from its log residual (no FE run): (|Z| - u) / u = e^r - 1.
+        rel = np.expm1(refined.residual)
+        n = np.shape(measured_amplitude)[1]
+        per_channel = np.mean(np.abs(rel.reshape(-1, n)), axis=0)
+    else:
+        # The run's own error measure (its lines, coherence mask and residual kind, which the log amplitudes
+        # of the complete lines are not): one FE run at the optimum.
+        rel = data.residuals(full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))
+        per_channel = data.channel_errors(rel)
+        fe_runs += 1
+    fields["estimate_errors"] = {"overall_error": float(np.mean(np.abs(rel))),
+                                 "per_sensor_error": np.asarray(per_channel, float).tolist(),
+                                 "at_optimum": refined.at_optimum}
+    info = {**fields, **settings,
+            "interval_cost": {"fe_runs": fe_runs, "jacobians": refined.jacobians, "seconds": round(seconds, 3),
+                              "cpu_seconds": round(time.process_time() - c0, 3),
+                              "jacobian_seconds": round(jacobian_seconds, 3), "at_optimum": refined.at_optimum,
                               "last_step_in_std": (refined.last_step_in_std if np.isfinite(refined.last_step_in_std)
-                                                   else None)}}
-    store.finish(iteration, INTERVALS_STAGE, [INTERVALS_STAGE], info)
-    logger.info("iteration %d, stage intervals: %s noise %.3g %%, %d FE runs and %d Jacobians (%.1f s)", iteration,
-                iv.noise_source, 100 * iv.noise_sigma, refined.fe_runs, refined.jacobians, seconds)
-    for line in iv.flag_lines():
+                                                   else None),
+                              "check_fe_runs": check.fe_runs if check is not None else 0,
+                              "posterior_fe_runs": post.fe_runs if post else 0}}
+    store.finish(iteration, INTERVALS_STAGE, names, info)
+    logger.info("iteration %d, stage intervals: %s; %s noise %.3g %%, %d exact Jacobians with their FRF and %d FE "
+                "runs (%.2f s)", iteration, fields["interval_method"], iv.noise_source, 100 * iv.noise_sigma,
+                refined.jacobians, fe_runs, seconds)
+    for line in fields["interval_details"]["flags"]:
         logger.warning(line)
     return store.stage_info(iteration, INTERVALS_STAGE)
+
+
+def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config):
+    """The Laplace fields, or the sampled posterior's where the linearity check fails; also (check, posterior).
+
+    The check (two FE runs per parameter) looks at the parameters the Laplace flags (an interval wider
+    than the threshold or crossing the box) and only when sampling is allowed (``posterior_fe`` > 0).
+    """
+    iv = refined.intervals
+    fields = iv.to_summary()
+    flagged = iv.unpinned | iv.near_bound
+    check = post = None
+    if config.posterior_fe > 0 and flagged.any() and np.isfinite(iv.covariance).all():
+        log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
+
+        def residual(alpha):
+            return np.log(np.abs(model.parameter_frf(alpha, freqs_hz))).ravel() - log_u
+
+        check = linearity_check(residual, iv, refined.residual, lower, upper, which=flagged)
+        if check.poor.any():
+            try:
+                post = importance_posterior(residual, iv, lower, upper, np.random.default_rng([config.seed, 19]),
+                                            budget=config.posterior_fe)
+            except (ValueError, np.linalg.LinAlgError) as exc:  # keep the Laplace intervals, say why
+                fields["interval_details"]["method_reason"] = (f"laplace, though its check failed "
+                                                               f"({'; '.join(check.reasons())}): sampling failed: {exc}")
+                fields["interval_details"]["linearity"] = check.to_dict()
+                return fields, check, None
+            return sampled_summary(iv, check, post, config.posterior_fe), check, post
+    fields["interval_details"]["method_reason"] = laplace_reason(iv, check)
+    if check is not None:
+        fields["interval_details"]["linearity"] = check.to_dict()
+    elif flagged.any():
+        fields["interval_details"]["method_reason"] = (
+            "laplace: posterior_fe = 0 (no sampling)" if config.posterior_fe == 0 else
+            "laplace: a parameter the data do not see (infinite variance) cannot be sampled")
+    return fields, check, post

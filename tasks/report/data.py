@@ -193,7 +193,9 @@ class RunData:
         names = self.names
         if self.summary and "parameters" in self.summary:
             alpha = np.array([self.summary["parameters"][n] for n in names], dtype=float)
-            return int(self.summary.get("best_sample_id", -1)), alpha, float(self.summary["overall_error"])
+            # The least-squares optimum (issue 19) is no FE sample of the run: no sample id then.
+            sid = -1 if "lowest_error" in self.summary else int(self.summary.get("best_sample_id", -1))
+            return sid, alpha, float(self.summary["overall_error"])
         ok = self.errors[self.errors["status"] == "ok"]
         if ok.empty:
             raise ReportError(f"{self.root}: no successful FE sample to report")

@@ -199,27 +199,46 @@ def plot_residual_maps(maps: dict[str, pd.DataFrame], path: Path, title: str | N
 
 
 def plot_closure_frf(table: pd.DataFrame, path: Path, title: str | None = None) -> Path:
-    """Measured amplitude and the model's, alpha-only and with the added effects, one panel per sensor.
+    """Measured amplitude and the model's, alpha-only and with the added effects.
 
     ``table``: columns ``frequency_hz, sensor, measured, alpha_only, extended`` (m/N) at the measured
-    frequencies (the closure's own fits, no extra solves).
+    frequencies (the closure's own fits, no extra solves). One panel per sensor and frequency band
+    (bands side by side would leave the panel empty between them) when there are at most 3 bands
+    and 8 sensors, else one panel per sensor with the lines broken at the gaps.
     """
+    from fe_core.residual import frequency_bands
+
     sensors = sorted(table["sensor"].unique())
-    nrows, ncols = _grid(len(sensors), 3)
-    fig = Figure(figsize=(4.2 * ncols, 3.0 * nrows), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
-    for ax, s in zip(axes, sensors):
-        d = table[table["sensor"] == s].sort_values("frequency_hz")
+    freqs = np.sort(table["frequency_hz"].unique())
+    bands = [freqs[b] for b in frequency_bands(freqs)]
+    split = 1 < len(bands) <= 3 and len(sensors) <= 8
+    if split:
+        nrows, ncols = len(bands), len(sensors)
+        fig = Figure(figsize=(2.6 * ncols, 2.6 * nrows), layout="constrained")
+        axes = fig.subplots(nrows, ncols, squeeze=False)
+        panels = [(axes[i, j], s, band) for j, s in enumerate(sensors) for i, band in enumerate(bands)]
+    else:
+        nrows, ncols = _grid(len(sensors), 3)
+        fig = Figure(figsize=(4.2 * ncols, 3.0 * nrows), layout="constrained")
+        flat = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+        panels = [(ax, s, freqs) for ax, s in zip(flat, sensors)]
+        for ax in flat[len(sensors):]:
+            ax.set_visible(False)
+    for ax, s, band in panels:
+        d = table[(table["sensor"] == s) & table["frequency_hz"].isin(band)].sort_values("frequency_hz")
         f = d["frequency_hz"].to_numpy()
+        gaps = [g[-1] + 1 for g in frequency_bands(f)[:-1]]  # lines within a measured band only
+        fg = np.insert(f, gaps, np.nan)
         ax.semilogy(f, d["measured"], "k.", ms=5, label="measured")
-        ax.semilogy(f, d["alpha_only"], "-", color="tab:blue", lw=1, label="alpha only")
-        ax.semilogy(f, d["extended"], "--", color="tab:red", lw=1.2, label="with the added effects")
-        ax.set_title(f"sensor {s}", fontsize=10)
-        ax.set_xlabel("frequency (Hz)")
-        ax.set_ylabel("|Z| (m/N)")
-    for ax in axes[len(sensors):]:
-        ax.set_visible(False)
-    axes[0].legend(fontsize=7)
+        ax.semilogy(fg, np.insert(d["alpha_only"].to_numpy(), gaps, np.nan), "-", color="tab:blue", lw=1,
+                    label="alpha only")
+        ax.semilogy(fg, np.insert(d["extended"].to_numpy(), gaps, np.nan), "--", color="tab:red", lw=1.2,
+                    label="with the added effects")
+        ax.set_title(f"sensor {s}" + (f", {band[0]:g}-{band[-1]:g} Hz" if split else ""), fontsize=9)
+        ax.set_xlabel("frequency (Hz)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    panels[0][0].set_ylabel("|Z| (m/N)")
+    panels[0][0].legend(fontsize=7)
     fig.suptitle(title or "FRF at the measured frequencies: alpha-only and extended model", fontsize=11)
     return _save(fig, path)
 
@@ -673,9 +692,11 @@ def plot_singular_values(results: dict[str, object], path: Path) -> Path:
 
 
 def plot_intervals(names: list[str], estimate, std, low, high, correlation, path: Path, truth=None,
-                   bounds: tuple[float, float] | None = None, title: str = "") -> Path:
-    """Marginal posteriors (Laplace: normal, mean ``estimate``, sd ``std``) with their 95 % intervals,
-    and the pairwise correlations of the parameter estimates.
+                   bounds: tuple[float, float] | None = None, title: str = "", samples=None, weights=None,
+                   laplace_std=None) -> Path:
+    """Marginal posteriors (Laplace: normal, mean ``estimate``, sd ``std``; sampled: weighted histograms of
+    ``samples``, with the Laplace normal of ``laplace_std`` dashed) with their 95 % intervals, and the
+    pairwise correlations of the parameter estimates.
 
     Parameters
     ----------
@@ -686,10 +707,15 @@ def plot_intervals(names: list[str], estimate, std, low, high, correlation, path
     truth : array_like (m,), optional
     bounds : (lower, upper), optional
         The search box, drawn as grey lines where it falls inside a panel.
+    samples : array_like, shape (n, m), optional
+        Points of a sampled posterior, with ``weights`` (shape (n,)).
+    laplace_std : array_like, shape (m,), optional
+        The Laplace standard deviations, drawn dashed beside a sampled posterior.
     """
     m = len(names)
     est, sd, lo, hi = (np.asarray(v, float) for v in (estimate, std, low, high))
     corr = np.asarray(correlation, float)
+    sampled = samples is not None and weights is not None
     ncols = min(m, 3)
     nrows = -(-m // ncols)
     fig = Figure(figsize=(4.0 * ncols + 4.6, 2.5 * nrows + 0.6), layout="constrained")
@@ -698,7 +724,17 @@ def plot_intervals(names: list[str], estimate, std, low, high, correlation, path
         ax = fig.add_subplot(grid[i // ncols, i % ncols])
         if np.isfinite(sd[i]) and sd[i] > 0:
             x = np.linspace(est[i] - 4 * sd[i], est[i] + 4 * sd[i], 201)
-            ax.plot(x, np.exp(-0.5 * ((x - est[i]) / sd[i]) ** 2) / (sd[i] * np.sqrt(2 * np.pi)), color="C0")
+            if sampled:
+                ax.hist(np.asarray(samples)[:, i], bins=30, weights=np.asarray(weights), density=True, color="C0",
+                        alpha=0.45, label="sampled posterior")
+                lsd = np.asarray(laplace_std, float)[i] if laplace_std is not None else np.nan
+                if np.isfinite(lsd) and lsd > 0:
+                    x = np.linspace(est[i] - 4 * lsd, est[i] + 4 * lsd, 201)
+                    ax.plot(x, np.exp(-0.5 * ((x - est[i]) / lsd) ** 2) / (lsd * np.sqrt(2 * np.pi)), color="C1",
+                            ls="--", lw=1.2, label="Laplace")
+                    ax.set_xlim(x[0], x[-1])  # samples of negligible weight far out would stretch the panel
+            else:
+                ax.plot(x, np.exp(-0.5 * ((x - est[i]) / sd[i]) ** 2) / (sd[i] * np.sqrt(2 * np.pi)), color="C0")
             ax.axvspan(lo[i], hi[i], color="C0", alpha=0.15, label="95 % interval")
             if bounds is not None:
                 for b in bounds:

@@ -49,6 +49,12 @@ def run_intro(data: RunData) -> list[str]:
         + (f" ({len(data.polish)} of them in the polish stage)" if data.polish is not None else "") + "; "
         f"reported overall error {err:.3%}" + (f" (sample {sid})" if sid >= 0 else "") + ".",
     ]
+    lowest = (data.summary or {}).get("lowest_error")
+    if lowest:
+        lines.append(f"Reported parameters: {data.summary.get('parameters_source')}; the FE run with the lowest "
+                     f"overall error (sample {lowest.get('sample_id')}, {lowest['overall_error']:.3%}) is kept in "
+                     "summary.json's lowest_error (docs/estimators.md: the optimum is the better estimate on noisy "
+                     "data).")
     if data.summary:
         lines.append(f"Stop reason: {data.summary.get('stop_reason', '?')}; "
                      f"{'converged' if data.summary.get('converged') else 'not converged'}; "
@@ -188,16 +194,34 @@ def intervals_section(data: RunData, out: Path) -> Section | None:
     high = arr(s["intervals"][n][1] if s["intervals"][n][1] is not None else np.inf for n in names)
     corr = np.array([[np.nan if v is None else v for v in row] for row in d["correlation"]], float)
     truth = data.true_parameters
-    fig = figures.plot_intervals(names, est, std, low, high, corr, out / "intervals.png", truth, _bounds(data))
+    samples = weights = laplace_std = None
+    path = (None if s.get("interval_method", "laplace") == "laplace" else
+            Path(data.root) / f"iteration={s.get('iterations')}" / "stage=intervals" / "posterior.parquet")
+    if path is not None and path.exists():  # a sampled posterior: draw its marginals
+        post = pd.read_parquet(path)
+        samples, weights = post[names].to_numpy(), post["weight"].to_numpy()
+        laplace_std = arr(d["laplace"]["std"][n] for n in names) if "laplace" in d else None
+    fig = figures.plot_intervals(names, est, std, low, high, corr, out / "intervals.png", truth, _bounds(data),
+                                 samples=samples, weights=weights, laplace_std=laplace_std)
     table = pd.DataFrame({"parameter": names, "estimate": est, "low (95 %)": low, "high (95 %)": high, "std": std})
     if truth is not None:
         table["true"] = truth
         table["contains truth"] = (low <= truth) & (truth <= high)
     cost = s.get("interval_cost", {})
-    paragraphs = [f"Laplace (Gauss-Newton) approximation at the least-squares optimum of the log amplitudes, "
-                  f"noise {100 * s['noise_sigma']:.3g} % ({d['noise_source']}; {d['distribution']} quantile "
-                  f"{d['quantile']:.3f}); cost {cost.get('fe_runs', '?')} FE runs and {cost.get('jacobians', '?')} "
-                  "exact Jacobians. The coverage of these intervals is checked in docs/coverage.md.", *d["flags"]]
+    spent = f"{cost.get('jacobians', '?')} exact Jacobian(s), each with its FRF"
+    if cost.get("fe_runs"):
+        spent += f" and {cost['fe_runs']} FE runs"
+    if "fe_run_equivalents" in cost:
+        spent += (f" ({cost['seconds']:.2f} s, the time of {cost['fe_run_equivalents']:.1f} FE runs: "
+                  f"{100 * cost['share_of_update_fe_runs']:.1f} % of the update's {s.get('fe_evaluations', '?')})")
+    how = ("Laplace (Gauss-Newton) approximation at the least-squares optimum of the log amplitudes"
+           if s.get("interval_method", "laplace") == "laplace" else
+           f"{s['interval_method'].capitalize()} of the posterior on the FE model around the least-squares "
+           "optimum (bars: the weighted samples; dashed: the Laplace approximation it replaced)")
+    paragraphs = [f"{how}, noise {100 * s['noise_sigma']:.3g} % ({d['noise_source']}; {d['distribution']} quantile "
+                  f"{d['quantile']:.3f}); cost {spent}. The coverage of these intervals is checked in "
+                  "docs/coverage.md and docs/posterior.md.", *([f"Why: {d['method_reason']}"] if "method_reason" in d
+                                                               else []), *d["flags"]]
     return Section(title="How sure: parameter intervals", paragraphs=paragraphs,
                    tables=[("95 % intervals", table)], figures=[(fig, "Marginal posteriors and correlations")])
 
@@ -337,7 +361,13 @@ def closure_section(data: RunData, out: Path) -> Section | None:
     if c.get("verdict"):
         paragraphs.append(f"Verdict: {c['verdict']}. " + "; ".join(
             f"{e['step']}. {e['type']} at {e['location']} = {e['value']:.4g} {e['unit']} "
-            f"({e['explained']:.0%} of the residual then)" for e in c.get("effects", []) if isinstance(e, dict)))
+            f"({e['explained']:.0%} of the residual then"
+            + (f", evidence {e['evidence']:.0%}" if "evidence" in e else "") + ")"
+            + "".join(f" or {r['type']} at {r['location']} = {r['value']:.4g} {r['unit']} "
+                      f"(evidence {r['evidence']:.0%})" for r in e.get("rivals", []))
+            for e in c.get("effects", []) if isinstance(e, dict))
+            + (" The data cannot tell an added effect from its rivals: none of them is a finding."
+               if c["verdict"] == "ambiguous" else ""))
     ranked = _candidate_table(c.get("candidates"))
     if ranked is not None:
         df, score = ranked
