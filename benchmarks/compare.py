@@ -5,6 +5,12 @@
 
 Runs, in one process, on the same measured data and the same FE model:
 
+* ``default``: the product's default, ``flows.update`` with no strategy flag
+  (the hybrid strategy, issue 17), its FE runs with an exact Jacobian counted
+  as the Jacobian/FE CPU-time ratio measured at the start of the run
+  ("FE-run equivalents"), its rounds (batches at 20 workers) counted;
+* ``paper-<trainer>``: the paper's loop alone (``--strategy adaptive
+  --no-polish``, Table 2: 240 FE runs), trainers gradient, sao and pso;
 * ``adaptive-<trainer>``: this project's flow (``flows.update``), trainers
   gradient, sao and pso, with the polish stage (default settings: 240 FE runs);
 * ``conventional``: the paper's baseline, 300 uniform FE runs + one MRGP + the
@@ -59,8 +65,13 @@ LOWER, UPPER = -0.999, 1.0
 ALPHA_FAR = np.array([0.7, -0.65, 0.5, 0.8, -0.55, 0.6])
 FAR_NOISE = 0.01
 FAR_SEED = 20261121
-METHODS = ("adaptive-gradient", "adaptive-sao", "adaptive-pso", "conventional", "least-squares-nominal",
-           "least-squares-random", "dfo-ls-nominal", "dfo-ls-random", "bayes-opt", "random-search")
+METHODS = ("default", "paper-gradient", "paper-sao", "paper-pso", "adaptive-gradient", "adaptive-sao",
+           "adaptive-pso", "conventional", "least-squares-nominal", "least-squares-random", "dfo-ls-nominal",
+           "dfo-ls-random", "bayes-opt", "random-search")
+#: Methods whose FE runs go out one at a time (a round per FE run).
+SEQUENTIAL = ("dfo-ls-nominal", "dfo-ls-random", "bayes-opt")
+#: CPU time of an FE run with its exact Jacobian over an FE run's (set by main; benchmarks.suite.jacobian_ratio).
+JACOBIAN_RATIO = {"value": 2.5}
 
 
 @dataclass(frozen=True)
@@ -132,22 +143,43 @@ class _Budget(Exception):
 
 
 # -- the methods: each returns the ordered history [(x, overall error), ...] ----------------------
-def run_adaptive(ds: Dataset, seed: int, trainer: str, strategy: str = "adaptive") -> list[tuple[np.ndarray, float]]:
+def run_default(ds: Dataset, seed: int) -> list[tuple]:
+    """The product's default (hybrid strategy): [(x, error, cost in FE-run equivalents, round), ...]."""
+    from flows.config import UpdateConfig
+    from flows.hybrid import run_history
+    from flows.update import update_flow
+    from tasks.runstore import RunStore
+
+    run_id = f"{ds.name}-default-seed{seed}"
+    runs_dir = REPO / "data" / "runs" / "compare"
+    config = UpdateConfig(run_id=run_id, runs_dir=str(runs_dir), measured=str(ds.path), seed=seed, n_jobs=2,
+                          true_parameters=ds.truth.tolist())
+    assert config.strategy == "hybrid", config.strategy
+    summary = update_flow(config)
+    history = run_history(RunStore(runs_dir / run_id), summary["iterations"])
+    return [(h["x"], h["error"], JACOBIAN_RATIO["value"] if h["jacobian"] else 1.0, h["round"]) for h in history]
+
+
+def run_adaptive(ds: Dataset, seed: int, trainer: str, strategy: str = "adaptive",
+                 polish: bool = True) -> list[tuple]:
     from flows.config import UpdateConfig
     from flows.update import update_flow
     from tasks import stages
     from tasks.polish import polish_results
     from tasks.runstore import RunStore
 
-    run_id = f"{ds.name}-{strategy}-{trainer}-seed{seed}"
+    run_id = f"{ds.name}-{strategy}-{trainer}-seed{seed}" + ("" if polish else "-no-polish")
     runs_dir = REPO / "data" / "runs" / "compare"
     config = UpdateConfig(run_id=run_id, runs_dir=str(runs_dir), measured=str(ds.path), trainer=trainer,
-                          strategy=strategy, seed=seed, n_jobs=2, true_parameters=ds.truth.tolist())
+                          strategy=strategy, seed=seed, n_jobs=2, true_parameters=ds.truth.tolist(),
+                          polish=polish)
     summary = update_flow(config)
     store = RunStore(runs_dir / run_id)
     ids, X, _, E = stages.training_data(store, summary["iterations"])
+    iteration_of = {int(sid): k for k in range(1, summary["iterations"] + 1)
+                    for sid in store.read_table(k, "samples")["sample_id"]}
     order = np.argsort(ids, kind="stable")
-    history = [(X[i], float(E[i])) for i in order]
+    history = [(X[i], float(E[i]), 1.0, iteration_of.get(int(ids[i]), summary["iterations"])) for i in order]
     polished = polish_results(store, summary["iterations"]) if strategy == "adaptive" else None
     if polished is not None:
         table = store.read_table(summary["iterations"], "polish").sort_values("step")
@@ -221,6 +253,10 @@ def run_random(ds: Dataset, seed: int) -> list[tuple[np.ndarray, float]]:
 
 
 def run_method(method: str, ds: Dataset, seed: int):
+    if method == "default":
+        return run_default(ds, seed)
+    if method.startswith("paper-"):
+        return run_adaptive(ds, seed, method.split("-", 1)[1], polish=False)
     if method.startswith("adaptive-"):
         return run_adaptive(ds, seed, method.split("-", 1)[1])
     if method == "conventional":
@@ -246,14 +282,24 @@ def first_reaching(errors: np.ndarray, level: float) -> int | None:
     return int(hit[0]) + 1 if hit.size else None
 
 
-def score(history, ds: Dataset) -> dict:
-    errors = np.array([e for _, e in history])
+def score(history, ds: Dataset, sequential: bool = False) -> dict:
+    """FE runs (and FE-run equivalents, rounds where the history has them) to 1 % and to the floor.
+
+    ``history``: [(x, error)] or [(x, error, cost, round)]; a sequential method has a round per FE run.
+    """
+    errors = np.array([h[1] for h in history])
+    costs = np.cumsum([h[2] if len(h) > 2 else 1.0 for h in history])
+    rounds = (np.arange(1, len(history) + 1) if sequential
+              else np.array([h[3] if len(h) > 3 else np.nan for h in history], float))
     best = int(np.nanargmin(errors))
     x = history[best][0]
+    floor = first_reaching(errors, ds.floor)
     return {
         "fe_runs": len(history),
         "runs_to_1pct": first_reaching(errors, 0.01),
-        "runs_to_floor": first_reaching(errors, ds.floor),
+        "runs_to_floor": floor,
+        "equivalents_to_floor": float(costs[floor - 1]) if floor else None,
+        "rounds_to_floor": float(rounds[floor - 1]) if floor and np.isfinite(rounds[floor - 1]) else None,
         "final_error": float(errors[best]),
         "largest_parameter_error": float(np.max(np.abs(x - ds.truth))),
     }
@@ -264,12 +310,15 @@ def aggregate(runs: pd.DataFrame) -> pd.DataFrame:
     for (ds, method), g in runs.groupby(["dataset", "method"], sort=False):
         def med(col):
             v = g[col].dropna()
-            return f"{int(np.median(v))}" + (f" ({len(v)}/{len(g)})" if len(v) < len(g) else "") if len(v) \
-                else "not reached"
+            if not len(v):  # rounds are not counted for every method
+                return "-" if col != "runs_to_1pct" and g["runs_to_floor"].notna().any() else "not reached"
+            return f"{int(np.median(v))}" + (f" ({len(v)}/{len(g)})" if len(v) < len(g) else "")
         rows.append({
             "dataset": ds, "method": method, "seeds": len(g),
             "FE runs to 1 % (median)": med("runs_to_1pct"),
             "FE runs to noise floor (median)": med("runs_to_floor"),
+            "FE-run equivalents to floor (median)": med("equivalents_to_floor"),
+            "rounds to floor at 20 workers (median)": med("rounds_to_floor"),
             "FE runs used (median)": int(g["fe_runs"].median()),
             "final overall error (median)": f"{g['final_error'].median():.3%}",
             "largest parameter error (median)": f"{g['largest_parameter_error'].median():.4f}",
@@ -298,6 +347,12 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     records = []
+    if "default" in args.methods:
+        from benchmarks.suite import jacobian_ratio
+        from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ, three_plate
+
+        JACOBIAN_RATIO["value"] = jacobian_ratio(three_plate(), MEASUREMENT_FREQUENCIES_HZ)
+        print(f"an FE run with its Jacobian costs {JACOBIAN_RATIO['value']:.2f} FE runs (CPU time, now)", flush=True)
     for ds in datasets(args.datasets):
         print(f"data set {ds.name}: {ds.path.relative_to(REPO)}, noise floor {ds.floor:.4%}", flush=True)
         for method in args.methods:
@@ -306,11 +361,13 @@ def main(argv=None) -> int:
             for seed in seeds:
                 t0 = time.perf_counter()
                 history = run_method(method, ds, seed)
-                rec = {"dataset": ds.name, "method": method, "seed": seed, **score(history, ds),
+                rec = {"dataset": ds.name, "method": method, "seed": seed,
+                       **score(history, ds, sequential=method in SEQUENTIAL),
                        "wall_seconds": time.perf_counter() - t0}
                 records.append(rec)
                 print(f"  {method:<22} seed {seed}: {rec['fe_runs']:4d} FE runs, final {rec['final_error']:.4%}, "
-                      f"to 1 %: {rec['runs_to_1pct']}, to floor: {rec['runs_to_floor']}, "
+                      f"to 1 %: {rec['runs_to_1pct']}, to floor: {rec['runs_to_floor']} "
+                      f"({rec['equivalents_to_floor']} equiv., {rec['rounds_to_floor']} rounds), "
                       f"max |param err| {rec['largest_parameter_error']:.4f}, {rec['wall_seconds']:.0f} s", flush=True)
                 pd.DataFrame(records).to_csv(out.with_name(out.name + "-runs.csv"), index=False)
     runs = pd.DataFrame(records)
@@ -320,7 +377,8 @@ def main(argv=None) -> int:
     text = "\n".join(md) + "\n"
     out.with_suffix(".md").write_text(
         f"Command: `python -m benchmarks.compare --seeds {' '.join(map(str, args.seeds))} "
-        f"--bo-seeds {' '.join(map(str, args.bo_seeds))}`\n\n" + text)
+        f"--bo-seeds {' '.join(map(str, args.bo_seeds))} --datasets {' '.join(args.datasets)} "
+        f"--methods {' '.join(args.methods)}`\n\n" + text)
     print(text)
     return 0
 

@@ -14,12 +14,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "MODELS", "OUTPUTS", "LINES",
+__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "LOOPS", "MODELS", "OUTPUTS", "LINES",
            "RESIDUALS", "parse_windows"]
 
 REPO = Path(__file__).resolve().parents[1]
 TRAINERS = ("sao", "pso", "gradient")
-STRATEGIES = ("adaptive", "conventional")
+STRATEGIES = ("hybrid", "adaptive", "conventional")
+LOOPS = ("trust-region", "paper")  # the adaptive strategy's loop (tasks.trust_region)
 MODELS = ("three_plate",)
 FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
 OUTPUTS = ("full", "reduced", "auto")  # tasks.stages.reduced_outputs
@@ -46,9 +47,18 @@ class UpdateConfig:
         FE model: a name (``three_plate``, the benchmark) or the path of a model
         file ``model.toml`` (relative to the repository when not absolute; see
         :mod:`fe_core.io.model_toml`). Parameter names and count come from the model.
-    strategy : {"adaptive", "conventional"}
-        ``conventional`` is Section 3.4's baseline: ``conventional_samples``
-        uniform FE runs, one MRGP, the best of ``w`` predictions.
+    strategy : {"hybrid", "adaptive", "conventional"}
+        ``hybrid`` (default, :mod:`flows.hybrid`): Gauss-Newton with exact
+        Jacobians from the nominal model; when what is left is not noise,
+        global cycles (``s`` space-filling FE runs, an MRGP emulator over
+        ``w`` candidates, ``starts`` parallel Gauss-Newton runs); its budget
+        ``max_fe_evaluations`` counts FE-run equivalents (an FE run with its
+        Jacobian costs :data:`tasks.hybrid.JACOBIAN_COST`), its target is
+        ``polish_target``, its noise level ``noise`` (or estimated).
+        ``adaptive`` is the paper's MRGP loop (with ``polish = false``
+        exactly its procedure); ``conventional`` is Section 3.4's baseline:
+        ``conventional_samples`` uniform FE runs, one MRGP, the best of ``w``
+        predictions.
     trainer : {"sao", "pso", "gradient"}
         MRGP hyper-parameter trainer.
     seed : int
@@ -145,13 +155,24 @@ class UpdateConfig:
         or ``auto`` (default): reduced when k > 200
         (:data:`tasks.stages.AUTO_REDUCED_ABOVE`), so the benchmark's k = 72
         keeps the full MRGP.
+    starts : int
+        Parallel Gauss-Newton runs of a global cycle of the hybrid strategy,
+        started from the emulator's best distinct candidates.
+    loop : {"trust-region", "paper"}
+        The adaptive strategy's loop. ``paper`` (default): Table 2's steps
+        (normal distribution of the best z samples, the MRGP on the relative
+        residuals, isotropic). ``trust-region`` (:mod:`tasks.trust_region`,
+        a change to the paper's loop): the nominal model among the first
+        samples, candidates in a region following the best sample, the MRGP
+        (one length scale per parameter) on the inverse receptance near it,
+        Gauss-Newton on its mean; same q, s, w and trainers.
     """
 
     run_id: str | None = None
     runs_dir: str = "data/runs"
     measured: str = "data/benchmark/measured.csv"
     model: str = "three_plate"
-    strategy: str = "adaptive"
+    strategy: str = "hybrid"
     trainer: str = "gradient"
     seed: int = 0
     n_jobs: int = 2
@@ -185,6 +206,8 @@ class UpdateConfig:
     resonance_widen: float = 2.0
     min_coherence: float = 0.9
     residuals: str = "auto"
+    starts: int = 6
+    loop: str = "paper"
 
     def __post_init__(self) -> None:
         self.validate("config")
@@ -193,7 +216,8 @@ class UpdateConfig:
         def bad(key: str, why: str) -> ConfigError:
             return ConfigError(f"{source}: key '{key}': {why}")
 
-        for key in ("q", "w", "s", "z", "max_iterations", "max_fe_evaluations", "repeats", "conventional_samples"):
+        for key in ("q", "w", "s", "z", "max_iterations", "max_fe_evaluations", "repeats", "conventional_samples",
+                    "starts"):
             if getattr(self, key) < 1:
                 raise bad(key, f"must be at least 1, got {getattr(self, key)}")
         if self.n_jobs == 0 or self.n_jobs < -1:
@@ -205,6 +229,8 @@ class UpdateConfig:
                                       "e.g. tcp://127.0.0.1:8786")
         if self.trainer not in TRAINERS:
             raise bad("trainer", f"unknown trainer {self.trainer!r}; choose one of {', '.join(TRAINERS)}")
+        if self.loop not in LOOPS:
+            raise bad("loop", f"unknown loop {self.loop!r}; choose one of {', '.join(LOOPS)}")
         if self.strategy not in STRATEGIES:
             raise bad("strategy", f"unknown strategy {self.strategy!r}; choose one of {', '.join(STRATEGIES)}")
         if self.model not in MODELS:

@@ -1,6 +1,10 @@
-"""Adaptive MRGP model updating as a Prefect flow: ``python -m flows.update``.
+"""FE model updating as a Prefect flow: ``python -m flows.update``.
 
-Each iteration is a subflow run named ``iteration-<k>`` with the tasks
+The default strategy, ``hybrid`` (:mod:`flows.hybrid`), runs Gauss-Newton from
+the nominal model and goes global (MRGP emulator, parallel starts) only when
+what is left is not noise; each cycle is a subflow ``cycle-<k>``. The paper's
+adaptive MRGP loop (``--strategy adaptive``): each iteration is a subflow run
+named ``iteration-<k>`` with the tasks
 ``samples -> fe -> errors -> distribution -> train -> predict -> select``
 (see :mod:`tasks.stages`). Everything is written under
 ``data/runs/<run-id>/``; running again with the same ``--run-id`` resumes
@@ -8,7 +12,8 @@ where the last run stopped.
 
 Examples::
 
-    python -m flows.update                                  # benchmark, defaults of Table 2
+    python -m flows.update                                  # benchmark, hybrid strategy
+    python -m flows.update --strategy adaptive --no-polish  # the paper's loop, Table 2
     python -m flows.update --trainer pso --seed 3 --run-id pso-3
     python -m flows.update --strategy conventional
     python -m flows.update --repeats 5
@@ -45,10 +50,12 @@ import pandas as pd  # noqa: E402
 from prefect import flow  # noqa: E402
 
 from flows import preflight  # noqa: E402
-from flows.config import (LINES, OUTPUTS, RESIDUALS, STRATEGIES, TRAINERS, ConfigError, UpdateConfig,  # noqa: E402
-                          load_config, parse_windows)
+from flows.config import (LINES, LOOPS, OUTPUTS, RESIDUALS, STRATEGIES, TRAINERS, ConfigError,  # noqa: E402
+                          UpdateConfig, load_config, parse_windows)
+from flows.hybrid import hybrid_summary, run_hybrid  # noqa: E402
 from mrgp_core import adaptive  # noqa: E402
 from tasks import fe_backends, stages  # noqa: E402
+from tasks.hybrid import HYBRID_STAGES  # noqa: E402
 from tasks.intervals import intervals_task  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
 from tasks.model_vtu import model_vtu_task  # noqa: E402
@@ -99,8 +106,8 @@ def iteration_flow(root: str, config: UpdateConfig, iteration: int, freqs_hz: np
             return {"stop": True, "converged": decision.converged, "reason": decision.reason, "best": best,
                     "fe": fe_count}
     stages.distribution_task(root, config, iteration, m)
-    stages.train_task(root, config, iteration)
-    stages.predict_task(root, config, iteration, m)
+    stages.train_task(root, config, iteration, data=data)
+    stages.predict_task(root, config, iteration, m, data=data)
     stages.select_task(root, config, iteration, m, 1 if config.strategy == "conventional" else config.s)
     print(f"iteration {iteration}: best overall error {best:.4%} after {fe_count} FE runs")
     return {"stop": False, "converged": False, "reason": "continue", "best": best, "fe": fe_count}
@@ -195,6 +202,10 @@ def _single_run(config: UpdateConfig, store: RunStore, measured: UpdateData, t0:
         print(f"measured: {line}")
     write_measured_table(store, measured)
     root = str(store.root)
+    if config.strategy == "hybrid":
+        iteration, last = run_hybrid(config, store, measured, m)
+        summary = hybrid_summary(config, store, iteration, last, measured, time.perf_counter() - t0)
+        return _finish_run(config, store, iteration, measured, summary)
     last = None
     iteration = 0
     while True:
@@ -207,7 +218,12 @@ def _single_run(config: UpdateConfig, store: RunStore, measured: UpdateData, t0:
         print(f"polish: {info['status']} after {info['n']} FE runs, overall error "
               f"{info['error_before']:.4%} -> {info['error_after']:.4%}")
     summary = _summary(config, store, iteration, last, measured, time.perf_counter() - t0)
-    if uses_polish(config) and config.intervals:
+    return _finish_run(config, store, iteration, measured, summary)
+
+
+def _finish_run(config: UpdateConfig, store: RunStore, iteration: int, measured, summary: dict) -> dict:
+    """Intervals (after a local least-squares stage), model.vtu, then summary.json."""
+    if (uses_polish(config) or config.strategy == "hybrid") and config.intervals:
         summary.update(_interval_fields(config, store, iteration, measured, summary))
         if measured.residual == "amplitude":
             summary = report_least_squares_optimum(summary, measured.sensors, config.true_parameters)
@@ -215,7 +231,7 @@ def _single_run(config: UpdateConfig, store: RunStore, measured: UpdateData, t0:
             summary = {k: v for k, v in summary.items() if k != "estimate_errors"}
             summary["parameters_source"] = ("lowest Eq. (6b) error among the FE runs (complex residuals: the "
                                             "intervals' least-squares optimum uses the amplitudes only)")
-    model_vtu_task(root, config.model, summary["parameters"])  # <run>/model.vtu for ParaView, before the summary
+    model_vtu_task(str(store.root), config.model, summary["parameters"])  # <run>/model.vtu, before the summary
     atomic_write_json(store.root / "summary.json", summary)
     return summary
 
@@ -364,7 +380,7 @@ def _write_manifest(store: RunStore, config: UpdateConfig, data: UpdateData | No
         "seed": config.seed,
         "versions": {"python": sys.version.split()[0], **package_versions()},
         "git_commit": git_commit(),
-        "stages": list(stages.STAGES),
+        "stages": list(HYBRID_STAGES if config.strategy == "hybrid" else stages.STAGES),
         "model_checksum": stages.model_fingerprint(config.model),
         **({"measured_data": data.manifest_entry()} if data is not None else {}),
     })
@@ -466,17 +482,20 @@ def rerun_stage(run_root: Path, iteration: int, stage: str, trainer: str | None 
     if stage not in RERUNNABLE:
         raise ConfigError(f"stage {stage!r} cannot be rerun in place; choose one of {', '.join(RERUNNABLE)}")
     config = UpdateConfig(**manifest["config"])
-    for needed in ("errors", "distribution") if stage == "predict" else ("errors",):
+    tr_loop = stages.trust_region_loop(config)
+    for needed in ("errors", "distribution") if stage == "predict" or tr_loop else ("errors",):
         if not store.is_finished(iteration, needed):
             raise ConfigError(f"{run_root}: iteration {iteration} has no finished '{needed}' stage to rerun from")
     trainer = trainer or config.trainer
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     name = f"{stage}.rerun-{trainer}-{stamp}"
-    m = stages.load_model(config.model).n_parameters
+    model = stages.load_model(config.model)
+    m = model.n_parameters
+    data = prepare_data(config, read_measured(config.resolve(config.measured)), model) if tr_loop else None
     if stage == "train":
-        stages.train_task.fn(str(store.root), config, iteration, trainer=trainer, output_stage=name)
+        stages.train_task.fn(str(store.root), config, iteration, trainer=trainer, output_stage=name, data=data)
     else:
-        stages.predict_task.fn(str(store.root), config, iteration, m, output_stage=name)
+        stages.predict_task.fn(str(store.root), config, iteration, m, output_stage=name, data=data)
     return store.stage_dir(iteration, name)
 
 
@@ -496,7 +515,10 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--run-id", metavar="ID", help="run folder name under data/runs; an existing id resumes that run")
     p.add_argument("--runs-dir", metavar="PATH", help="where run folders go (default data/runs)")
     p.add_argument("--trainer", choices=TRAINERS, help="MRGP hyper-parameter trainer (default gradient)")
-    p.add_argument("--strategy", choices=STRATEGIES, help="adaptive (default) or the paper's conventional baseline")
+    p.add_argument("--strategy", choices=STRATEGIES,
+                   help="hybrid (default: Gauss-Newton from the nominal model, global with the MRGP emulator when "
+                        "the residual is not noise), adaptive (the paper's MRGP loop; with --no-polish exactly "
+                        "the paper's procedure) or conventional (the paper's 300-sample baseline)")
     p.add_argument("--seed", type=int, help="master random seed (default 0)")
     p.add_argument("--n-jobs", type=int, help="parallel FE processes, -1 = all cores (default 2)")
     p.add_argument("--fe-backend", choices=fe_backends.FE_BACKENDS,
@@ -511,6 +533,11 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("-w", type=int, help="candidates predicted per iteration (default 10000)")
     p.add_argument("-s", type=int, help="FE runs per iteration (default 20)")
     p.add_argument("-z", type=int, help="best samples defining the sampling distribution (default 20)")
+    p.add_argument("--loop", choices=LOOPS,
+                   help="the adaptive strategy's loop: paper (default: Table 2's steps, normal distribution of the "
+                        "best z, relative residuals) or trust-region (a change to the paper's loop: a region "
+                        "following the best sample, the MRGP emulating the inverse receptance near it, "
+                        "Gauss-Newton on its mean)")
     p.add_argument("--polish", action=argparse.BooleanOptionalAction, default=None,
                    help="after the MRGP loop, least squares on the FE model from the best sample (default on)")
     p.add_argument("--polish-max-fe", type=int, metavar="N",
@@ -566,9 +593,12 @@ def _rerun_parser() -> argparse.ArgumentParser:
 def print_summary(summary: dict, file=sys.stdout) -> None:
     print(file=file)
     print(f"run folder: {summary.get('run_folder', '')}", file=file)
+    extra = (f" ({summary['jacobians']} with Jacobian, {summary['fe_equivalents']:g} FE-run equivalents; "
+             f"{summary['rounds']} rounds)" if "jacobians" in summary else "")
     print(f"strategy {summary['strategy']}, trainer {summary['trainer']}: "
-          f"{'converged' if summary['converged'] else 'NOT converged'} after {summary['iterations']} iterations, "
-          f"{summary['fe_evaluations']} FE runs, {summary['wall_seconds']:.1f} s", file=file)
+          f"{'converged' if summary['converged'] else 'NOT converged'} after {summary['iterations']} "
+          f"{'cycles' if summary['strategy'] == 'hybrid' else 'iterations'}, "
+          f"{summary['fe_evaluations']} FE runs{extra}, {summary['wall_seconds']:.1f} s", file=file)
     lowest = summary.get("lowest_error")
     if lowest:
         print(f"overall error: {summary['overall_error']:.4%} at the reported parameters, the least-squares optimum "
@@ -636,7 +666,7 @@ def main(argv: list[str] | None = None) -> int:
             dask_address=args.dask_address, repeats=args.repeats,
             threshold=args.threshold, max_iterations=args.max_iterations,
             max_fe_evaluations=args.max_fe_evaluations, q=args.q, w=args.w, s=args.s, z=args.z,
-            polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target,
+            polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target, loop=args.loop,
             polish_stall_rtol=args.polish_stall_rtol, model=args.model, outputs=args.outputs,
             intervals=args.intervals, noise=args.noise, posterior_fe=args.posterior_fe, lines=args.lines,
             line_windows=None if args.line_windows is None else parse_windows(args.line_windows),

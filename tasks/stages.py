@@ -337,6 +337,8 @@ def samples_task(root: str, config, iteration: int, m: int) -> int:
             n = config.conventional_samples if config.strategy == "conventional" else config.q
             lower, upper = parameter_box(config, m)
             X = adaptive.uniform_samples(n, lower, upper, stage_rng(config.seed, iteration, "samples"))
+            if trust_region_loop(config):  # every user has the nominal model: it is one of the first samples
+                X[0] = np.clip(np.zeros(m), np.maximum(lower, -1.0 + 1e-3), upper)
             first_id = 0
         else:
             X = store.read_table(iteration - 1, "select")[cols].to_numpy()
@@ -507,7 +509,19 @@ def distribution_task(root: str, config, iteration: int, m: int) -> dict:
     store = RunStore(root)
     if not _done(store, iteration, "distribution"):
         lower, upper = parameter_box(config, m)
-        if iteration == 1 or config.strategy == "conventional":
+        extra = {}
+        if trust_region_loop(config):
+            from tasks import trust_region
+
+            _, X, _, E = training_data(store, iteration)
+            previous = trust_region.region(store, iteration - 1) if iteration > 1 else None
+            tr = adaptive.update_trust_region(previous, X, E)
+            low, high = tr.box(lower, upper)
+            kind, mean, std, dist = "trust_region", (low + high) / 2, (high - low) / np.sqrt(12), None
+            lower, upper = low, high  # the minimum distance scales with the region's spread
+            extra = {"trust_region": {"centre": tr.centre.tolist(), "length": tr.length, "successes": tr.successes,
+                                      "failures": tr.failures, "best": tr.best}}
+        elif iteration == 1 or config.strategy == "conventional":
             # Table 2, step c: the first candidates are uniform over the whole box.
             kind, mean, std, dist = "uniform", (lower + upper) / 2, (upper - lower) / np.sqrt(12), None
         else:
@@ -517,21 +531,40 @@ def distribution_task(root: str, config, iteration: int, m: int) -> dict:
         d_min = adaptive.default_min_distance(dist, lower, upper, config.min_distance_factor)
         df = pd.DataFrame({"parameter": parameter_names(config), "mean": mean, "std": std})
         store.write_table(iteration, "distribution", "distribution", df)
-        _finish(store, iteration, "distribution", ["distribution"], {"kind": kind, "min_distance": d_min})
+        _finish(store, iteration, "distribution", ["distribution"], {"kind": kind, "min_distance": d_min, **extra})
     return store.stage_info(iteration, "distribution")
 
 
+def trust_region_loop(config) -> bool:
+    """The adaptive strategy with the trust-region loop (:mod:`tasks.trust_region`), not the paper's steps."""
+    return config.strategy == "adaptive" and getattr(config, "loop", "paper") == "trust-region"
+
+
 @task(name="train", task_run_name="iteration-{iteration}-train", cache_policy=NO_CACHE, retries=1)
-def train_task(root: str, config, iteration: int, trainer: str | None = None, output_stage: str = "train") -> dict:
-    """MRGP training on all FE data so far; the hyper-parameters are stored, not the model."""
+def train_task(root: str, config, iteration: int, trainer: str | None = None, output_stage: str = "train",
+               data=None) -> dict:
+    """MRGP training on all FE data so far; the hyper-parameters are stored, not the model.
+
+    With the trust-region loop (``data``: the run's UpdateData): on the inverse receptance of the FE runs
+    near the trust region, one length scale per parameter (:mod:`tasks.trust_region`).
+    """
     store = RunStore(root)
     trainer = trainer or config.trainer
     if not _done(store, iteration, output_stage):
-        _, X, Y, _ = training_data(store, iteration)
+        kernel = "iso"
+        if trust_region_loop(config) and store.stage_info(iteration, "distribution")["kind"] == "trust_region":
+            from tasks import trust_region
+
+            X, Y = trust_region.training_set(store, config, iteration, data)
+            kernel = "ard"
+        else:
+            _, X, Y, _ = training_data(store, iteration)
         previous = _previous_hyperparameters(store, iteration)
+        if previous is not None and len(_length_scales(previous)) != (X.shape[1] if kernel == "ard" else 1):
+            previous = None  # the first trust-region iteration follows an isotropic uniform one: no l~ yet
         rng = stage_rng(config.seed, iteration, "train")
         t0 = time.perf_counter()
-        hyper, info = train_mrgp(X, Y, trainer, rng, previous, outputs=config.outputs)
+        hyper, info = train_mrgp(X, Y, trainer, rng, previous, outputs=config.outputs, kernel=kernel)
         seconds = time.perf_counter() - t0
         df = pd.DataFrame({"name": list(hyper), "value": [float(v) for v in hyper.values()]})
         store.write_table(iteration, output_stage, "hyperparameters", df)
@@ -551,13 +584,32 @@ def _previous_hyperparameters(store: RunStore, iteration: int) -> dict | None:
 
 @task(name="predict", task_run_name="iteration-{iteration}-predict", cache_policy=NO_CACHE)
 def predict_task(root: str, config, iteration: int, m: int, train_stage: str = "train",
-                 output_stage: str = "predict") -> dict:
-    """Draw ``w`` candidates and predict their overall errors with the trained MRGP."""
+                 output_stage: str = "predict", data=None) -> dict:
+    """Draw ``w`` candidates and predict their overall errors with the trained MRGP.
+
+    With the trust-region loop: candidates in the region and Gauss-Newton end points on the emulator
+    (:func:`tasks.trust_region.predict`).
+    """
     store = RunStore(root)
     if not _done(store, iteration, output_stage):
         lower, upper = parameter_box(config, m)
         rng = stage_rng(config.seed, iteration, "predict")
         info = store.stage_info(iteration, "distribution")
+        if info["kind"] == "trust_region":
+            from tasks import trust_region
+
+            hp = store.read_table(iteration, train_stage, "hyperparameters")
+            t0 = time.perf_counter()
+            C, predicted = trust_region.predict(store, config, iteration, data, dict(zip(hp["name"], hp["value"])),
+                                                rng)
+            seconds = time.perf_counter() - t0
+            df = pd.DataFrame(C, columns=parameter_names(config))
+            df.insert(0, "candidate_id", np.arange(len(df), dtype=np.int64))
+            df["predicted_error"] = predicted
+            store.write_table(iteration, output_stage, "candidates", df)
+            _finish(store, iteration, output_stage, ["candidates"],
+                    {"seconds": seconds, "best_predicted": float(np.nanmin(predicted))})
+            return store.stage_info(iteration, output_stage)
         if info["kind"] == "uniform":
             C = adaptive.uniform_samples(config.w, lower, upper, rng)
         else:
@@ -608,7 +660,7 @@ def _next_sample_id(store: RunStore, iteration: int) -> int:
 
 # -- MRGP adapters: the only place that knows the mrgp_core API ---------------------------------
 def train_mrgp(X: np.ndarray, Y: np.ndarray, trainer: str, rng: np.random.Generator,
-               previous: dict | None, outputs: str = "full") -> tuple[dict, dict]:
+               previous: dict | None, outputs: str = "full", kernel: str = "iso") -> tuple[dict, dict]:
     """Fit the MRGP's hyper-parameters; returns (hyper-parameters, diagnostics).
 
     For the paper's trainers (``sao``, ``pso``) the squared length scale is
@@ -627,7 +679,7 @@ def train_mrgp(X: np.ndarray, Y: np.ndarray, trainer: str, rng: np.random.Genera
         l_upper = float(l_upper[0]) if l_upper.size == 1 else l_upper
     reduced = reduced_outputs(outputs, Y.shape[1])
     fit = mrgp_core.fit_reduced if reduced else mrgp_core.fit
-    model = fit(X, Y, trainer, rng=rng, l_upper=l_upper)
+    model = fit(X, Y, trainer, rng=rng, l_upper=l_upper, kernel=kernel)
     h = model.hyperparameters
     hyper = {f"length_scale_{i + 1}": float(v) for i, v in enumerate(np.atleast_1d(h.length_scale))}
     hyper["nugget"] = float(h.nugget)

@@ -8,8 +8,10 @@ from flows.config import UpdateConfig
 
 # 16 FE runs for the MRGP loop, then 7 for the polish (one Jacobian of 6 parameters and one step);
 # no intervals (up to 3 exact Jacobians, seconds per run: tests/flows/test_intervals_stage.py turns them on).
+# The adaptive strategy with the paper's loop (+ polish): these tests are about its stages. The hybrid default
+# (tests/flows/test_hybrid_flow.py) and the trust-region loop (tests/flows/test_trust_region_loop.py) have their own.
 REDUCED = dict(q=8, w=400, s=4, z=6, max_iterations=3, max_fe_evaluations=23, polish_max_fe=7, threshold=1e-6,
-               n_jobs=1, trainer="gradient", seed=11, intervals=False)
+               n_jobs=1, trainer="gradient", seed=11, intervals=False, strategy="adaptive", loop="paper")
 
 
 @pytest.fixture

@@ -123,7 +123,7 @@ def test_polish_stage_is_counted_stored_and_resumes_from_its_fe_runs(reduced_con
 
 def test_polish_settings_are_checked_and_can_be_switched_off(tmp_path):
     with pytest.raises(ConfigError, match="polish_max_fe"):
-        UpdateConfig(max_fe_evaluations=40, polish_max_fe=30, q=20)
+        UpdateConfig(max_fe_evaluations=40, polish_max_fe=30, q=20, strategy="adaptive")
     with pytest.raises(ConfigError, match="polish_target"):
         UpdateConfig(polish_target=0.0)
     with pytest.raises(ConfigError, match="polish_stall_rtol"):
@@ -131,4 +131,5 @@ def test_polish_settings_are_checked_and_can_be_switched_off(tmp_path):
     # Off, or for the conventional baseline, the loop keeps the whole budget.
     assert update.loop_budget(UpdateConfig(polish=False)) == 240
     assert update.loop_budget(UpdateConfig(strategy="conventional")) == 240
-    assert update.loop_budget(UpdateConfig()) == 240 - 200
+    assert update.loop_budget(UpdateConfig(strategy="adaptive")) == 240 - 200
+    assert update.loop_budget(UpdateConfig()) == 240  # the hybrid default has no polish

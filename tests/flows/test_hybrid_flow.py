@@ -1,0 +1,153 @@
+"""The hybrid strategy (the default) as a flow: local, check, global, check; every FE run stored; kill and resume.
+
+A cheap case with a global cycle: the 702-DOF cantilever of data/examples/cantilever_matrices (about 10 ms
+per FE run) measured at a true alpha where Gauss-Newton from the nominal model stalls in a wrong basin
+(found by a search over random truths; the data come from the direct solver, the fit uses the Krylov one).
+Reduced global cycle: 6 space-filling runs, 300 candidates, 2 parallel Gauss-Newton starts.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from flows import update
+from flows.config import REPO, UpdateConfig
+from tasks import hybrid as htasks
+from tasks import stages
+from tasks.runstore import RunStore
+
+MODEL = "data/examples/cantilever_matrices/model.toml"
+TRUTH = [0.14, -0.06, 0.33, 0.12]  # inside the model file's box [-0.5, 0.5]; the nominal model is in a wrong basin
+SETTINGS = dict(strategy="hybrid", model=MODEL, s=6, w=300, starts=2, max_fe_evaluations=80, n_jobs=1, seed=0,
+                intervals=False, true_parameters=TRUTH)
+TIMING_KEYS = {"wall_seconds", "run_folder"}
+
+
+@pytest.fixture(scope="module")
+def measured_file(tmp_path_factory) -> Path:
+    from tasks.io.measured import MeasuredFRF, read_measured, write_measured
+
+    model = stages.load_model(MODEL)
+    lines = read_measured(REPO / "data/examples/cantilever_matrices/measured.csv")
+    Z = model.frf(np.array(TRUTH), lines.frequencies_hz, method="direct")
+    path = tmp_path_factory.mktemp("hybrid-data") / "measured.csv"
+    write_measured(path, MeasuredFRF(frequencies_hz=lines.frequencies_hz, sensors=lines.sensors, amplitude=np.abs(Z),
+                                     source="cantilever at TRUTH, direct solver"))
+    return path
+
+
+@pytest.fixture(scope="module")
+def hybrid_run(tmp_path_factory, measured_file, prefect_harness) -> tuple[dict, RunStore]:
+    runs = tmp_path_factory.mktemp("hybrid-runs")
+    config = UpdateConfig(run_id="hybrid", runs_dir=str(runs), measured=str(measured_file), **SETTINGS)
+    summary = update.update_flow(config)
+    return summary, RunStore(runs / "hybrid")
+
+
+def test_hybrid_goes_global_and_finds_the_truth(hybrid_run):
+    summary, store = hybrid_run
+    assert summary["strategy"] == "hybrid" and summary["converged"]
+    assert summary["iterations"] >= 2  # cycle 1 (local) found structure, a global cycle followed
+    first = store.stage_info(1, htasks.CHECK_STAGE)
+    assert not first["at_floor"] and first["minimum"]["error"] > 0.01
+    assert max(summary["parameter_errors"].values()) < 1e-3
+    assert summary["overall_error"] <= 1e-4
+    assert store.is_finished(1, htasks.LOCAL_STAGE) and store.is_finished(2, htasks.GLOBAL_STAGE)
+    assert store.stage_info(summary["iterations"], htasks.CHECK_STAGE)["at_floor"]
+
+
+def test_every_fe_run_is_counted_stored_and_logged_once(hybrid_run):
+    summary, store = hybrid_run
+    runs, responses = htasks.all_runs(store, summary["iterations"])
+    assert summary["fe_evaluations"] == len(runs) == runs["sample_id"].nunique()
+    assert summary["jacobians"] == int(runs["jacobian"].sum()) > 0
+    assert summary["rounds"] == sum(store.stage_info(k, s)["rounds"] for k, s in htasks._stage_list(store, 99))
+    assert summary["fe_equivalents"] == pytest.approx(len(runs) + (htasks.JACOBIAN_COST - 1) * runs["jacobian"].sum())
+    assert summary["fe_equivalents"] <= SETTINGS["max_fe_evaluations"]
+    assert summary["rounds"] < summary["fe_evaluations"]  # the global cycle's batches
+    log = [e for e in stages.read_fe_log(store.root) if e["event"] in ("evaluated", "recovered")]
+    assert Counter(e["sample_id"] for e in log) == Counter(runs["sample_id"].tolist())
+    # The stored derivative is the FE model's: central differences of the direct-solver FRF, step 1e-4 (truncation
+    # ~1e-8 of the derivative, round-off ~1e-12 / 1e-4 of the response).
+    j = runs[runs["jacobian"]].iloc[0]
+    stage = j["stage"]
+    df = pd.read_parquet(store.stage_dir(int(j["iteration"]), stage) / f"sample={int(j['sample_id']):06d}.parquet")
+    x = j[[c for c in runs.columns if c.startswith("alpha_")]].to_numpy(float)
+    model = stages.load_model(MODEL)
+    freqs = np.sort(df["frequency_hz"].unique())
+    h = 1e-4
+    e = np.zeros_like(x)
+    e[1] = h
+    fd = (model.frf(x + e, freqs, method="direct") - model.frf(x - e, freqs, method="direct")) / (2 * h)
+    dz = (df["dreal_2"].to_numpy() + 1j * df["dimag_2"].to_numpy()).reshape(fd.shape)
+    assert np.max(np.abs(dz - fd)) <= 1e-6 * np.max(np.abs(fd))
+
+
+# -- kill and resume -----------------------------------------------------------------------------
+KILL_POINTS = [
+    ("local-result-written/iteration=1/sample=3", "inside local: an FE result written, not yet logged"),
+    ("stage-finished/iteration=1/stage=check", "between cycles 1 and 2"),
+    ("before-rename:*/iteration=2/stage=global/sample=000*.parquet@4", "inside global: an FE result's write"),
+    ("tables-written/iteration=2/stage=global", "inside global: tables written, record not"),
+]
+
+
+def _config(tmp_path: Path, runs: Path, measured: Path) -> Path:
+    path = tmp_path / "hybrid.toml"
+    lines = [f'runs_dir = "{runs}"', f'measured = "{measured}"'] + [f"{k} = {json.dumps(v)}" for k, v in
+                                                                   SETTINGS.items()]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _run(args, env) -> subprocess.CompletedProcess:
+    proc = subprocess.Popen([sys.executable, "-m", "flows.update", *args], cwd=REPO, env={**os.environ, **env},
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    out, _ = proc.communicate(timeout=300)
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    return subprocess.CompletedProcess(args, proc.returncode, out)
+
+
+def _tables(root: Path) -> dict[str, pd.DataFrame]:
+    return {str(p.relative_to(root)): pd.read_parquet(p).drop(columns=["seconds", "pid"], errors="ignore")
+            for p in sorted(root.glob("iteration=*/stage=*/*.parquet")) if "sample=" not in p.name}
+
+
+@pytest.mark.slow
+def test_kill_inside_hybrid_stages_then_resume_gives_the_uninterrupted_run(tmp_path, measured_file, prefect_server):
+    cfg = _config(tmp_path, tmp_path / "runs", measured_file)
+    ref = _run(["--config", str(cfg), "--run-id", "reference"], prefect_server)
+    assert ref.returncode == 0, ref.stdout[-3000:]
+    for point, what in KILL_POINTS:
+        proc = _run(["--config", str(cfg), "--run-id", "victim"], {**prefect_server, "MRGP_KILL_AT": point})
+        assert proc.returncode == -signal.SIGKILL, f"not killed at {point} ({what}):\n{proc.stdout[-3000:]}"
+    proc = _run(["--config", str(cfg), "--run-id", "victim"], prefect_server)
+    assert proc.returncode == 0, proc.stdout[-3000:]
+    victim, reference = tmp_path / "runs" / "victim", tmp_path / "runs" / "reference"
+    got, want = (json.loads((r / "summary.json").read_text()) for r in (victim, reference))
+    assert {k: v for k, v in got.items() if k not in TIMING_KEYS} == {
+        k: v for k, v in want.items() if k not in TIMING_KEYS}
+    got_tables, want_tables = _tables(victim), _tables(reference)
+    assert got_tables.keys() == want_tables.keys()
+    for name, df in want_tables.items():
+        pd.testing.assert_frame_equal(got_tables[name], df, obj=name)
+    log = stages.read_fe_log(victim)
+    per_sample = Counter(e["sample_id"] for e in log if e["event"] in ("evaluated", "recovered"))
+    assert max(per_sample.values()) == 1, "an FE run was made twice"
+    assert len(per_sample) == got["fe_evaluations"]
+    assert [e["sample_id"] for e in log if e["event"] == "recovered"] == [3]  # the kill between result and log
+    assert not [e for e in log if e["event"] == "discarded"]
+    assert not list(victim.rglob("*.tmp")) and not (victim / "run.lock").exists()

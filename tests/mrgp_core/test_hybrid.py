@@ -1,0 +1,97 @@
+"""The hybrid strategy and its Gauss-Newton stepper on analytic responses (no FE model).
+
+The toy "receptance" ``Z = u (1 + r(x))`` with ``r = 0.3 (sin(W x_1) - sin(W t_1)) + 0.1 (x_2 - t_2)``
+has several basins in x_1 (40 "frequencies" W, one sensor): from 0 a local method stalls in a wrong one.
+Its derivative is analytic, so the strategy's Jacobian runs are exact.
+"""
+
+import numpy as np
+import pytest
+
+from mrgp_core.strategies.gauss_newton import TrustRegionGN, composite_model
+from mrgp_core.strategies.hybrid import HybridOptions, hybrid
+
+W = np.linspace(4.0, 9.0, 40)
+TRUTH = np.array([-0.75, 0.3])
+U = 1e-6 * (1.0 + 0.5 * np.cos(W))  # measured amplitudes, m/N
+LOWER, UPPER = -np.ones(2), np.ones(2)
+
+
+def _toy(x, noise=None):
+    r = 0.3 * (np.sin(W * x[0]) - np.sin(W * TRUTH[0])) + 0.1 * (x[1] - TRUTH[1])
+    dr = np.column_stack([0.3 * W * np.cos(W * x[0]), np.full(W.size, 0.1)])
+    u = U if noise is None else U / (1.0 + noise)  # noisy measurement: u (1 + e)^-1 to first order
+    return u * (1.0 + r) + 0j, (u[:, None] * dr) + 0j
+
+
+def _evaluate(noise=None, log=None):
+    def evaluate(points, jacobian):
+        if log is not None:
+            log.append((len(points), sum(jacobian)))
+        out = []
+        for x, j in zip(points, jacobian):
+            Z, dZ = _toy(x, noise)
+            out.append((Z, dZ if j else None))
+        return out
+    return evaluate
+
+
+OPTIONS = HybridOptions(candidates=2000, starts=4, space_filling=12, max_cost=200.0)
+
+
+def test_inverse_model_is_exact_for_one_mode_and_the_linear_one_is_not():
+    # Z = 1 / (k(x) - w^2 + j w c) with k linear in x: the inverse receptance is linear in x.
+    w = np.linspace(0.8, 1.2, 9)
+    k = lambda x: 1.0 + 0.4 * x[0] - 0.2 * x[1]  # noqa: E731
+    Z_of = lambda x: 1.0 / (k(x) - w**2 + 0.05j * w)  # noqa: E731
+    x0, s = np.zeros(2), np.array([0.3, -0.2])
+    Z0 = Z_of(x0)
+    dZ0 = -(Z0**2)[:, None] * np.array([0.4, -0.2])[None, :]  # dZ = -Z^2 dk
+    u = np.abs(Z_of(np.array([0.1, 0.1])))
+    exact = np.abs(Z_of(x0 + s)) / u - 1.0
+    assert np.allclose(composite_model(Z0, dZ0, u, "inverse")(s), exact, rtol=1e-12, atol=1e-12)
+    assert np.max(np.abs(composite_model(Z0, dZ0, u, "linear")(s) - exact)) > 0.1
+
+
+def test_broyden_update_satisfies_the_secant_condition():
+    Z0, dZ0 = _toy(np.zeros(2))
+    gn = TrustRegionGN(np.zeros(2), Z0, dZ0, U, LOWER, UPPER, radius=0.05)
+    step = gn.propose()
+    Z1, _ = _toy(step.x)
+    assert gn.tell(step.x, Z1, None)  # a downhill step, taken without its derivative
+    assert np.allclose(gn.dZ @ step.x, Z1 - Z0, rtol=1e-12, atol=1e-20)
+
+
+def test_goes_global_from_a_wrong_basin_and_finds_the_truth():
+    rounds = []
+    res = hybrid(_evaluate(log=rounds), np.zeros(2), U, W, LOWER, UPPER, OPTIONS)
+    assert res.status == "target"
+    assert not res.checks[0][1].at_floor  # the local phase stalled in a wrong basin; the check saw structure
+    assert res.checks[0][0].error > 0.05
+    assert np.max(np.abs(res.x - TRUTH)) < 1e-3
+    assert any(p.startswith("global") for *_, p in res.history)
+    assert max(n for n, _ in rounds) > 1 and res.rounds < res.evaluations  # parallel rounds were used
+    assert res.cost <= OPTIONS.max_cost
+    assert res.cost == pytest.approx(res.evaluations + (OPTIONS.jacobian_cost - 1) * res.jacobians)
+
+
+def test_stays_local_when_the_start_is_in_the_basin():
+    res = hybrid(_evaluate(), np.array([-0.6, 0.0]), U, W, LOWER, UPPER, OPTIONS)
+    assert res.status == "target" and len(res.checks) == 1
+    assert {p for *_, p in res.history} == {"local"}
+    assert res.rounds == res.evaluations == res.jacobians  # one FE run with its Jacobian per round
+    assert np.max(np.abs(res.x - TRUTH)) < 1e-3
+
+
+def test_noisy_data_stop_at_the_floor():
+    noise = 0.01 * np.random.default_rng(3).standard_normal(W.size)
+    res = hybrid(_evaluate(noise), np.array([-0.6, 0.0]), U, W, LOWER, UPPER, OPTIONS)
+    assert res.status == "floor" and len(res.checks) == 1
+    assert res.checks[0][1].sigma == pytest.approx(0.01, rel=0.5)  # estimated from second differences
+    assert np.max(np.abs(res.x - TRUTH)) < 0.05
+
+
+def test_the_budget_is_never_exceeded():
+    options = HybridOptions(candidates=500, starts=4, space_filling=12, max_cost=40.0)
+    res = hybrid(_evaluate(), np.zeros(2), U, W, LOWER, UPPER, options)
+    assert res.status == "budget" and res.cost <= 40.0
