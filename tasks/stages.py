@@ -602,13 +602,7 @@ def predict_task(root: str, config, iteration: int, m: int, train_stage: str = "
             t0 = time.perf_counter()
             C, predicted = trust_region.predict(store, config, iteration, data, dict(zip(hp["name"], hp["value"])),
                                                 rng)
-            seconds = time.perf_counter() - t0
-            df = pd.DataFrame(C, columns=parameter_names(config))
-            df.insert(0, "candidate_id", np.arange(len(df), dtype=np.int64))
-            df["predicted_error"] = predicted
-            store.write_table(iteration, output_stage, "candidates", df)
-            _finish(store, iteration, output_stage, ["candidates"],
-                    {"seconds": seconds, "best_predicted": float(np.nanmin(predicted))})
+            _write_candidates(store, config, iteration, output_stage, C, predicted, time.perf_counter() - t0)
             return store.stage_info(iteration, output_stage)
         if info["kind"] == "uniform":
             C = adaptive.uniform_samples(config.w, lower, upper, rng)
@@ -621,14 +615,18 @@ def predict_task(root: str, config, iteration: int, m: int, train_stage: str = "
         outputs = store.stage_info(iteration, train_stage).get("outputs", "full")  # what the train stage fitted
         t0 = time.perf_counter()
         predicted = predict_overall_error(X, Y, dict(zip(hp["name"], hp["value"])), C, outputs=outputs)
-        seconds = time.perf_counter() - t0
-        df = pd.DataFrame(C, columns=parameter_names(config))
-        df.insert(0, "candidate_id", np.arange(len(df), dtype=np.int64))
-        df["predicted_error"] = predicted
-        store.write_table(iteration, output_stage, "candidates", df)
-        _finish(store, iteration, output_stage, ["candidates"],
-                     {"seconds": seconds, "best_predicted": float(np.nanmin(predicted))})
+        _write_candidates(store, config, iteration, output_stage, C, predicted, time.perf_counter() - t0)
     return store.stage_info(iteration, output_stage)
+
+
+def _write_candidates(store: RunStore, config, iteration: int, stage: str, C: np.ndarray, predicted: np.ndarray,
+                      seconds: float) -> None:
+    """The predict stage's table (candidate_id, parameters, predicted_error) and its record."""
+    df = pd.DataFrame(C, columns=parameter_names(config))
+    df.insert(0, "candidate_id", np.arange(len(df), dtype=np.int64))
+    df["predicted_error"] = predicted
+    store.write_table(iteration, stage, "candidates", df)
+    _finish(store, iteration, stage, ["candidates"], {"seconds": seconds, "best_predicted": float(np.nanmin(predicted))})
 
 
 @task(name="select", task_run_name="iteration-{iteration}-select", cache_policy=NO_CACHE)
