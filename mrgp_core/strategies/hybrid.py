@@ -94,9 +94,9 @@ class HybridOptions:
     warp : "sqrt": the global phase's Sobol points and emulator candidates are uniform in ``sqrt(1 + x)``, and
         the emulator's inputs are ``sqrt(1 + x)`` (x a stiffness or mass factor ``1 + x``; a mode's frequency
         goes with its square root, so uniform-in-x points leave the soft end, where the frequencies move
-        fastest, sparse); "none": uniform in x. Measured on the suite's 24 noise-free truths with three cycle
-        seeds each: 68/72 solved with "none", 71/72 with "sqrt" (docs/suite.md); every truth that failed had a
-        parameter at or below -0.86;
+        fastest, sparse); "none": uniform in x. Measured on the suite's 24 noise-free truths with five cycle
+        seeds each: 112/120 solved with "none", 119/120 with "sqrt" (docs/suite.md); every truth that failed had
+        a parameter at or below -0.86;
     halve_every : rounds between dropping the worse half of the runs;
     hedge : when > 0, each local round adds an FE run (no Jacobian) at ``hedge`` times the trust radius, taken
         (with a Broyden update of the derivative) when it is better than the main trial point;
