@@ -4,6 +4,7 @@
     python -m benchmarks.suite --noise 0 --out a & python -m benchmarks.suite --noise 0.01 --out b   # both cores
     python -m benchmarks.suite --from-runs a-runs.csv b-runs.csv    # then one table (docs/suite.md) from both
     python -m benchmarks.suite --truths 3 --methods default dfo-ls-nominal --out /tmp/suite
+    python -m benchmarks.suite --only 9 13 21 --noise 0 --methods default --out /tmp/hard   # some truths only
 
 ``--truths`` true parameter vectors uniform in [-0.9, 0.9]^6 (seed ``--seed``)
 on the three-plate benchmark model. The "measured" amplitudes come from the
@@ -230,6 +231,8 @@ def paired(runs: pd.DataFrame) -> list[str]:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.suite", description=__doc__.split("\n\n")[0])
     p.add_argument("--truths", type=int, default=24)
+    p.add_argument("--only", type=int, nargs="+", metavar="T",
+                   help="run only these truths (indices 0 .. truths-1 of the vectors drawn), e.g. --only 9 13 21")
     p.add_argument("--seed", type=int, default=17)
     p.add_argument("--noise", type=float, nargs="+", default=[0.0, 0.01])
     p.add_argument("--budget", type=int, default=400, help="FE runs (FE-run equivalents for the default) per "
@@ -240,6 +243,8 @@ def main(argv=None) -> int:
     p.add_argument("--from-runs", nargs="+", metavar="CSV",
                    help="no run: write the table from these <out>-runs.csv files (e.g. one per noise level)")
     args = p.parse_args(argv)
+    if args.only and not all(0 <= t < args.truths for t in args.only):
+        p.error(f"--only: truth indices must lie in 0 .. {args.truths - 1}")
     if args.from_runs:
         return write_tables(pd.concat([pd.read_csv(f) for f in args.from_runs], ignore_index=True), Path(args.out),
                             f"Tables from {', '.join(Path(f).name for f in args.from_runs)}.")
@@ -257,6 +262,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="suite-") as work:
         for noise in args.noise:
             for t, truth in enumerate(truths):
+                if args.only and t not in args.only:
+                    continue
                 for method in args.methods:
                     prob = Problem(model, MEASUREMENT_FREQUENCIES_HZ, truth, noise, seed=args.seed * 1000 + t)
                     t0, c0 = time.perf_counter(), time.process_time()
@@ -271,7 +278,8 @@ def main(argv=None) -> int:
                           f"{rec['rounds_to_floor']} err {rec['final_error']:.2e} max|dalpha| "
                           f"{rec['largest_parameter_error']:.4f} {rec['wall_seconds']:.0f} s", flush=True)
                     pd.DataFrame(records).to_csv(out.with_name(out.name + "-runs.csv"), index=False)
-    head = (f"Command: `nice -n 5 python -m benchmarks.suite --truths {args.truths} --seed {args.seed} --budget "
+    only = f" --only {' '.join(map(str, args.only))}" if args.only else ""
+    head = (f"Command: `nice -n 5 python -m benchmarks.suite --truths {args.truths}{only} --seed {args.seed} --budget "
             f"{args.budget} --trainer {args.trainer} --noise {' '.join(map(str, args.noise))}` "
             f"({time.perf_counter() - t_start:.0f} s wall). An FE run with its exact Jacobian cost {ratio:.2f} FE runs "
             f"(CPU time ratio measured at the start of the run).")

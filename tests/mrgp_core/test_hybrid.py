@@ -95,3 +95,17 @@ def test_the_budget_is_never_exceeded():
     options = HybridOptions(candidates=500, starts=4, space_filling=12, max_cost=40.0)
     res = hybrid(_evaluate(), np.zeros(2), U, W, LOWER, UPPER, options)
     assert res.status == "budget" and res.cost <= 40.0
+
+
+def test_global_points_are_uniform_in_the_square_root_of_the_factor():
+    from mrgp_core.strategies.hybrid import _from_unit, _warped
+
+    lower, upper = np.array([-0.75, -0.96]), np.array([3.0, 0.44])  # sqrt(1 + x): [0.5, 2] and [0.2, 1.2]
+    q = np.array([[0.0, 0.0], [0.5, 0.25], [1.0, 1.0]])
+    x = _from_unit(q, lower, upper, HybridOptions())
+    # by hand: (0.5 + 0.5 * 1.5)^2 - 1 = 0.5625, (0.2 + 0.25 * 1.0)^2 - 1 = -0.7975
+    assert np.allclose(x, [[-0.75, -0.96], [0.5625, -0.7975], [3.0, 0.44]], rtol=0, atol=1e-12)
+    assert np.allclose(_warped(x, HybridOptions())[1], [1.25, 0.45], rtol=0, atol=1e-12)
+    assert np.allclose(_from_unit(q, lower, upper, HybridOptions(warp="none"))[1], [1.125, -0.61], atol=1e-12)
+    with pytest.raises(ValueError, match="unknown warp"):
+        _warped(x, HybridOptions(warp="log"))
