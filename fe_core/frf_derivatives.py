@@ -49,7 +49,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .frf import STAGNATION_RTOL, BlockKrylov
+from .frf import STAGNATION_RTOL, BlockKrylov, _as_load_matrix, _relative_change, _symmetric
 
 __all__ = ["Direction", "krylov_frf_derivatives", "direct_frf_derivatives", "DerivativeInfo"]
 
@@ -112,9 +112,8 @@ class DerivativeInfo:
     solves: int
 
 
-def _dense_columns(A, n: int) -> np.ndarray:
-    A = A.toarray() if sp.issparse(A) else np.asarray(A, dtype=float)
-    return A[:, None] if A.ndim == 1 else A
+def _dense_columns(A) -> np.ndarray:
+    return _as_load_matrix(A.toarray() if sp.issparse(A) else A)
 
 
 def _parts(directions) -> tuple[list, list, np.ndarray, np.ndarray]:
@@ -189,9 +188,9 @@ def krylov_frf_derivatives(
     K = sp.csr_matrix(K, dtype=float)
     M = sp.csr_matrix(M, dtype=float)
     n = K.shape[0]
-    F = _dense_columns(F, n)
+    F = _dense_columns(F)
     L_sparse = sp.csr_matrix(L, dtype=float) if sp.issparse(L) else None
-    Ld = _dense_columns(L, n)
+    Ld = _dense_columns(L)
     dK, dM, da, db = _parts(directions)
     m = len(dK)
 
@@ -248,9 +247,7 @@ def krylov_frf_derivatives(
 
 def _reduced_response(V, R, F, Ld, L_sparse, k_index, m_index, da, db, m, omegas, a, b, lam, scale):
     """``(Z (p, n_out, n_loads), dZ (p, n_out, n_loads, m))`` of the Galerkin-reduced model."""
-    Kr = 0.5 * (R[0] + R[0].T)
-    Mr = 0.5 * (R[1] + R[1].T)
-    mu, phi = sla.eigh(Kr, Mr)  # phi^T Mr phi = I, phi^T Kr phi = diag(mu)
+    mu, phi = sla.eigh(_symmetric(R[0]), _symmetric(R[1]))  # phi^T Mr phi = I, phi^T Kr phi = diag(mu)
     Fh = phi.T @ (V.T @ F)  # (r, n_loads)
     Lh = phi.T @ ((L_sparse.T @ V).T if L_sparse is not None else V.T @ Ld)  # (r, n_out)
     dvec = 1.0 / (mu[None, :] - lam[:, None])  # (p, r)
@@ -260,26 +257,19 @@ def _reduced_response(V, R, F, Ld, L_sparse, k_index, m_index, da, db, m, omegas
     p = omegas.size
     dZ = np.zeros((p, Lh.shape[1], Fh.shape[1], m), dtype=complex)
     w = omegas
+    Xt = np.swapaxes(X, 1, 2)  # (p, n_out, r): X^T A Y by two matrix products, not one three-operand einsum
     for i in range(m):
         S = np.zeros((p, Lh.shape[1], Fh.shape[1]), dtype=complex)
         if i in k_index:
-            Ah = phi.T @ (0.5 * (R[k_index[i]] + R[k_index[i]].T)) @ phi
-            S += (1.0 + 1j * w * b)[:, None, None] * np.einsum("pro,rs,psl->pol", X, Ah, Y)
+            Ah = phi.T @ _symmetric(R[k_index[i]]) @ phi
+            S += (1.0 + 1j * w * b)[:, None, None] * (Xt @ (Ah @ Y))
         if i in m_index:
-            Ah = phi.T @ (0.5 * (R[m_index[i]] + R[m_index[i]].T)) @ phi
-            S += (-(w**2) + 1j * w * a)[:, None, None] * np.einsum("pro,rs,psl->pol", X, Ah, Y)
+            Ah = phi.T @ _symmetric(R[m_index[i]]) @ phi
+            S += (-(w**2) + 1j * w * a)[:, None, None] * (Xt @ (Ah @ Y))
         if da[i] or db[i]:  # da M + db K is diagonal in the eigenbasis: da + db mu
-            S += (1j * w)[:, None, None] * np.einsum("pro,r,prl->pol", X, da[i] + db[i] * mu, Y)
+            S += (1j * w)[:, None, None] * (Xt @ ((da[i] + db[i] * mu)[None, :, None] * Y))
         dZ[..., i] = -(scale**2)[:, None, None] * S
     return Z, dZ
-
-
-def _relative_change(current: np.ndarray, previous: np.ndarray) -> float:
-    """Largest change per frequency relative to that frequency's largest response."""
-    p = current.shape[0]
-    diff = np.abs(current - previous).reshape(p, -1).max(axis=1)
-    size = np.abs(current).reshape(p, -1).max(axis=1)
-    return float(np.max(diff / np.maximum(size, np.finfo(float).tiny)))
 
 
 def _derivative_change(current, previous) -> float:
@@ -311,8 +301,8 @@ def direct_frf_derivatives(K, M, a, b, F, L, directions: Sequence, omegas):
     K = sp.csc_matrix(K, dtype=float)
     M = sp.csc_matrix(M, dtype=float)
     n = K.shape[0]
-    F = _dense_columns(F, n)
-    Ld = _dense_columns(L, n)
+    F = _dense_columns(F)
+    Ld = _dense_columns(L)
     dK, dM, da, db = _parts(directions)
     nl, no, m = F.shape[1], Ld.shape[1], len(dK)
     rhs = np.hstack([F, Ld]).astype(complex)
