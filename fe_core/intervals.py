@@ -264,8 +264,11 @@ def laplace_intervals(residual, jacobian, estimate, names=None, noise: float | N
     )
 
 
-def _log_problem(model, freqs_hz, measured_amplitude, lower, upper):
-    """Checked inputs: ``(freqs (p,), lower (m,), upper (m,), residual)``; ``residual(alpha)``: log residual (p n,)."""
+def _log_problem(model, freqs_hz, measured_amplitude, lower, upper, m: int | None = None):
+    """Checked inputs: ``(freqs (p,), lower (m,), upper (m,), residual)``; ``residual(alpha)``: log residual (p n,).
+
+    ``m``: the box's length, the model's parameters (alpha and updated mass factors) by default.
+    """
     freqs = np.asarray(freqs_hz, float)
     u = np.asarray(measured_amplitude, float)
     if u.shape != (freqs.size, model.n_sensors):
@@ -273,7 +276,7 @@ def _log_problem(model, freqs_hz, measured_amplitude, lower, upper):
                          f"({freqs.size}, {model.n_sensors})")
     if not np.all(np.isfinite(u) & (u > 0)):
         raise ValueError("measured amplitudes must be finite and positive (the residual is logarithmic)")
-    m = model.n_parameters
+    m = model.n_parameters if m is None else m
     lo = np.broadcast_to(np.asarray(lower, float), (m,)).copy()
     hi = np.broadcast_to(np.asarray(upper, float), (m,)).copy()
     if np.any(lo <= -1.0) or np.any(lo >= hi):
@@ -545,8 +548,8 @@ def extended_intervals(model, freqs_hz, measured_amplitude, alpha0, applied, alp
     from .sensitivity import extended_log_jacobian
 
     applied = list(applied)
-    m = model.n_segments
-    freqs, lo_a, hi_a, _ = _log_problem(model, freqs_hz, measured_amplitude, alpha_bounds[0], alpha_bounds[1])
+    m = model.n_segments  # the extended model's alpha; mass factors stay nominal there (extended_matrices)
+    freqs, lo_a, hi_a, _ = _log_problem(model, freqs_hz, measured_amplitude, alpha_bounds[0], alpha_bounds[1], m)
     log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
     sizes = np.cumsum([m] + [item.effect.n_parameters for item in applied])
     bounds = [item.effect.bounds_at(item.location) for item in applied]

@@ -199,3 +199,20 @@ def test_extended_intervals_step_to_the_truth_of_noise_free_data_and_flag_an_abs
     # The damping change that is not there: its interval holds zero, in words; the others are told apart.
     assert list(iv.unpinned[6:]) == [False, False, True]
     assert any("damping.delta" in line and "contains zero" in line for line in iv.flag_lines())
+
+
+def test_extended_intervals_of_a_model_with_mass_factors_are_those_of_its_stiffness_model(benchmark_model):
+    """The extended model holds updated mass factors at nominal: the same alpha box and intervals, no crash."""
+    import dataclasses
+
+    from fe_core.effects import extended_frf
+    from fe_core.intervals import extended_intervals
+
+    freqs = MEASUREMENT_FREQUENCIES_HZ[[0, 3, 6, 9]]
+    truth = _effects(benchmark_model)[:1]  # the point mass
+    u = np.abs(extended_frf(benchmark_model, ALPHA_ACTUAL, freqs, truth, method="direct"))
+    with_gamma = dataclasses.replace(benchmark_model, mass_parameters=np.array([1, 4]))
+    plain = extended_intervals(benchmark_model, freqs, u, ALPHA_ACTUAL, truth, noise=1e-3, max_jacobians=1)
+    gamma = extended_intervals(with_gamma, freqs, u, ALPHA_ACTUAL, truth, noise=1e-3, max_jacobians=1)
+    assert gamma.intervals.names == plain.intervals.names
+    np.testing.assert_allclose(gamma.intervals.covariance, plain.intervals.covariance, rtol=1e-9)
