@@ -366,6 +366,17 @@ class ParametricModel:
             ``excitation_loads[:, references[j]]``; for every sensor under the
             default excitation it equals :meth:`frf`.
         """
+        loads, responses, column = self.channel_loads(responses, references)
+        Z = self._solve(alpha, freqs_hz, gamma, method, loads)
+        return Z[:, responses, column]
+
+    def channel_loads(self, responses, references) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The load columns a set of channels needs, once each, and how to pick the channels.
+
+        Returns ``(loads (n_dofs, k), responses (n_channels,), column (n_channels,))``: the k distinct
+        references' load vectors; a result ``Z[:, sensor, load]`` of one solve with them gives the
+        channels as ``Z[:, responses, column]``. Raises ValueError for bad indices.
+        """
         responses = np.asarray(responses, dtype=int)
         references = np.asarray(references, dtype=int)
         if responses.shape != references.shape or responses.ndim != 1:
@@ -375,8 +386,7 @@ class ParametricModel:
         if np.any((references < 0) | (references >= self.excitation_loads.shape[1])):
             raise ValueError(f"references must be excitation indices 0..{self.excitation_loads.shape[1] - 1}")
         used, column = np.unique(references, return_inverse=True)
-        Z = self._solve(alpha, freqs_hz, gamma, method, self.excitation_loads[:, used])
-        return Z[:, responses, column]
+        return self.excitation_loads[:, used], responses, column
 
     def parameter_frf(self, theta, freqs_hz, channels=None, method: str = "krylov") -> np.ndarray:
         """What the updating flow evaluates: the FRF of a parameter vector ``theta``.

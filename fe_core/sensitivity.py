@@ -127,7 +127,7 @@ def segment_directions(model: ParametricModel) -> list:
 
 
 def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov",
-                 return_info: bool = False):
+                 return_info: bool = False, channels=None):
     """The receptance at the sensors and its exact derivative with respect to the parameters.
 
     The dynamic stiffness ``D(w) = K(alpha) - w^2 M(gamma) + j w (a M(gamma) + b K(alpha))``
@@ -157,12 +157,15 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
     return_info : bool
         Also return the :class:`fe_core.frf_derivatives.DerivativeInfo` of a
         Krylov evaluation (None for ``"direct"``).
+    channels : (responses, references), optional
+        As in :meth:`ParametricModel.parameter_frf`: the (sensor, excitation) channels, one space
+        for all their references' loads; None = every sensor under the model's load.
 
     Returns
     -------
-    Z : ndarray, shape (p, n_sensors), complex, m/N
-        Same as ``model.frf(alpha, freqs_hz, gamma)`` (to its 1e-9).
-    dZ : ndarray, shape (p, n_sensors, n_parameters), complex, m/N per unit parameter
+    Z : ndarray, shape (p, n_sensors) or (p, n_channels), complex, m/N
+        Same as ``model.parameter_frf(alpha, freqs_hz, channels)`` (to its 1e-9).
+    dZ : ndarray, shape (p, n_sensors or n_channels, n_parameters), complex, m/N per unit parameter
     """
     if method not in JACOBIAN_METHODS:
         raise ValueError(f"unknown Jacobian method {method!r}; choose one of {JACOBIAN_METHODS}")
@@ -173,13 +176,17 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
     K = model.stiffness(alpha)
     M = model.mass(gamma)
     a, b = model.damping
-    args = (K, M, a, b, model.combined_load(), model.outputs, segment_directions(model), hz_to_rad(freqs))
+    if channels is None:
+        loads, responses, column = model.combined_load(), slice(None), 0
+    else:
+        loads, responses, column = model.channel_loads(*channels)
+    args = (K, M, a, b, loads, model.outputs, segment_directions(model), hz_to_rad(freqs))
     info = None
     if method == "krylov":
         Z, dZ, info = krylov_frf_derivatives(*args, return_info=True)
     else:
         Z, dZ = direct_frf_derivatives(*args)
-    Z, dZ = Z[:, :, 0], dZ[:, :, 0, :]  # one load
+    Z, dZ = Z[:, responses, column], dZ[:, responses, column, :]
     return (Z, dZ, info) if return_info else (Z, dZ)
 
 
