@@ -330,8 +330,15 @@ def _indexed(k, *args):
 @task(name="closure-decide", cache_policy=NO_CACHE)
 def decide_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndarray, u: np.ndarray,
                 run_info: dict) -> dict:
-    """Scores, the decision, the updated model, residual tables and ``closure.json``."""
+    """Scores, the decision, the updated model, residual tables and ``closure.json``.
+
+    Returns ``closure.json`` as written; a finished decision (its stage and the file) is read back, not
+    decided again (the forward selection and the intervals are the closure's costliest step after the checks).
+    """
     store = ClosureStore(root)
+    if store.is_finished("decide") and (store.root / "closure.json").is_file():
+        _logger().info("closure: decision finished earlier, read back")
+        return json.loads((store.root / "closure.json").read_text())
     model = load_model(settings["model"])
     library = _library(model, settings)
     base = _baseline_fit(store, model, freqs, u)
@@ -400,7 +407,7 @@ def decide_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndarra
         atomic_write_json(store.root / "closure.json", summary)
     except Exception as exc:  # the figure is a convenience; the tables and JSON are the result
         _logger().warning("closure: residual plot not written: %s", exc)
-    return summary
+    return json.loads((store.root / "closure.json").read_text())  # as a resumed closure returns it
 
 
 def _candidates_frame(ranked: list[core.Candidate], library: dict) -> pd.DataFrame:
