@@ -288,19 +288,19 @@ def all_runs(store: RunStore, upto: int) -> tuple[pd.DataFrame, pd.DataFrame]:
             pd.concat(responses, ignore_index=True))
 
 
-def _ledger(store: RunStore, config, upto: int, evaluate, data, m: int) -> Ledger:
-    """A ledger holding the FE runs of cycles 1..``upto`` (for the emulator) and the budget they left."""
+def _ledger(config, evaluate, data, m: int, runs: pd.DataFrame, responses: pd.DataFrame, used: dict) -> Ledger:
+    """A ledger holding earlier cycles' FE runs (``all_runs``; for the emulator) and the budget they left
+    (``used``: :func:`spent`)."""
     options = hybrid_options(config, m)
-    used = spent(store, upto)
     residual, _ = fitted(data)
     ledger = Ledger(evaluate, residual, options.max_cost - used["cost"], options.jacobian_cost)
-    runs, responses = all_runs(store, upto)
     if len(runs):
         line, channel = data.cells
         p, n = data.amplitude.shape
         ok = runs[runs["status"] == "ok"]
+        by_sample = dict(tuple(responses.groupby("sample_id", sort=False)))
         for sid, x in zip(ok["sample_id"], ok[stages.parameter_names(config)].to_numpy()):
-            Z, _ = _grid(responses[responses["sample_id"] == sid], p, n, m)
+            Z, _ = _grid(by_sample[sid], p, n, m)
             ledger.responses.append((x, Z[line, channel]))
     return ledger
 
@@ -320,49 +320,44 @@ def _phase_info(ledger: Ledger, evaluator: StageEvaluator, minima: list, status:
 @task(name="local", task_run_name="iteration-{iteration}-local", cache_policy=NO_CACHE)
 def local_task(root: str, config, iteration: int, data, start) -> dict:
     """Gauss-Newton with exact Jacobians from ``start`` (the nominal model), one FE run per round."""
-    store = RunStore(root)
-    logger = stages._logger()
-    if stages._done(store, iteration, LOCAL_STAGE):
-        return store.stage_info(iteration, LOCAL_STAGE)
-    m = len(start)
-    options = hybrid_options(config, m)
-    lower, upper = _box(config, m)
-    evaluator = StageEvaluator(store, config, iteration, LOCAL_STAGE, data, m, _next_id(store, iteration), logger)
-    ledger = _ledger(store, config, iteration - 1, evaluator, data, m)
-    t0 = time.perf_counter()
-    try:
+    def phase(ledger, lower, upper, options):
         minimum = local_phase(ledger, np.asarray(start, float), lower, upper, options)
-        minima, status = [minimum], minimum.status
-    except BudgetSpent:
-        minima, status = [], "budget"
-    info = _phase_info(ledger, evaluator, minima, status, time.perf_counter() - t0)
-    logger.info("iteration %d, stage local: %s after %d FE runs (%d with Jacobian) in %d rounds, best overall "
-                "error %.4g %%", iteration, status, ledger.evaluations, ledger.jacobians, ledger.rounds,
-                100 * info["best_error"])
-    return evaluator.write(info)
+        return [minimum], minimum.status
+
+    return _fe_stage(root, config, iteration, LOCAL_STAGE, data, len(start), phase)
 
 
 @task(name="global", task_run_name="iteration-{iteration}-global", cache_policy=NO_CACHE)
 def global_task(root: str, config, iteration: int, data, minima) -> dict:
     """One global cycle: space-filling round, emulator, parallel Gauss-Newton runs away from ``minima``."""
+    def phase(ledger, lower, upper, options):
+        found = global_phase(ledger, lower, upper, [np.asarray(x, float) for x in minima], options, iteration - 1)
+        return found, (found[0].status if found else "budget")
+
+    return _fe_stage(root, config, iteration, GLOBAL_STAGE, data, len(minima[0]), phase)
+
+
+def _fe_stage(root: str, config, iteration: int, stage: str, data, m: int, phase) -> dict:
+    """Run one FE stage: ``phase(ledger, lower, upper, options) -> (minima, status)`` on a ledger holding the
+    earlier cycles' FE runs; every FE run stored and replayed (:class:`StageEvaluator`)."""
     store = RunStore(root)
     logger = stages._logger()
-    if stages._done(store, iteration, GLOBAL_STAGE):
-        return store.stage_info(iteration, GLOBAL_STAGE)
-    m = len(minima[0])
+    if stages._done(store, iteration, stage):
+        return store.stage_info(iteration, stage)
     options = hybrid_options(config, m)
     lower, upper = _box(config, m)
-    evaluator = StageEvaluator(store, config, iteration, GLOBAL_STAGE, data, m, _next_id(store, iteration), logger)
-    ledger = _ledger(store, config, iteration - 1, evaluator, data, m)
+    runs, responses = all_runs(store, iteration - 1)  # read once: the next sample id and the emulator's data
+    base = int(runs["sample_id"].max()) + 1 if len(runs) else 0
+    evaluator = StageEvaluator(store, config, iteration, stage, data, m, base, logger)
+    ledger = _ledger(config, evaluator, data, m, runs, responses, spent(store, iteration - 1))
     t0 = time.perf_counter()
     try:
-        found = global_phase(ledger, lower, upper, [np.asarray(x, float) for x in minima], options, iteration - 1)
-        status = found[0].status if found else "budget"
+        minima, status = phase(ledger, lower, upper, options)
     except BudgetSpent:
-        found, status = [], "budget"
-    info = _phase_info(ledger, evaluator, found, status, time.perf_counter() - t0)
-    logger.info("iteration %d, stage global: %s after %d FE runs (%d with Jacobian) in %d rounds, best overall "
-                "error %.4g %%", iteration, status, ledger.evaluations, ledger.jacobians, ledger.rounds,
+        minima, status = [], "budget"
+    info = _phase_info(ledger, evaluator, minima, status, time.perf_counter() - t0)
+    logger.info("iteration %d, stage %s: %s after %d FE runs (%d with Jacobian) in %d rounds, best overall "
+                "error %.4g %%", iteration, stage, status, ledger.evaluations, ledger.jacobians, ledger.rounds,
                 100 * info["best_error"])
     return evaluator.write(info)
 
@@ -399,9 +394,3 @@ def check_task(root: str, config, iteration: int, data) -> dict:
     stages._logger().info("iteration %d, stage check: %s (%s)", iteration,
                           "at the floor" if out["at_floor"] else "structure left: global search", out["reason"])
     return store.stage_info(iteration, CHECK_STAGE)
-
-
-def _next_id(store: RunStore, iteration: int) -> int:
-    """The first sample id of cycle ``iteration``'s FE stage: after every earlier stage's runs."""
-    runs, _ = all_runs(store, iteration - 1)
-    return int(runs["sample_id"].max()) + 1 if len(runs) else 0
