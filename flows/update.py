@@ -55,8 +55,8 @@ from flows.config import (LINES, LOOPS, OUTPUTS, RESIDUALS, STRATEGIES, TRAINERS
 from flows.hybrid import hybrid_summary, run_hybrid  # noqa: E402
 from mrgp_core import adaptive  # noqa: E402
 from tasks import fe_backends, stages  # noqa: E402
-from tasks.hybrid import HYBRID_STAGES  # noqa: E402
-from tasks.intervals import intervals_task  # noqa: E402
+from tasks.hybrid import HYBRID_STAGES, all_runs  # noqa: E402
+from tasks.intervals import cost_against_update, intervals_task  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
 from tasks.model_vtu import model_vtu_task  # noqa: E402
 from tasks.polish import POLISH_STAGE, polish_results, polish_task  # noqa: E402
@@ -245,7 +245,7 @@ def _interval_fields(config, store, iteration, measured, summary) -> dict:
         return {"intervals_skipped": info["skipped"]}
     fields = {k: info[k] for k in ("intervals", "covariance", "interval_method", "noise_sigma", "interval_details",
                                    "interval_cost", "estimate_errors") if k in info}
-    fields["interval_cost"] = {**info["interval_cost"], **_cost_against_update(store, iteration, summary,
+    fields["interval_cost"] = {**info["interval_cost"], **_cost_against_update(config, store, iteration, summary,
                                                                                info["interval_cost"]["seconds"])}
     if config.true_parameters is not None:
         truth = dict(zip(summary["parameters"], config.true_parameters))
@@ -296,9 +296,29 @@ def report_least_squares_optimum(summary: dict, sensors, truth=None) -> dict:
     return out
 
 
-def _cost_against_update(store: RunStore, iteration: int, summary: dict, seconds: float) -> dict:
-    """The intervals' time in FE runs of this update (the median FE run of the loop) and as a share of the
-    update's FE runs: ``fe_run_seconds``, ``fe_run_equivalents``, ``share_of_update_fe_runs``."""
+def _cost_against_update(config, store: RunStore, iteration: int, summary: dict, seconds: float) -> dict:
+    """The intervals' time in FE runs of this update (the median FE run of the update) and as a share of the
+    update's FE runs (FE-run equivalents for the hybrid): ``fe_run_seconds``, ``fe_run_equivalents``,
+    ``share_of_update_fe_runs``."""
+    per_run = _fe_run_seconds(config, store, iteration)
+    if not per_run.size:
+        return {}
+    fe_run = float(np.median(per_run))
+    if not fe_run > 0:
+        return {}
+    equivalents = seconds / fe_run
+    spent = summary.get("fe_equivalents", summary["fe_evaluations"])
+    return {"fe_run_seconds": round(fe_run, 4), "fe_run_equivalents": round(equivalents, 2),
+            "share_of_update_fe_runs": round(equivalents / max(1, spent), 4)}
+
+
+def _fe_run_seconds(config, store: RunStore, iteration: int) -> np.ndarray:
+    """Seconds of one FE run, per FE run of the update (a hybrid run with its Jacobian divided by its cost)."""
+    if config.strategy == "hybrid":
+        runs, _ = all_runs(store, iteration)
+        if "seconds" not in runs:  # a run stored before the column existed
+            return np.empty(0)
+        return (runs["seconds"] / runs["cost"]).to_numpy()
     per_run = []
     for k in range(1, iteration + 1):
         try:
@@ -306,14 +326,7 @@ def _cost_against_update(store: RunStore, iteration: int, summary: dict, seconds
         except Exception:  # an iteration without a readable FE table: measure on the others
             continue
         per_run.append(fe.groupby("sample_id")["seconds"].first().to_numpy())
-    if not per_run or not np.concatenate(per_run).size:
-        return {}
-    fe_run = float(np.median(np.concatenate(per_run)))
-    if not fe_run > 0:
-        return {}
-    equivalents = seconds / fe_run
-    return {"fe_run_seconds": round(fe_run, 4), "fe_run_equivalents": round(equivalents, 2),
-            "share_of_update_fe_runs": round(equivalents / max(1, summary["fe_evaluations"]), 4)}
+    return np.concatenate(per_run) if per_run else np.empty(0)
 
 
 def uses_polish(config: UpdateConfig) -> bool:
@@ -634,9 +647,9 @@ def interval_sentences(summary: dict) -> list[str]:
                                                        else "s (with their FRFs)"))
     if cost.get("fe_runs"):
         spent += f" and {cost['fe_runs']} FE runs"
-    if "fe_run_equivalents" in cost:
-        spent += (f", {cost['seconds']:.2f} s = the time of {cost['fe_run_equivalents']:.1f} FE runs "
-                  f"({100 * cost['share_of_update_fe_runs']:.1f} % of the update's {summary['fe_evaluations']})")
+    against = cost_against_update(summary)
+    if against:
+        spent += f" ({against})"
     how = ("laplace (Gauss-Newton) at the least-squares optimum of the log amplitudes"
            if summary["interval_method"] == "laplace" else
            f"{summary['interval_method']} of the posterior on the FE model around the least-squares optimum")

@@ -13,7 +13,7 @@ the strategy asked for it, and the parameters) and logged to
 replays the same requests and reads their results back instead of running
 them again (the k-th request of a stage is sample ``base + k``). A finished
 stage writes ``runs.parquet`` (one row per FE run: round, parameters, overall
-error, whether with Jacobian) and ``responses.parquet`` (the long complex
+error, whether with Jacobian, cost, seconds) and ``responses.parquet`` (the long complex
 table); its record holds the minima it ended at and its counts.
 """
 
@@ -229,9 +229,10 @@ class StageEvaluator:
         for sid, path in self.stored.items():  # results the resumed stage never asked for (not expected)
             self._set_aside(sid, path, "not requested by the resumed stage")
         runs = pd.DataFrame(self.rows, columns=["sample_id", "round", "jacobian", *self.cols])
-        errors, status, costs = [], [], []
+        errors, status, costs, seconds = [], [], [], []
         for sid, jac in zip(runs["sample_id"], runs["jacobian"]):
             df = self.results[int(sid)]
+            seconds.append(float(df["seconds"].iloc[0]))
             Z, _ = _grid(df, self.p, self.n, self.m)
             ok = bool(np.all(np.isfinite(Z)))
             errors.append(float(adaptive.overall_error(self.data.residuals(Z))) if ok else np.nan)
@@ -241,6 +242,7 @@ class StageEvaluator:
         runs["overall_error"] = errors
         runs["status"] = status
         runs["cost"] = costs
+        runs["seconds"] = seconds  # the FE run's own time (the worker's), for the cost of later stages
         runs = runs.astype({"sample_id": np.int64, "round": np.int64, "jacobian": bool})
         keep = ["sample_id", "sensor", "frequency_hz", "real", "imag", "status"]
         parts = [self.results[int(sid)][keep] for sid in runs["sample_id"]]

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from tasks.intervals import cost_against_update
 from tasks.report import figures
 from tasks.report.data import RepeatsData, RunData, best_so_far, residual_frame
 from tasks.report.frf import dense_frequencies, dense_frf, zoom_windows
@@ -211,9 +212,9 @@ def intervals_section(data: RunData, out: Path) -> Section | None:
     spent = f"{cost.get('jacobians', '?')} exact Jacobian(s), each with its FRF"
     if cost.get("fe_runs"):
         spent += f" and {cost['fe_runs']} FE runs"
-    if "fe_run_equivalents" in cost:
-        spent += (f" ({cost['seconds']:.2f} s, the time of {cost['fe_run_equivalents']:.1f} FE runs: "
-                  f"{100 * cost['share_of_update_fe_runs']:.1f} % of the update's {s.get('fe_evaluations', '?')})")
+    against = cost_against_update(s)
+    if against:
+        spent += f" ({against})"
     how = ("Laplace (Gauss-Newton) approximation at the least-squares optimum of the log amplitudes"
            if s.get("interval_method", "laplace") == "laplace" else
            f"{s['interval_method'].capitalize()} of the posterior on the FE model around the least-squares "

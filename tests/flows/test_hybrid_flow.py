@@ -151,3 +151,17 @@ def test_kill_inside_hybrid_stages_then_resume_gives_the_uninterrupted_run(tmp_p
     assert [e["sample_id"] for e in log if e["event"] == "recovered"] == [3]  # the kill between result and log
     assert not [e for e in log if e["event"] == "discarded"]
     assert not list(victim.rglob("*.tmp")) and not (victim / "run.lock").exists()
+
+
+def test_the_intervals_cost_is_measured_in_fe_runs_of_the_hybrid_update(hybrid_run):
+    """The stored runs carry their own seconds and cost: an FE run's time is seconds / cost, and the intervals'
+    share is of the update's FE-run equivalents."""
+    summary, store = hybrid_run
+    config = UpdateConfig(run_id="hybrid", runs_dir=str(store.root.parent), **SETTINGS)
+    runs, _ = htasks.all_runs(store, summary["iterations"])
+    assert (runs["seconds"] > 0).all() and set(runs.loc[runs["jacobian"], "cost"]) == {htasks.JACOBIAN_COST}
+    fe_run = float(np.median(runs["seconds"] / runs["cost"]))
+    cost = update._cost_against_update(config, store, summary["iterations"], summary, seconds=2 * fe_run)
+    assert cost["fe_run_seconds"] == pytest.approx(fe_run, abs=5e-5)  # stored rounded to 4 decimals
+    assert cost["fe_run_equivalents"] == pytest.approx(2.0, abs=0.01)
+    assert cost["share_of_update_fe_runs"] == pytest.approx(2.0 / summary["fe_equivalents"], rel=1e-2)
