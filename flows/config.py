@@ -233,6 +233,9 @@ class UpdateConfig:
             raise bad("loop", f"unknown loop {self.loop!r}; choose one of {', '.join(LOOPS)}")
         if self.strategy not in STRATEGIES:
             raise bad("strategy", f"unknown strategy {self.strategy!r}; choose one of {', '.join(STRATEGIES)}")
+        if self.loop != "paper" and self.strategy != "adaptive":
+            raise bad("loop", f"{self.loop!r} is a loop of the adaptive strategy, not of {self.strategy!r}; "
+                              "add --strategy adaptive (config key strategy)")
         if self.model not in MODELS:
             check_model_path(self, bad)
         if not self.threshold > 0:

@@ -537,7 +537,7 @@ def distribution_task(root: str, config, iteration: int, m: int) -> dict:
 
 def trust_region_loop(config) -> bool:
     """The adaptive strategy with the trust-region loop (:mod:`tasks.trust_region`), not the paper's steps."""
-    return config.strategy == "adaptive" and getattr(config, "loop", "paper") == "trust-region"
+    return config.loop == "trust-region"  # the config refuses it with another strategy
 
 
 @task(name="train", task_run_name="iteration-{iteration}-train", cache_policy=NO_CACHE, retries=1)

@@ -171,6 +171,8 @@ BAD_INPUTS = [
     ("config negative disk reserve", None, None, "min_free_mb = -5", [], ["{config}", "key 'min_free_mb'"]),
     ("command line s of zero", None, None, "", ["-s", "0"], ["command line", "key 's'"]),
     ("command line unknown trainer", None, None, "", ["--trainer", "newton"], ["--trainer", "invalid choice"]),
+    ("command line loop of another strategy", None, None, "", ["--loop", "trust-region"],
+     ["command line", "key 'loop'", "--strategy adaptive"]),
 ]
 
 
