@@ -39,8 +39,7 @@ def run_hybrid(config, store: RunStore, data, m: int) -> tuple[int, dict]:
     its result)."""
     root = str(store.root)
     start = [0.0] * m  # the nominal model: every factor 0
-    lower, upper = stages.parameter_box(config, m)
-    start = list(np.clip(start, np.maximum(lower, -1.0 + 1e-3), upper))
+    start = list(np.clip(start, *stages.solver_box(config, m)))
     minima: list = []
     iteration = 0
     while True:

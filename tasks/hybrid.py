@@ -35,7 +35,6 @@ from mrgp_core.strategies.hybrid import (BudgetSpent, HybridOptions, Layout, Led
 from tasks import stages
 from tasks.faults import kill_point
 from tasks.fe_backends import run_unordered
-from tasks.polish import polish_lower_bound
 from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes
 
 __all__ = ["HYBRID_STAGES", "LOCAL_STAGE", "GLOBAL_STAGE", "CHECK_STAGE", "hybrid_options", "local_task",
@@ -59,11 +58,6 @@ def hybrid_options(config, m: int) -> HybridOptions:
     return HybridOptions(target=config.polish_target, noise=config.noise, max_cost=float(config.max_fe_evaluations),
                          jacobian_cost=JACOBIAN_COST, space_filling=config.s, candidates=config.w,
                          starts=config.starts, trainer=config.trainer, seed=config.seed)
-
-
-def _box(config, m: int) -> tuple[np.ndarray, np.ndarray]:
-    lower, upper = stages.parameter_box(config, m)
-    return np.maximum(lower, polish_lower_bound(-1.0)), upper
 
 
 # -- FE runs with Jacobians (in worker processes) -----------------------------------------------
@@ -347,7 +341,7 @@ def _fe_stage(root: str, config, iteration: int, stage: str, data, m: int, phase
     if stages._done(store, iteration, stage):
         return store.stage_info(iteration, stage)
     options = hybrid_options(config, m)
-    lower, upper = _box(config, m)
+    lower, upper = stages.solver_box(config, m)
     runs, responses = all_runs(store, iteration - 1)  # read once: the next sample id and the emulator's data
     base = int(runs["sample_id"].max()) + 1 if len(runs) else 0
     evaluator = StageEvaluator(store, config, iteration, stage, data, m, base, logger)

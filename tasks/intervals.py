@@ -31,7 +31,6 @@ from prefect.cache_policies import NO_CACHE
 from fe_core.intervals import parameter_intervals
 from fe_core.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
 from tasks import stages
-from tasks.polish import polish_lower_bound
 from tasks.runstore import RunStore
 
 __all__ = ["INTERVALS_STAGE", "POSTERIOR_TABLE", "intervals_task"]
@@ -78,8 +77,7 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
         lines = data.complete_lines
         freqs_hz, measured_amplitude = data.frequencies_hz[lines], data.amplitude[lines]
     m = model.n_parameters
-    lower, upper = stages.parameter_box(config, m)
-    lower = np.maximum(lower, polish_lower_bound(-1.0))
+    lower, upper = stages.solver_box(config, m)
     t0, c0 = time.perf_counter(), time.process_time()
     refined = parameter_intervals(model, freqs_hz, measured_amplitude, np.asarray(start, float), lower, upper,
                                   noise=config.noise)

@@ -30,22 +30,13 @@ from tasks.faults import kill_point
 from tasks.fe_backends import run_unordered
 from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes
 
-__all__ = ["POLISH_STAGE", "polish_task", "polish_results", "polish_lower_bound"]
+__all__ = ["POLISH_STAGE", "polish_task", "polish_results"]
 
 POLISH_STAGE = "polish"
 
 #: Stored polish FE runs are reused for requested points this close (max-norm, as a
 #: fraction of the box width): far below any finite-difference step (1e-6).
 REPLAY_TOLERANCE = 1e-12
-
-#: The polish's lower bound when the search box starts at the domain's edge
-#: (alpha = -1 means zero stiffness; the FE model refuses it).
-DOMAIN_MARGIN = 1e-3
-
-
-def polish_lower_bound(lower: float) -> float:
-    return max(lower, -1.0 + DOMAIN_MARGIN)
-
 
 def _set_aside(store: RunStore, iteration: int, sid: int, path: Path, reason: str) -> None:
     """Rename a polish FE result that cannot be used and log it as discarded; its point runs again."""
@@ -96,8 +87,7 @@ def polish_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measure
     cols = stages.parameter_names(config)
     p, n = measured_amplitude.shape
     best = int(np.argmin(E))
-    lower, upper = stages.parameter_box(config, m)
-    lower = np.maximum(lower, polish_lower_bound(-1.0))
+    lower, upper = stages.solver_box(config, m)
 
     # The polish asks for its new points in a deterministic sequence; the k-th new point
     # is sample base + k. On resume, a stored result with that id is reused if it was

@@ -139,6 +139,17 @@ def parameter_box(config, m: int) -> tuple[np.ndarray, np.ndarray]:
     return lower, upper
 
 
+#: The FE model refuses alpha = -1 (zero stiffness): local solvers and fixed points stay this far inside.
+DOMAIN_MARGIN = 1e-3
+
+
+def solver_box(config, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`parameter_box` with its lower bound at least ``DOMAIN_MARGIN`` inside the domain's edge -1: the box of
+    the polish, the hybrid's Gauss-Newton, the intervals and the nominal model as a sample."""
+    lower, upper = parameter_box(config, m)
+    return np.maximum(lower, -1.0 + DOMAIN_MARGIN), upper
+
+
 def parameter_names(config) -> list[str]:
     """The run's parameters, the columns of its sample tables: ``alpha_1 .. alpha_m`` and, for segments
     whose mass factor the model file updates, ``gamma_j`` (:attr:`fe_core.ParametricModel.parameter_names`)."""
@@ -338,7 +349,7 @@ def samples_task(root: str, config, iteration: int, m: int) -> int:
             lower, upper = parameter_box(config, m)
             X = adaptive.uniform_samples(n, lower, upper, stage_rng(config.seed, iteration, "samples"))
             if trust_region_loop(config):  # every user has the nominal model: it is one of the first samples
-                X[0] = np.clip(np.zeros(m), np.maximum(lower, -1.0 + 1e-3), upper)
+                X[0] = np.clip(np.zeros(m), *solver_box(config, m))
             first_id = 0
         else:
             X = store.read_table(iteration - 1, "select")[cols].to_numpy()
