@@ -86,8 +86,6 @@ __all__ = [
     "at_bound",
     "verdict",
     "VERDICTS",
-    "Selection",
-    "forward_select",
 ]
 
 log = logging.getLogger(__name__)
@@ -730,15 +728,6 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
                          sel.final, sel.after, times, sel.steps,
                          verdict(before, sel.after, len(sel.steps), sel.identified), sel.implausible, sel.rounds,
                          sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads, sel.located)
-
-
-def __getattr__(name: str):
-    """``forward_select`` and ``Selection`` live in :mod:`fe_core.selection`, which builds on this module."""
-    if name in ("forward_select", "Selection"):
-        from . import selection
-
-        return getattr(selection, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def dedupe(checked: Sequence[Candidate]) -> list[Candidate]:

@@ -74,7 +74,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from .assembly import DOFS_PER_NODE, SegmentedMatrix, assemble, cell_dofs
+from .assembly import DOFS_PER_NODE, SegmentedMatrix, cell_dofs
 from .frf import direct_frf, hz_to_rad, krylov_frf
 from .elements.hex8 import element_stiffness
 from .model import ParametricModel, check_parameters

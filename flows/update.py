@@ -40,7 +40,6 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import datetime as dt  # noqa: E402
-import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -88,7 +87,7 @@ def iteration_flow(root: str, config: UpdateConfig, iteration: int, freqs_hz: np
     """
     stages.samples_task(root, config, iteration, m)
     stages.fe_task(root, config, iteration, freqs_hz, channels=None if data is None else data.channels)
-    info = stages.errors_task(root, config, iteration, measured_amplitude, data=data)
+    stages.errors_task(root, config, iteration, measured_amplitude, data=data)
     store = RunStore(root)
     _, _, _, errors = stages.training_data(store, iteration)
     fe_count = _fe_count(store, iteration)

@@ -135,7 +135,7 @@ def load_amplitudes(folder: Path, n_samples: int, meta: dict) -> tuple[np.ndarra
     failed : int
         Runs left out because the FE model failed.
     """
-    m, size = int(meta["n_parameters"]), int(meta["chunk_size"])
+    size = int(meta["chunk_size"])
     frames = []
     for c in chunks_needed(n_samples, size):
         path = chunk_path(folder, c)
