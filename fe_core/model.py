@@ -430,6 +430,42 @@ class ParametricModel:
         # (p, k, n_loads) at the output DOFs -> (p, n_sensors, n_loads)
         return np.einsum("pkl,ks->psl", Z, self._out_weights)
 
+    def modal_terms(self, theta, n_modes: int, channels=None) -> tuple[np.ndarray, np.ndarray]:
+        """Squared natural circular frequencies and participations of the lowest modes of ``theta``.
+
+        With Rayleigh damping ``C = a M + b K`` the modes decouple the damped system, so the
+        receptance of channel c is exactly ::
+
+            Z_c(w) = sum_r P[r, c] / (w_r^2 - w^2 + i w (a + b w_r^2))
+
+        summed over all modes; the lowest ``n_modes`` carry the resonances of a band below their
+        frequencies and the rest is a smooth remainder. ``P[r, c] = (l_c . phi_r) (phi_r . f_c)``
+        (``phi_r`` mass-normalised, ``l_c`` the channel's output vector, ``f_c`` its load) does not
+        depend on the sign of ``phi_r``.
+
+        Parameters
+        ----------
+        theta : array_like, shape (n_parameters,)
+            As in :meth:`parameter_frf`.
+        n_modes : int
+        channels : (responses, references) or None
+            As in :meth:`parameter_frf`: None is every sensor under the default excitation.
+
+        Returns
+        -------
+        omega2 : ndarray, shape (n_modes,), (rad/s)^2, ascending
+        participation : ndarray, shape (n_modes, n_channels), m/N (rad/s)^2
+        """
+        alpha, gamma = self.factors(theta)
+        freqs, vecs = eigenmodes(self.stiffness(alpha), self.mass(gamma), n_modes)
+        if channels is None:
+            loads, responses, column = self.load[:, None], np.arange(self.n_sensors), np.zeros(self.n_sensors, int)
+        else:
+            loads, responses, column = self.channel_loads(*channels)
+        at_sensors = self.read_outputs(vecs.T)  # (n_modes, n_sensors)
+        forces = vecs.T @ loads  # (n_modes, n_loads)
+        return (2.0 * np.pi * freqs) ** 2, at_sensors[:, responses] * forces[:, column]
+
     def natural_frequencies(self, alpha, n_modes: int = 6, gamma=None) -> np.ndarray:
         """Lowest natural frequencies, Hz, shape (n_modes,)."""
         return eigenmodes(self.stiffness(alpha), self.mass(gamma), n_modes)[0]
