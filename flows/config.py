@@ -14,13 +14,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "LOOPS", "MODELS", "OUTPUTS", "LINES",
-           "RESIDUALS", "parse_windows"]
+__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "LOOPS", "EMULATES", "MODELS",
+           "OUTPUTS", "LINES", "RESIDUALS", "parse_windows"]
 
 REPO = Path(__file__).resolve().parents[1]
 TRAINERS = ("sao", "pso", "gradient")
 STRATEGIES = ("hybrid", "adaptive", "conventional")
 LOOPS = ("trust-region", "paper")  # the adaptive strategy's loop (tasks.trust_region)
+EMULATES = ("modes", "errors")  # what the paper loop's MRGP emulates (tasks.modal_emulation)
 MODELS = ("three_plate",)
 FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
 OUTPUTS = ("full", "reduced", "auto")  # tasks.stages.reduced_outputs
@@ -166,6 +167,16 @@ class UpdateConfig:
         samples, candidates in a region following the best sample, the MRGP
         (one length scale per parameter) on the inverse receptance near it,
         Gauss-Newton on its mean; same q, s, w and trainers.
+    emulate : {"modes", "errors"}
+        What the MRGP of the adaptive strategy's paper loop emulates.
+        ``modes`` (default, :mod:`tasks.modal_emulation`, a change to the
+        paper's loop): the lowest modes of each FE run and the remainder of
+        its receptance, one length scale per parameter; a candidate's error
+        is computed from the receptance they give, Gauss-Newton end points on
+        the emulator's mean join the candidates, the nominal model is one of
+        the first samples. ``errors``: the paper's emulation of the relative
+        residuals (isotropic, Table 1's ``l~`` bound). Other strategies and
+        the trust-region loop ignore it.
     """
 
     run_id: str | None = None
@@ -208,6 +219,7 @@ class UpdateConfig:
     residuals: str = "auto"
     starts: int = 6
     loop: str = "paper"
+    emulate: str = "modes"
 
     def __post_init__(self) -> None:
         self.validate("config")
@@ -231,6 +243,8 @@ class UpdateConfig:
             raise bad("trainer", f"unknown trainer {self.trainer!r}; choose one of {', '.join(TRAINERS)}")
         if self.loop not in LOOPS:
             raise bad("loop", f"unknown loop {self.loop!r}; choose one of {', '.join(LOOPS)}")
+        if self.emulate not in EMULATES:
+            raise bad("emulate", f"unknown emulation {self.emulate!r}; choose one of {', '.join(EMULATES)}")
         if self.strategy not in STRATEGIES:
             raise bad("strategy", f"unknown strategy {self.strategy!r}; choose one of {', '.join(STRATEGIES)}")
         if self.loop != "paper" and self.strategy != "adaptive":

@@ -49,7 +49,7 @@ import pandas as pd  # noqa: E402
 from prefect import flow  # noqa: E402
 
 from flows import preflight  # noqa: E402
-from flows.config import (LINES, LOOPS, OUTPUTS, RESIDUALS, STRATEGIES, TRAINERS, ConfigError,  # noqa: E402
+from flows.config import (EMULATES, LINES, LOOPS, OUTPUTS, RESIDUALS, STRATEGIES, TRAINERS, ConfigError,  # noqa: E402
                           UpdateConfig, load_config, parse_windows)
 from flows.hybrid import hybrid_summary, run_hybrid  # noqa: E402
 from mrgp_core import adaptive  # noqa: E402
@@ -495,6 +495,7 @@ def rerun_stage(run_root: Path, iteration: int, stage: str, trainer: str | None 
         raise ConfigError(f"stage {stage!r} cannot be rerun in place; choose one of {', '.join(RERUNNABLE)}")
     config = UpdateConfig(**manifest["config"])
     tr_loop = stages.trust_region_loop(config)
+    needs_data = tr_loop or stages.emulates_modes(config)
     for needed in ("errors", "distribution") if stage == "predict" or tr_loop else ("errors",):
         if not store.is_finished(iteration, needed):
             raise ConfigError(f"{run_root}: iteration {iteration} has no finished '{needed}' stage to rerun from")
@@ -503,7 +504,7 @@ def rerun_stage(run_root: Path, iteration: int, stage: str, trainer: str | None 
     name = f"{stage}.rerun-{trainer}-{stamp}"
     model = stages.load_model(config.model)
     m = model.n_parameters
-    data = prepare_data(config, read_measured(config.resolve(config.measured)), model) if tr_loop else None
+    data = prepare_data(config, read_measured(config.resolve(config.measured)), model) if needs_data else None
     if stage == "train":
         stages.train_task.fn(str(store.root), config, iteration, trainer=trainer, output_stage=name, data=data)
     else:
@@ -550,6 +551,10 @@ def _run_parser() -> argparse.ArgumentParser:
                         "best z, relative residuals) or trust-region (a change to the paper's loop: a region "
                         "following the best sample, the MRGP emulating the inverse receptance near it, "
                         "Gauss-Newton on its mean)")
+    p.add_argument("--emulate", choices=EMULATES,
+                   help="what the paper loop's MRGP emulates: modes (default: the lowest modes of each FE run and "
+                        "the rest of its receptance; the error of a candidate computed from them) or errors (the "
+                        "paper's relative residuals)")
     p.add_argument("--polish", action=argparse.BooleanOptionalAction, default=None,
                    help="after the MRGP loop, least squares on the FE model from the best sample (default on)")
     p.add_argument("--polish-max-fe", type=int, metavar="N",
@@ -679,6 +684,7 @@ def main(argv: list[str] | None = None) -> int:
             threshold=args.threshold, max_iterations=args.max_iterations,
             max_fe_evaluations=args.max_fe_evaluations, q=args.q, w=args.w, s=args.s, z=args.z,
             polish=args.polish, polish_max_fe=args.polish_max_fe, polish_target=args.polish_target, loop=args.loop,
+            emulate=args.emulate,
             polish_stall_rtol=args.polish_stall_rtol, model=args.model, outputs=args.outputs,
             intervals=args.intervals, noise=args.noise, posterior_fe=args.posterior_fe, lines=args.lines,
             line_windows=None if args.line_windows is None else parse_windows(args.line_windows),

@@ -167,7 +167,7 @@ def parameter_columns(table: pd.DataFrame) -> list[str]:
 
 # -- FE evaluation (runs in joblib worker processes) ---------------------------------------------
 def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz: np.ndarray,
-                    channels: tuple[np.ndarray, np.ndarray] | None = None) -> pd.DataFrame:
+                    channels: tuple[np.ndarray, np.ndarray] | None = None, modes: int = 0) -> pd.DataFrame:
     """One FE run: the complex FRF of the measured channels as a long table.
 
     ``alpha`` is the parameter vector, shape (n_parameters,): the stiffness factors and, when the
@@ -182,6 +182,11 @@ def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz
     gives those channels through one solve with a load column per reference
     (:meth:`fe_core.model.ParametricModel.frf_channels`); None gives the
     model's sensors under its default excitation (``model.frf``).
+
+    ``modes`` > 0 adds the lowest modes the adaptive loop emulates
+    (:meth:`fe_core.model.ParametricModel.modal_terms`): columns ``omega2_<r>``
+    (the squared circular frequency of mode r, the same on every row) and
+    ``participation_<r>`` (its participation in the row's channel), r = 1..modes.
 
     Returns
     -------
@@ -200,10 +205,17 @@ def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz
         Z = model.parameter_frf(np.asarray(alpha, dtype=float), freqs_hz, channels)
         if not np.all(np.isfinite(Z)):
             raise FloatingPointError("the FRF has non-finite values")
+        if modes:
+            omega2, participation = model.modal_terms(np.asarray(alpha, dtype=float), modes, channels)
         status, message = "ok", ""
     except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
         Z = np.full((p, n), np.nan + 1j * np.nan)
+        omega2, participation = np.full(modes, np.nan), np.full((modes, n), np.nan)
         status, message = "failed", f"{type(exc).__name__}: {exc}"
+    modal = {}
+    for r in range(modes):
+        modal[f"omega2_{r + 1}"] = np.full(p * n, omega2[r])
+        modal[f"participation_{r + 1}"] = np.tile(participation[r], p)
     return pd.DataFrame(
         {
             "sample_id": np.full(p * n, sample_id, dtype=np.int64),
@@ -215,6 +227,7 @@ def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz
             "message": message,
             "seconds": time.perf_counter() - t0,
             "pid": os.getpid(),
+            **modal,
         }
     )
 
@@ -311,12 +324,12 @@ def read_fe_log(root: Path | str) -> list[dict]:
     return out
 
 
-def _sample_check(samples: pd.DataFrame, cols: list[str], rows: int):
-    """A validator of per-sample FE files: right columns, rows, sample id and parameters."""
+def _sample_check(samples: pd.DataFrame, cols: list[str], rows: int, extra: tuple[str, ...] = ()):
+    """A validator of per-sample FE files: right columns (``extra`` too), rows, sample id and parameters."""
     alpha = {int(sid): x for sid, x in zip(samples["sample_id"], samples[cols].to_numpy())}
 
     def check(sid: int, table: pd.DataFrame) -> str | None:
-        missing = [c for c in (*FE_RESULT_COLUMNS, *cols) if c not in table.columns]
+        missing = [c for c in (*FE_RESULT_COLUMNS, *extra, *cols) if c not in table.columns]
         if missing:
             return f"wrong schema: columns {missing} missing"
         if len(table) != rows:
@@ -348,7 +361,7 @@ def samples_task(root: str, config, iteration: int, m: int) -> int:
             n = config.conventional_samples if config.strategy == "conventional" else config.q
             lower, upper = parameter_box(config, m)
             X = adaptive.uniform_samples(n, lower, upper, stage_rng(config.seed, iteration, "samples"))
-            if trust_region_loop(config):  # every user has the nominal model: it is one of the first samples
+            if trust_region_loop(config) or emulates_modes(config):  # every user has the nominal model
                 X[0] = np.clip(np.zeros(m), *solver_box(config, m))
             first_id = 0
         else:
@@ -379,7 +392,12 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray, channels=No
     samples = store.read_table(iteration, "samples")
     cols = parameter_columns(samples)
     n = load_model(config.model).n_sensors if channels is None else len(channels[0])
-    check = _sample_check(samples, cols, len(freqs_hz) * n)
+    modes = 0
+    if emulates_modes(config):
+        from tasks import modal_emulation
+
+        modes = modal_emulation.n_modes(config, freqs_hz)
+    check = _sample_check(samples, cols, len(freqs_hz) * n, modal_columns(modes))
     done = store.finished_samples(iteration, check)
     _reconcile_log(store, iteration, done)
     todo = samples[~samples["sample_id"].isin(list(done))]
@@ -392,7 +410,7 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray, channels=No
         logger.info("iteration %d, stage fe: %d of %d FE results found on disk", iteration, len(done), len(samples))
     total, count = len(samples), len(done)
     jobs = {
-        int(sid): delayed(evaluate_sample)(config.model, int(sid), x, freqs_hz, channels)
+        int(sid): delayed(evaluate_sample)(config.model, int(sid), x, freqs_hz, channels, modes)
         for sid, x in zip(todo["sample_id"], todo[cols].to_numpy())
     }
     ran = 0
@@ -546,6 +564,16 @@ def distribution_task(root: str, config, iteration: int, m: int) -> dict:
     return store.stage_info(iteration, "distribution")
 
 
+def emulates_modes(config) -> bool:
+    """The adaptive strategy's paper loop with ``emulate = "modes"`` (:mod:`tasks.modal_emulation`)."""
+    return config.strategy == "adaptive" and config.loop == "paper" and config.emulate == "modes"
+
+
+def modal_columns(modes: int) -> tuple[str, ...]:
+    """The FE result columns of ``modes`` emulated modes (:func:`evaluate_sample`)."""
+    return tuple(f"{name}_{r + 1}" for r in range(modes) for name in ("omega2", "participation"))
+
+
 def trust_region_loop(config) -> bool:
     """The adaptive strategy with the trust-region loop (:mod:`tasks.trust_region`), not the paper's steps."""
     return config.loop == "trust-region"  # the config refuses it with another strategy
@@ -557,20 +585,28 @@ def train_task(root: str, config, iteration: int, trainer: str | None = None, ou
     """MRGP training on all FE data so far; the hyper-parameters are stored, not the model.
 
     With the trust-region loop (``data``: the run's UpdateData): on the inverse receptance of the FE runs
-    near the trust region, one length scale per parameter (:mod:`tasks.trust_region`).
+    near the trust region, one length scale per parameter (:mod:`tasks.trust_region`). With ``emulate =
+    "modes"``: on the modes and the remainder of the receptance of all FE runs (:mod:`tasks.modal_emulation`).
     """
     store = RunStore(root)
     trainer = trainer or config.trainer
     if not _done(store, iteration, output_stage):
         kernel = "iso"
+        previous = _previous_hyperparameters(store, iteration)
         if trust_region_loop(config) and store.stage_info(iteration, "distribution")["kind"] == "trust_region":
             from tasks import trust_region
 
             X, Y = trust_region.training_set(store, config, iteration, data)
             kernel = "ard"
+        elif emulates_modes(config):
+            from tasks import modal_emulation
+
+            X, Y, _ = modal_emulation.training_set(store, config, iteration, data)
+            kernel = "ard"
+            # No Table 1 l~ bound: the modes do not sharpen as the samples gather (docs/update-results.md)
+            previous = None
         else:
             _, X, Y, _ = training_data(store, iteration)
-        previous = _previous_hyperparameters(store, iteration)
         if previous is not None and len(_length_scales(previous)) != (X.shape[1] if kernel == "ard" else 1):
             previous = None  # the first trust-region iteration follows an isotropic uniform one: no l~ yet
         rng = stage_rng(config.seed, iteration, "train")
@@ -599,7 +635,8 @@ def predict_task(root: str, config, iteration: int, m: int, train_stage: str = "
     """Draw ``w`` candidates and predict their overall errors with the trained MRGP.
 
     With the trust-region loop: candidates in the region and Gauss-Newton end points on the emulator
-    (:func:`tasks.trust_region.predict`).
+    (:func:`tasks.trust_region.predict`). With ``emulate = "modes"``: errors from the emulated modes, and
+    Gauss-Newton end points added (:func:`tasks.modal_emulation.predict`).
     """
     store = RunStore(root)
     if not _done(store, iteration, output_stage):
@@ -621,11 +658,17 @@ def predict_task(root: str, config, iteration: int, m: int, train_stage: str = "
             d = store.read_table(iteration, "distribution")
             dist = adaptive.SamplingDistribution(d["mean"].to_numpy(), d["std"].to_numpy())
             C = adaptive.draw_candidates(dist, config.w, lower, upper, rng)
-        _, X, Y, _ = training_data(store, iteration)
         hp = store.read_table(iteration, train_stage, "hyperparameters")
         outputs = store.stage_info(iteration, train_stage).get("outputs", "full")  # what the train stage fitted
         t0 = time.perf_counter()
-        predicted = predict_overall_error(X, Y, dict(zip(hp["name"], hp["value"])), C, outputs=outputs)
+        if emulates_modes(config):
+            from tasks import modal_emulation
+
+            C, predicted = modal_emulation.predict(store, config, iteration, data, dict(zip(hp["name"], hp["value"])),
+                                                   C, outputs)
+        else:
+            _, X, Y, _ = training_data(store, iteration)
+            predicted = predict_overall_error(X, Y, dict(zip(hp["name"], hp["value"])), C, outputs=outputs)
         _write_candidates(store, config, iteration, output_stage, C, predicted, time.perf_counter() - t0)
     return store.stage_info(iteration, output_stage)
 

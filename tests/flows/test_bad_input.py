@@ -173,6 +173,7 @@ BAD_INPUTS = [
     ("command line unknown trainer", None, None, "", ["--trainer", "newton"], ["--trainer", "invalid choice"]),
     ("command line loop of another strategy", None, None, "", ["--loop", "trust-region"],
      ["command line", "key 'loop'", "--strategy adaptive"]),
+    ("config unknown emulation", None, None, 'emulate = "frf"', [], ["{config}", "key 'emulate'", "modes, errors"]),
 ]
 
 

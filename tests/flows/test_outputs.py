@@ -36,7 +36,8 @@ def test_reduced_run_records_the_rank_and_resumes_to_the_same_summary(reduced_co
     for it in (1, 2):  # the last iteration (3) stops before training: the polish follows
         info = store.stage_info(it, "train")
         n_train = info["n_train"]
-        assert info["outputs"] == "reduced" and info["n_responses"] == 72
+        # the modal outputs (tasks.modal_emulation): 3 modes x (1 frequency + 6 participations) + 2 x 72 remainders
+        assert info["outputs"] == "reduced" and info["n_responses"] == 3 * 7 + 2 * 72
         # r: at least one direction, at most n - 1 (the rank of the centred training responses).
         assert 1 <= info["components"] <= n_train - 1
         assert 0.0 < info["captured"] <= 1.0

@@ -1,0 +1,131 @@
+"""The adaptive loop's emulation by default (config ``emulate = "modes"``, ``loop = "paper"``).
+
+What changes against the paper's steps (Table 2), each stage keeping its name and files:
+
+* ``samples`` of iteration 1: the nominal model (every factor 0) is one of the q uniform samples;
+* ``fe``: each FE run also gives the lowest modes of its parameters (columns ``omega2_<r>``,
+  ``participation_<r>``; :func:`n_modes` says how many);
+* ``train``: the MRGP (one length scale per parameter, no Table 1 ``l~`` bound) emulates the modes and the
+  remainder of the receptance at the kept values (:class:`mrgp_core.modal_outputs.ModalLayout`) from all
+  FE runs so far, instead of the relative residuals;
+* ``predict``: the candidates of the paper's distribution, plus the end points of Gauss-Newton runs on the
+  emulator's mean from the ``GN_STARTS`` best FE samples and the ``GN_STARTS`` best candidates; a
+  candidate's error is Eq. (6b) of the receptance its emulated modes give (a composite objective);
+* ``errors``, ``distribution`` and ``select``: unchanged.
+
+Why: docs/update-results.md (the paper's loop on the benchmark). ``emulate = "errors"`` keeps the paper's
+emulation of the residuals.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mrgp_core import adaptive
+from mrgp_core.modal_outputs import BAND_FACTOR, ModalLayout, modes_to_emulate
+
+__all__ = ["GN_STARTS", "n_modes", "layout", "training_set", "predict"]
+
+#: Gauss-Newton runs on the emulator's mean per predict stage: from this many best FE samples and as many
+#: best candidates.
+GN_STARTS = 5
+
+_MODES: dict[tuple, int] = {}
+
+
+def n_modes(config, freqs_hz) -> int:
+    """Modes the FE runs give for the emulator: the nominal model's below ``BAND_FACTOR`` times the highest
+    measured frequency, plus one (:func:`mrgp_core.modal_outputs.modes_to_emulate`); computed once per
+    model file and band in a process."""
+    from tasks import stages
+
+    highest = float(np.max(freqs_hz))
+    key = (config.model, stages.model_fingerprint(config.model), highest)
+    if key not in _MODES:
+        model = stages.load_model(config.model)
+        alpha, gamma = model.factors(np.zeros(model.n_parameters))
+        available = model.n_dofs - 1
+        k = min(8, available)
+        while True:
+            freqs = model.natural_frequencies(alpha, k, gamma)
+            if freqs[-1] >= BAND_FACTOR * highest or k == available:
+                break
+            k = min(2 * k, available)
+        _MODES[key] = modes_to_emulate(freqs, highest, available)
+    return _MODES[key]
+
+
+def layout(config, data, modes: int) -> ModalLayout:
+    """The emulated outputs' layout for the run's kept values (``data.cells``, frequency-major)."""
+    from tasks import stages
+
+    line, channel = data.cells
+    omega = 2.0 * np.pi * np.asarray(data.frequencies_hz, float)[line]
+    damping = tuple(float(v) for v in stages.load_model(config.model).damping)
+    return ModalLayout(omega, np.asarray(channel, int), int(data.amplitude.shape[1]), damping, modes)
+
+
+def _modes_in(table) -> int:
+    return sum(1 for c in table.columns if c.startswith("omega2_"))
+
+
+def training_set(store, config, iteration: int, data) -> tuple[np.ndarray, np.ndarray, ModalLayout]:
+    """(X (r, m), Y (r, n_outputs), layout): every successful FE run of iterations 1..``iteration``, in the
+    order of :func:`tasks.stages.training_data`, and its emulated outputs."""
+    from tasks import stages
+
+    ids, X, _, _ = stages.training_data(store, iteration)
+    p, n = data.amplitude.shape
+    line, channel = data.cells
+    by_id, modes = {}, None
+    for k in range(1, iteration + 1):
+        fe = store.read_table(k, "fe")
+        found = _modes_in(fe)
+        if found == 0 or (modes is not None and found != modes):
+            raise RuntimeError(f"{store.root}: iteration {k}'s FE results hold {found} modes"
+                               f"{'' if modes is None else f', earlier ones {modes}'}; the modal emulator needs "
+                               "the same modes in every FE run (was the run started with emulate = \"errors\"?)")
+        modes = found
+        for sid, part in fe.groupby("sample_id", sort=False):
+            by_id[int(sid)] = part.sort_values(["frequency_hz", "sensor"], kind="stable")
+    lay = layout(config, data, modes)
+    Y = np.empty((len(ids), lay.n_outputs))
+    for i, sid in enumerate(ids):
+        part = by_id[int(sid)]
+        Z = (part["real"].to_numpy() + 1j * part["imag"].to_numpy()).reshape(p, n)[line, channel]
+        omega2 = np.array([part[f"omega2_{r + 1}"].iloc[0] for r in range(modes)])
+        P = np.array([part[f"participation_{r + 1}"].to_numpy()[:n] for r in range(modes)])
+        Y[i] = lay.outputs(omega2, P, Z)
+    return X, Y, lay
+
+
+def predict(store, config, iteration: int, data, hyper: dict, C: np.ndarray, outputs: str = "full"
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """(candidates, predicted overall errors): ``C`` (w, m) and the Gauss-Newton end points on the
+    emulator's mean appended; errors of the receptance the emulated modes give (Eq. 6b)."""
+    import mrgp_core
+    from tasks import stages
+    from tasks.hybrid import fitted
+
+    X, Y, lay = training_set(store, config, iteration, data)
+    _, _, _, E = stages.training_data(store, iteration)  # in the order of X
+    best = X[np.argsort(E, kind="stable")[:GN_STARTS]]
+    X, Y = stages.merge_duplicates(X, Y)
+    h = mrgp_core.Hyperparameters(length_scale=stages._length_scales(hyper), nugget=float(hyper["nugget"]))
+    reduced = stages.reduced_outputs(outputs, Y.shape[1])
+    emulator = (mrgp_core.condition_reduced if reduced else mrgp_core.condition)(X, Y, h)
+    residual, _ = fitted(data)
+
+    def residuals(points):
+        mean, _ = emulator.predict(np.atleast_2d(points), return_var=False)
+        r = residual(lay.receptance(mean))
+        return np.where(np.isfinite(r), r, 1e3)
+
+    def errors(points):
+        return np.mean(np.abs(residuals(points)), axis=1)
+
+    predicted = errors(C)
+    starts = np.vstack([best, C[np.argsort(predicted, kind="stable")[:GN_STARTS]]])
+    low, high = stages.solver_box(config, C.shape[1])
+    refined = adaptive.refine_on_emulator(lambda x: residuals(x[None])[0], starts, low, high)
+    return np.vstack([C, refined]), np.concatenate([predicted, errors(refined)])
