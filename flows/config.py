@@ -14,14 +14,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["UpdateConfig", "ConfigError", "load_config", "TRAINERS", "STRATEGIES", "LOOPS", "EMULATES", "MODELS",
-           "OUTPUTS", "LINES", "RESIDUALS", "parse_windows"]
+__all__ = ["UpdateConfig", "ConfigError", "load_config", "stored_settings", "TRAINERS", "STRATEGIES", "LOOPS",
+           "EMULATES", "MODELS", "OUTPUTS", "LINES", "RESIDUALS", "parse_windows"]
 
 REPO = Path(__file__).resolve().parents[1]
 TRAINERS = ("sao", "pso", "gradient")
 STRATEGIES = ("hybrid", "adaptive", "conventional")
 LOOPS = ("trust-region", "paper")  # the adaptive strategy's loop (tasks.trust_region)
 EMULATES = ("modes", "errors")  # what the paper loop's MRGP emulates (tasks.modal_emulation)
+
+#: Keys added after runs were made whose default changed what a run does: a run manifest without the key was
+#: made with this value (a run of the paper loop before ``emulate`` existed emulated the errors).
+BEFORE_THEIR_KEY = {"emulate": "errors"}
+
+
+def stored_settings(config: dict) -> dict:
+    """A run manifest's ``config`` with the values its run used for keys added since (:data:`BEFORE_THEIR_KEY`)."""
+    return {**BEFORE_THEIR_KEY, **config}
 MODELS = ("three_plate",)
 FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
 OUTPUTS = ("full", "reduced", "auto")  # tasks.stages.reduced_outputs

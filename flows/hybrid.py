@@ -108,6 +108,6 @@ def run_history(store: RunStore, iterations: int) -> list[dict]:
 
 
 def _config_of(store: RunStore):
-    from flows.config import UpdateConfig
+    from flows.config import UpdateConfig, stored_settings
 
-    return UpdateConfig(**store.read_manifest()["config"])
+    return UpdateConfig(**stored_settings(store.read_manifest()["config"]))

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flows.config import ConfigError, UpdateConfig
+from flows.config import ConfigError, UpdateConfig, stored_settings
 from tasks.io.measured import MeasuredDataError
 
 __all__ = ["max_frequency_hz", "check_inputs", "check_resume", "check_disk", "expected_output_mb",
@@ -132,7 +132,7 @@ def check_resume(config: UpdateConfig, root: Path, resumable: set[str]) -> None:
         return
     try:
         record = json.loads(manifest.read_text())
-        old = record["config"]
+        old = stored_settings(record["config"])
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"{manifest}: unreadable run manifest ({exc}); choose a new --run-id") from None
     check_model_unchanged(config, manifest, record)

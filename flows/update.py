@@ -50,7 +50,7 @@ from prefect import flow  # noqa: E402
 
 from flows import preflight  # noqa: E402
 from flows.config import (EMULATES, LINES, LOOPS, OUTPUTS, RESIDUALS, STRATEGIES, TRAINERS, ConfigError,  # noqa: E402
-                          UpdateConfig, load_config, parse_windows)
+                          UpdateConfig, load_config, parse_windows, stored_settings)
 from flows.hybrid import hybrid_summary, run_hybrid  # noqa: E402
 from mrgp_core import adaptive  # noqa: E402
 from tasks import fe_backends, stages  # noqa: E402
@@ -376,7 +376,8 @@ def _write_manifest(store: RunStore, config: UpdateConfig, data: UpdateData | No
     old = store.read_manifest()
     cfg = config.to_dict()
     if old is not None:
-        changed = {k for k in cfg if old["config"].get(k, cfg[k]) != cfg[k]} - RESUMABLE_CHANGES  # as preflight
+        before = stored_settings(old["config"])
+        changed = {k for k in cfg if before.get(k, cfg[k]) != cfg[k]} - RESUMABLE_CHANGES  # as preflight
         if changed:
             raise ConfigError(
                 f"{store.manifest_path}: run {store.root.name!r} was started with other settings "
@@ -493,7 +494,7 @@ def rerun_stage(run_root: Path, iteration: int, stage: str, trainer: str | None 
         raise ConfigError(f"{run_root}: no manifest.json; is this a run folder?")
     if stage not in RERUNNABLE:
         raise ConfigError(f"stage {stage!r} cannot be rerun in place; choose one of {', '.join(RERUNNABLE)}")
-    config = UpdateConfig(**manifest["config"])
+    config = UpdateConfig(**stored_settings(manifest["config"]))
     tr_loop = stages.trust_region_loop(config)
     needs_data = tr_loop or stages.emulates_modes(config)
     for needed in ("errors", "distribution") if stage == "predict" or tr_loop else ("errors",):
