@@ -24,18 +24,28 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ModalLayout", "modes_to_emulate", "BAND_FACTOR"]
+__all__ = ["ModalLayout", "modes_to_emulate", "BAND_FACTOR", "CLOSE_GAP"]
 
 #: Modes below this factor times the highest measured frequency (nominal model) are emulated, plus one.
 BAND_FACTOR = 1.5
+#: ... and the modes after those closer than this (relative frequency gap) to the last one taken: a close pair
+#: swaps order as the parameters change, and only the pair together is smooth.
+CLOSE_GAP = 0.1
 
 
 def modes_to_emulate(nominal_hz: np.ndarray, highest_hz: float, available: int) -> int:
-    """How many of the lowest modes to emulate: those of the nominal model below ``BAND_FACTOR`` times
-    the highest measured frequency, plus the next one (a mode may enter the band as parameters change),
-    at least 1 and at most ``available`` (the model's modes ``nominal_hz`` computed, ascending)."""
-    below = int(np.count_nonzero(np.asarray(nominal_hz, float) < BAND_FACTOR * float(highest_hz)))
-    return int(min(max(below + 1, 1), available))
+    """How many of the lowest modes to emulate.
+
+    Those of the nominal model below ``BAND_FACTOR`` times the highest measured frequency, plus the next one
+    (a mode may enter the band as parameters change), plus every following mode within ``CLOSE_GAP`` of the
+    last one taken (a close pair is taken whole); at least 1 and at most ``available``. ``nominal_hz``: the
+    model's lowest modes, ascending; give more than the band needs so the gap after the last can be seen.
+    """
+    f = np.asarray(nominal_hz, float)
+    n = int(np.count_nonzero(f < BAND_FACTOR * float(highest_hz))) + 1
+    while n < min(available, f.size) and f[n] < (1.0 + CLOSE_GAP) * f[n - 1]:
+        n += 1
+    return int(min(max(n, 1), available))
 
 
 @dataclass(frozen=True)
@@ -56,8 +66,13 @@ class ModalLayout:
     n_modes: int
 
     @property
+    def n_modal(self) -> int:
+        """The leading outputs that describe the modes (``w_r^2`` and ``P``); the remainder's follow."""
+        return self.n_modes * (1 + self.n_channels)
+
+    @property
     def n_outputs(self) -> int:
-        return self.n_modes * (1 + self.n_channels) + 2 * len(self.omega)
+        return self.n_modal + 2 * len(self.omega)
 
     def terms(self, omega2: np.ndarray, participation: np.ndarray) -> np.ndarray:
         """The n modes' part of the receptance at the kept values: (..., n), (..., n, n_channels) -> (..., k)."""

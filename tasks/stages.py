@@ -207,6 +207,8 @@ def evaluate_sample(model_name: str, sample_id: int, alpha: np.ndarray, freqs_hz
             raise FloatingPointError("the FRF has non-finite values")
         if modes:
             omega2, participation = model.modal_terms(np.asarray(alpha, dtype=float), modes, channels)
+            if not (np.all(np.isfinite(omega2)) and np.all(np.isfinite(participation))):
+                raise FloatingPointError("the modes have non-finite values")
         status, message = "ok", ""
     except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
         Z = np.full((p, n), np.nan + 1j * np.nan)
@@ -591,7 +593,7 @@ def train_task(root: str, config, iteration: int, trainer: str | None = None, ou
     store = RunStore(root)
     trainer = trainer or config.trainer
     if not _done(store, iteration, output_stage):
-        kernel = "iso"
+        kernel, outputs = "iso", config.outputs
         previous = _previous_hyperparameters(store, iteration)
         if trust_region_loop(config) and store.stage_info(iteration, "distribution")["kind"] == "trust_region":
             from tasks import trust_region
@@ -601,7 +603,9 @@ def train_task(root: str, config, iteration: int, trainer: str | None = None, ou
         elif emulates_modes(config):
             from tasks import modal_emulation
 
-            X, Y, _ = modal_emulation.training_set(store, config, iteration, data)
+            X, Y, layout = modal_emulation.training_set(store, config, iteration, data)
+            if modal_emulation.separate_modes(config, layout):  # the hyper-parameters of the modes' own MRGP
+                Y, outputs = Y[:, :layout.n_modal], "auto"
             kernel = "ard"
             # No Table 1 l~ bound: the modes do not sharpen as the samples gather (docs/update-results.md)
             previous = None
@@ -611,14 +615,17 @@ def train_task(root: str, config, iteration: int, trainer: str | None = None, ou
             previous = None  # the first trust-region iteration follows an isotropic uniform one: no l~ yet
         rng = stage_rng(config.seed, iteration, "train")
         t0 = time.perf_counter()
-        hyper, info = train_mrgp(X, Y, trainer, rng, previous, outputs=config.outputs, kernel=kernel)
+        hyper, info = train_mrgp(X, Y, trainer, rng, previous, outputs=outputs, kernel=kernel)
+        if emulates_modes(config):
+            info["modal"] = {"modes": layout.n_modes, "outputs": layout.n_outputs,
+                             "modes_separate": modal_emulation.separate_modes(config, layout)}
         seconds = time.perf_counter() - t0
         df = pd.DataFrame({"name": list(hyper), "value": [float(v) for v in hyper.values()]})
         store.write_table(iteration, output_stage, "hyperparameters", df)
         _finish(store, iteration, output_stage, ["hyperparameters"],
                      {"trainer": trainer, "seconds": seconds, "n_train": int(X.shape[0]), **info})
         _logger().info("iteration %d, stage train: %s on %d runs in %.2f s", iteration, trainer, X.shape[0], seconds)
-        _log_outputs(iteration, config.outputs, info)
+        _log_outputs(iteration, outputs, info)
     return store.stage_info(iteration, output_stage)
 
 
@@ -665,7 +672,7 @@ def predict_task(root: str, config, iteration: int, m: int, train_stage: str = "
             from tasks import modal_emulation
 
             C, predicted = modal_emulation.predict(store, config, iteration, data, dict(zip(hp["name"], hp["value"])),
-                                                   C, outputs)
+                                                   C)
         else:
             _, X, Y, _ = training_data(store, iteration)
             predicted = predict_overall_error(X, Y, dict(zip(hp["name"], hp["value"])), C, outputs=outputs)

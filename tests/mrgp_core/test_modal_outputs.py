@@ -43,6 +43,7 @@ def test_a_wrong_output_count_is_refused_with_the_layout(rng):
     ([148.3, 353.4, 554.6, 741.9], 295.0, 30, 3),  # the benchmark: 2 modes below 1.5 x 295 Hz, plus one
     ([500.0, 900.0], 100.0, 10, 1),  # the band below the first mode: the first mode alone
     ([10.0, 20.0, 30.0], 100.0, 3, 3),  # every mode the model has
+    ([148.3, 353.4, 554.6, 741.9, 750.2, 1171.5], 400.0, 30, 5),  # the hammer band: the close pair taken whole
 ])
 def test_modes_to_emulate(nominal, highest, available, expected):
     assert modes_to_emulate(np.array(nominal), highest, available) == expected
