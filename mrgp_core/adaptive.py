@@ -365,17 +365,21 @@ def receptance_from_inverse(G: np.ndarray) -> np.ndarray:
 
 
 def refine_on_emulator(residuals_of, starts: np.ndarray, low: np.ndarray, high: np.ndarray,
-                       max_evaluations: int = 50) -> np.ndarray:
+                       max_evaluations: int = 50, tolerance: float = 1e-8) -> np.ndarray:
     """Gauss-Newton (trust-region least squares) on the emulator's mean from each start, inside [low, high].
 
     ``residuals_of(x)`` gives the residual vector the emulator predicts at x (m,). Returns the end points,
-    shape (len(starts), m): candidates where the emulator's mean is smallest.
+    shape (len(starts), m): candidates where the emulator's mean is smallest. ``tolerance``: scipy's ``ftol``,
+    ``xtol`` and ``gtol``; near machine precision the runs end on ``max_evaluations`` or at a stationary
+    point, so an end point moves continuously with the data (a loose test that stops one step earlier for a
+    change in the last digits moves it by a whole step).
     """
     from scipy.optimize import least_squares
 
     out = []
     for x0 in np.asarray(starts, float):
         sol = least_squares(residuals_of, np.clip(x0, low, high), bounds=(low, high), method="trf",
-                            max_nfev=max_evaluations, diff_step=1e-6)
+                            max_nfev=max_evaluations, diff_step=1e-6, ftol=tolerance, xtol=tolerance,
+                            gtol=tolerance)
         out.append(sol.x)
     return np.array(out).reshape(-1, len(low))

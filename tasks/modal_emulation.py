@@ -164,5 +164,5 @@ def predict(store, config, iteration: int, data, hyper: dict, C: np.ndarray) -> 
     predicted = errors(C)
     starts = np.vstack([best, C[np.argsort(predicted, kind="stable")[:GN_STARTS]]])
     low, high = stages.solver_box(config, C.shape[1])
-    refined = adaptive.refine_on_emulator(lambda x: residuals(x[None])[0], starts, low, high)
+    refined = adaptive.refine_on_emulator(lambda x: residuals(x[None])[0], starts, low, high, tolerance=1e-14)
     return np.vstack([C, refined]), np.concatenate([predicted, errors(refined)])
