@@ -22,6 +22,11 @@ TRAINERS = ("sao", "pso", "gradient")
 STRATEGIES = ("hybrid", "adaptive", "conventional")
 LOOPS = ("trust-region", "paper")  # the adaptive strategy's loop (tasks.trust_region)
 EMULATES = ("modes", "errors")  # what the paper loop's MRGP emulates (tasks.modal_emulation)
+MODELS = ("three_plate",)
+FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
+OUTPUTS = ("full", "reduced", "auto")  # tasks.stages.reduced_outputs
+LINES = ("all", "windows", "resonances")  # tasks.lines.LINE_MODES
+RESIDUALS = ("auto", "amplitude", "complex")  # tasks.update_data.RESIDUALS
 
 #: Keys added after runs were made whose default changed what a run does: a run manifest without the key was
 #: made with this value (a run of the paper loop before ``emulate`` existed emulated the errors).
@@ -31,11 +36,6 @@ BEFORE_THEIR_KEY = {"emulate": "errors"}
 def stored_settings(config: dict) -> dict:
     """A run manifest's ``config`` with the values its run used for keys added since (:data:`BEFORE_THEIR_KEY`)."""
     return {**BEFORE_THEIR_KEY, **config}
-MODELS = ("three_plate",)
-FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
-OUTPUTS = ("full", "reduced", "auto")  # tasks.stages.reduced_outputs
-LINES = ("all", "windows", "resonances")  # tasks.lines.LINE_MODES
-RESIDUALS = ("auto", "amplitude", "complex")  # tasks.update_data.RESIDUALS
 
 
 class ConfigError(ValueError):

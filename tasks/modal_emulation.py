@@ -4,7 +4,7 @@ What changes against the paper's steps (Table 2), each stage keeping its name an
 
 * ``samples`` of iteration 1: the nominal model (every factor 0) is one of the q uniform samples;
 * ``fe``: each FE run also gives the lowest modes of its parameters (columns ``omega2_<r>``,
-  ``participation_<r>``; :func:`n_modes` says how many);
+  ``participation_<r>``; :func:`n_modes` says how many, iteration 1's FE stage records it for the run);
 * ``train``: the MRGP (one length scale per parameter, no Table 1 ``l~`` bound) emulates the modes and the
   remainder of the receptance at the kept values (:class:`mrgp_core.modal_outputs.ModalLayout`) from all
   FE runs so far, instead of the relative residuals (with many outputs: the modes in an MRGP of their own,
@@ -31,29 +31,22 @@ __all__ = ["GN_STARTS", "n_modes", "layout", "training_set", "separate_modes", "
 #: best candidates.
 GN_STARTS = 5
 
-_MODES: dict[tuple, int] = {}
-
-
 def n_modes(config, freqs_hz) -> int:
     """Modes the FE runs give for the emulator: the nominal model's below ``BAND_FACTOR`` times the highest
-    measured frequency, plus one (:func:`mrgp_core.modal_outputs.modes_to_emulate`); computed once per
-    model file and band in a process."""
+    measured frequency, plus one (:func:`mrgp_core.modal_outputs.modes_to_emulate`). Computed by iteration 1's
+    FE stage, which records it for the run."""
     from tasks import stages
 
     highest = float(np.max(freqs_hz))
-    key = (config.model, stages.model_fingerprint(config.model), highest)
-    if key not in _MODES:
-        model = stages.load_model(config.model)
-        alpha, gamma = model.factors(np.zeros(model.n_parameters))
-        available = model.n_dofs - 1
-        k = min(8, available)
-        while True:  # past the band, so the gap after the last mode taken shows (a close pair is taken whole)
-            freqs = model.natural_frequencies(alpha, k, gamma)
-            if freqs[-1] >= 2 * BAND_FACTOR * highest or k == available:
-                break
-            k = min(2 * k, available)
-        _MODES[key] = modes_to_emulate(freqs, highest, available)
-    return _MODES[key]
+    model = stages.load_model(config.model)
+    alpha, gamma = model.factors(np.zeros(model.n_parameters))
+    available = model.n_dofs - 1
+    k = min(8, available)
+    while True:  # past the band, so the gap after the last mode taken shows (a close pair is taken whole)
+        freqs = model.natural_frequencies(alpha, k, gamma)
+        if freqs[-1] >= 2 * BAND_FACTOR * highest or k == available:
+            return modes_to_emulate(freqs, highest, available)
+        k = min(2 * k, available)
 
 
 #: Bytes of working memory per block of candidates scored on the emulator (the receptance of each candidate
@@ -103,29 +96,20 @@ def layout(config, data, modes: int) -> ModalLayout:
     return ModalLayout(omega, np.asarray(channel, int), int(data.amplitude.shape[1]), damping, modes)
 
 
-def _modes_in(table) -> int:
-    return sum(1 for c in table.columns if c.startswith("omega2_"))
-
-
-def training_set(store, config, iteration: int, data) -> tuple[np.ndarray, np.ndarray, ModalLayout]:
-    """(X (r, m), Y (r, n_outputs), layout): every successful FE run of iterations 1..``iteration``, in the
-    order of :func:`tasks.stages.training_data`, and its emulated outputs."""
+def training_set(store, config, iteration: int, data) -> tuple[np.ndarray, np.ndarray, np.ndarray, ModalLayout]:
+    """(X (r, m), Y (r, n_outputs), overall errors (r,), layout): every successful FE run of iterations
+    1..``iteration``, in the order of :func:`tasks.stages.training_data`, and its emulated outputs."""
     from tasks import stages
 
-    ids, X, _, _ = stages.training_data(store, iteration)
+    ids, X, _, E = stages.training_data(store, iteration)
     p, n = data.amplitude.shape
     line, channel = data.cells
-    by_id, modes = {}, None
-    for k in range(1, iteration + 1):
-        fe = store.read_table(k, "fe")
-        found = _modes_in(fe)
-        if found == 0 or (modes is not None and found != modes):
-            raise RuntimeError(f"{store.root}: iteration {k}'s FE results hold {found} modes"
-                               f"{'' if modes is None else f', earlier ones {modes}'}; the modal emulator needs "
-                               "the same modes in every FE run (was the run started with emulate = \"errors\"?)")
-        modes = found
-        for sid, part in fe.groupby("sample_id", sort=False):
-            by_id[int(sid)] = part.sort_values(["frequency_hz", "sensor"], kind="stable")
+    by_id = stages.fe_results(store, iteration)
+    counts = {sum(c.startswith("omega2_") for c in by_id[int(sid)].columns) for sid in ids}
+    if len(counts) != 1 or 0 in counts:
+        raise RuntimeError(f"{store.root}: the FE results hold {sorted(counts)} modes; the modal emulator needs the "
+                           "same modes in every FE run (was the run started with emulate = \"errors\"?)")
+    modes = counts.pop()
     lay = layout(config, data, modes)
     Y = np.empty((len(ids), lay.n_outputs))
     for i, sid in enumerate(ids):
@@ -134,7 +118,7 @@ def training_set(store, config, iteration: int, data) -> tuple[np.ndarray, np.nd
         omega2 = np.array([part[f"omega2_{r + 1}"].iloc[0] for r in range(modes)])
         P = np.array([part[f"participation_{r + 1}"].to_numpy()[:n] for r in range(modes)])
         Y[i] = lay.outputs(omega2, P, Z)
-    return X, Y, lay
+    return X, Y, E, lay
 
 
 def predict(store, config, iteration: int, data, hyper: dict, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -144,8 +128,7 @@ def predict(store, config, iteration: int, data, hyper: dict, C: np.ndarray) -> 
     from tasks import stages
     from tasks.hybrid import fitted
 
-    X, Y, lay = training_set(store, config, iteration, data)
-    _, _, _, E = stages.training_data(store, iteration)  # in the order of X
+    X, Y, E, lay = training_set(store, config, iteration, data)
     best = X[np.argsort(E, kind="stable")[:GN_STARTS]]
     h = mrgp_core.Hyperparameters(length_scale=stages._length_scales(hyper), nugget=float(hyper["nugget"]))
     emulator = Emulator(config, X, Y, lay, h)

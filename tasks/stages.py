@@ -262,6 +262,15 @@ def training_data(store: RunStore, iteration: int) -> tuple[np.ndarray, np.ndarr
     return np.concatenate(ids), np.vstack(X), np.vstack(Y), np.concatenate(E)
 
 
+def fe_results(store: RunStore, iteration: int) -> dict[int, pd.DataFrame]:
+    """Every FE result of iterations 1..``iteration`` by sample id, rows frequency-major, channels fastest."""
+    out = {}
+    for k in range(1, iteration + 1):
+        for sid, part in store.read_table(k, "fe").groupby("sample_id", sort=False):
+            out[int(sid)] = part.sort_values(["frequency_hz", "sensor"], kind="stable")
+    return out
+
+
 def residual_matrix(res: pd.DataFrame, sample_ids) -> np.ndarray:
     """Residual vectors (rows in the order of ``sample_ids``) from a long residual table.
 
@@ -395,10 +404,11 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray, channels=No
     cols = parameter_columns(samples)
     n = load_model(config.model).n_sensors if channels is None else len(channels[0])
     modes = 0
-    if emulates_modes(config):
+    if emulates_modes(config):  # fixed by iteration 1's FE stage for the whole run (the emulator needs one count)
         from tasks import modal_emulation
 
-        modes = modal_emulation.n_modes(config, freqs_hz)
+        recorded = store.stage_info(1, "fe").get("modes") if iteration > 1 else None
+        modes = int(recorded) if recorded else modal_emulation.n_modes(config, freqs_hz)
     check = _sample_check(samples, cols, len(freqs_hz) * n, modal_columns(modes))
     done = store.finished_samples(iteration, check)
     _reconcile_log(store, iteration, done)
@@ -443,7 +453,7 @@ def fe_task(root: str, config, iteration: int, freqs_hz: np.ndarray, channels=No
                            "stage ran; run again to evaluate them")
     fe = pd.concat(parts, ignore_index=True).sort_values(["sample_id", "frequency_hz", "sensor"], kind="stable")
     store.write_table(iteration, "fe", "fe", fe.reset_index(drop=True))
-    _finish(store, iteration, "fe", ["fe"], {"n": int(fe["sample_id"].nunique())})
+    _finish(store, iteration, "fe", ["fe"], {"n": int(fe["sample_id"].nunique()), "modes": modes})
     return ran
 
 
@@ -593,7 +603,7 @@ def train_task(root: str, config, iteration: int, trainer: str | None = None, ou
     store = RunStore(root)
     trainer = trainer or config.trainer
     if not _done(store, iteration, output_stage):
-        kernel, outputs = "iso", config.outputs
+        kernel, outputs, modal = "iso", config.outputs, {}
         previous = _previous_hyperparameters(store, iteration)
         if trust_region_loop(config) and store.stage_info(iteration, "distribution")["kind"] == "trust_region":
             from tasks import trust_region
@@ -603,9 +613,11 @@ def train_task(root: str, config, iteration: int, trainer: str | None = None, ou
         elif emulates_modes(config):
             from tasks import modal_emulation
 
-            X, Y, layout = modal_emulation.training_set(store, config, iteration, data)
-            if modal_emulation.separate_modes(config, layout):  # the hyper-parameters of the modes' own MRGP
+            X, Y, _, layout = modal_emulation.training_set(store, config, iteration, data)
+            separate = modal_emulation.separate_modes(config, layout)
+            if separate:  # the hyper-parameters of the modes' own MRGP
                 Y, outputs = Y[:, :layout.n_modal], "auto"
+            modal = {"modal": {"modes": layout.n_modes, "outputs": layout.n_outputs, "modes_separate": separate}}
             kernel = "ard"
             # No Table 1 l~ bound: the modes do not sharpen as the samples gather (docs/update-results.md)
             previous = None
@@ -616,9 +628,7 @@ def train_task(root: str, config, iteration: int, trainer: str | None = None, ou
         rng = stage_rng(config.seed, iteration, "train")
         t0 = time.perf_counter()
         hyper, info = train_mrgp(X, Y, trainer, rng, previous, outputs=outputs, kernel=kernel)
-        if emulates_modes(config):
-            info["modal"] = {"modes": layout.n_modes, "outputs": layout.n_outputs,
-                             "modes_separate": modal_emulation.separate_modes(config, layout)}
+        info.update(modal)
         seconds = time.perf_counter() - t0
         df = pd.DataFrame({"name": list(hyper), "value": [float(v) for v in hyper.values()]})
         store.write_table(iteration, output_stage, "hyperparameters", df)

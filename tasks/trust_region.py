@@ -46,11 +46,7 @@ def responses(store, iteration: int, data) -> tuple[np.ndarray, np.ndarray, np.n
     line, channel = data.cells
     m = X.shape[1]
     Z = []
-    tables = {k: store.read_table(k, "fe") for k in range(1, iteration + 1)}
-    by_id = {}
-    for fe in tables.values():
-        for sid, part in fe.groupby("sample_id", sort=False):
-            by_id[int(sid)] = part
+    by_id = stages.fe_results(store, iteration)
     for sid in ids:
         grid, _ = _grid(by_id[int(sid)], p, n, m)
         Z.append(grid[line, channel])

@@ -55,3 +55,26 @@ def prefect_server(prefect_harness, tmp_path_factory):
     """
     home = tmp_path_factory.mktemp("prefect-home")
     return {"PREFECT_HOME": str(home), "PREFECT_API_URL": prefect_harness, "DO_NOT_TRACK": "1"}
+
+
+@pytest.fixture
+def two_iterations(prefect_harness):
+    """Run a reduced config for two iterations (12 FE runs, no polish); returns (run store, parameter columns)
+    after checking the counts and that the nominal model is the first sample (the loops that start from it)."""
+    import numpy as np
+
+    from flows import update
+    from tasks import stages
+    from tasks.runstore import RunStore
+
+    def run(config):
+        config = config.replace(polish=False, max_iterations=2, max_fe_evaluations=12)
+        summary = update.update_flow(config)
+        store = RunStore(config.resolve(config.runs_dir) / config.run_id)
+        assert summary["iterations"] == 2 and summary["fe_evaluations"] == 12
+        first = store.read_table(1, "samples")
+        cols = stages.parameter_columns(first)
+        assert np.allclose(first[cols].to_numpy()[0], 0.0)  # the nominal model is one of the first samples
+        return store, cols
+
+    return run

@@ -4,19 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from flows import update
 from tasks import stages, trust_region
-from tasks.runstore import RunStore
 
 
-def test_trust_region_loop_runs_its_stages_and_keeps_candidates_in_the_region(reduced_config, prefect_harness):
-    config = reduced_config.replace(loop="trust-region", polish=False, max_iterations=2, max_fe_evaluations=12)
-    summary = update.update_flow(config)
-    store = RunStore(config.resolve(config.runs_dir) / config.run_id)
-    assert summary["iterations"] == 2 and summary["fe_evaluations"] == 12
-    first = store.read_table(1, "samples")
-    cols = stages.parameter_columns(first)
-    assert np.allclose(first[cols].to_numpy()[0], 0.0)  # the nominal model is one of the first samples
+def test_trust_region_loop_runs_its_stages_and_keeps_candidates_in_the_region(reduced_config, two_iterations):
+    config = reduced_config.replace(loop="trust-region")
+    store, cols = two_iterations(config)
     info = store.stage_info(1, "distribution")
     assert info["kind"] == "trust_region"
     tr = trust_region.region(store, 1)
