@@ -6,7 +6,7 @@ Example (a) updates the default tet10 mesh from the FRF of a finer one. What the
 limited twice: by the noise (1 %) and by the discretisation residual ``r = ln|Z_default(truth)| -
 ln|Z_fine(truth)|`` (8 % overall error at the truth), which least squares absorbs through the factors.
 Linearised at the truth with the default mesh's exact log-amplitude Jacobian ``J``
-(:func:`fe_core.sensitivity.log_amplitude_jacobian`), a layout S of sensors ends at
+(:func:`fe_core.solvers.sensitivity.log_amplitude_jacobian`), a layout S of sensors ends at
 
     alpha_S - alpha_true = -(J_S^T J_S)^-1 J_S^T r_S      (the bias), std 0.01 sqrt(diag (J_S^T J_S)^-1)
 
@@ -87,7 +87,7 @@ def _model(mesh: str, tolerance: float, folder: Path):
 
 def compute(freqs: np.ndarray) -> dict:
     """J (p, n_candidates, 6) of the default mesh and both meshes' amplitudes (p, n_candidates) at the truth."""
-    from fe_core.sensitivity import log_amplitude_jacobian
+    from fe_core.solvers.sensitivity import log_amplitude_jacobian
 
     CACHE.mkdir(parents=True, exist_ok=True)
     cached = CACHE / "arrays.npz"
@@ -150,7 +150,7 @@ def log_optimum(start: np.ndarray, steps: int = 6, h: float = 1e-4) -> dict:
     forward-difference Jacobians of Krylov FE runs (the exact adjoint one needs a complex LU per frequency,
     minutes on this mesh): where the update's least-squares optimum of the log amplitudes lies."""
     from fe_core.io import read_model
-    from fe_core.residual import overall_error, relative_residual
+    from fe_core.inference.residual import overall_error, relative_residual
     from tasks.io.measured import read_measured
 
     model = read_model(mb.OUT / "model.toml")

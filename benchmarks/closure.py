@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from fe_core.benchmark import three_plate
-from fe_core.closure import close_loop
-from fe_core.residual import overall_error
+from fe_core.closure.loop import close_loop
+from fe_core.inference.residual import overall_error
 from tasks.io.measured import read_measured
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "effects"
@@ -102,9 +102,9 @@ def speed(repeats: int = 21) -> list[dict]:
             times.append(time.process_time() - c0)
         return float(np.median(times))
     from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ as F
-    from fe_core.closure import Fit, screen
-    from fe_core.effects import Applied, build_library, extended_frf
-    from fe_core.residual import log_residual
+    from fe_core.closure.fits import Fit, screen
+    from fe_core.closure.effects import Applied, build_library, extended_frf
+    from fe_core.inference.residual import log_residual
 
     model = three_plate()
     library = build_library(model)
@@ -191,7 +191,7 @@ def _distance_mm(model, truth: dict, location: str) -> str:
 
 def _found_text(model, result, truth_effects: list) -> str:
     """Effects in the order added with final values, evidence, distance to a true effect of the same kind."""
-    from fe_core.selection import spread_mm
+    from fe_core.closure.selection import spread_mm
 
     parts = []
     for c, a, w, sp, at in zip(result.steps, result.final.applied, result.weights, result.spreads, result.located):
@@ -222,7 +222,7 @@ def table(files: list[str] | None = None) -> int:
     data2 = DATA.parent / "effects2"
     truth = json.loads((data2 / "truth.json").read_text())["data"]
     model = three_plate()
-    from fe_core.effects import build_library
+    from fe_core.closure.effects import build_library
 
     library = build_library(model)
     lines = ["| data | truth | verdict | effects found (in order, final joint values; evidence of the kind) | "
@@ -268,7 +268,7 @@ def timing(name: str = "two_effects.csv") -> int:
     """A closure by stage, CPU and wall, with the load average (one core: run under taskset -c 0)."""
     import os
 
-    from fe_core.effects import build_library
+    from fe_core.closure.effects import build_library
 
     model = three_plate()
     measured = read_measured(DATA.parent / "effects2" / name)
@@ -290,7 +290,7 @@ def seeds(n: int, names: list[str] | None = None) -> int:
     from benchmarks.make_effects import noisy
     from benchmarks.make_effects2 import CASES, place
     from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ as F
-    from fe_core.effects import Applied, build_library, extended_frf
+    from fe_core.closure.effects import Applied, build_library, extended_frf
 
     model = three_plate()
     library = build_library(model)
@@ -332,7 +332,7 @@ def discretisation(refinements=((2, 2, 1), (2, 2, 2), (4, 4, 2))) -> int:
     discretisation residual, compared with the 0.5 % noise of the data sets (chi-square at 0.5 %).
     """
     from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ as F
-    from fe_core.closure import fit_update
+    from fe_core.closure.fits import fit_update
 
     coarse = three_plate()
     f_coarse = coarse.natural_frequencies(ALPHA_ACTUAL, 2)

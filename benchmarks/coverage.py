@@ -14,12 +14,12 @@ For each noise level (0.5 % and 1 % by default) and each data set k:
   right when the model is, so the data are not from another mesh here (model
   error is the closure's business, ``flows.diagnose``);
 * the least-squares optimum of the log residual
-  (:func:`fe_core.intervals.fit_log_amplitudes`), started at the truth plus a
+  (:func:`fe_core.inference.intervals.fit_log_amplitudes`), started at the truth plus a
   uniform offset of +-``START_OFFSET`` per parameter (in the truth's basin: the
   question is the interval, not the search, which the update answers), with
-  the exact Jacobian (Krylov, :mod:`fe_core.frf_derivatives`; scipy's trust region reflective); a fit whose
+  the exact Jacobian (Krylov, :mod:`fe_core.solvers.frf_derivatives`; scipy's trust region reflective); a fit whose
   cost is above the truth's is counted as a failed search and reported;
-* the 95 % Laplace intervals (:func:`fe_core.intervals.laplace_intervals`)
+* the 95 % Laplace intervals (:func:`fe_core.inference.intervals.laplace_intervals`)
   with the noise estimated from the residual (Student t, ``N - m`` dof: what a
   run without ``--noise`` reports) and with the true noise given (normal).
 
@@ -63,9 +63,9 @@ def _model():
 def one_dataset(k: int, sigma: float, seed: int) -> list[dict]:
     """Fit data set ``k`` at noise ``sigma``; one row per estimator and parameter."""
     from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ as freqs
-    from fe_core.intervals import fit_log_amplitudes, laplace_intervals
+    from fe_core.inference.intervals import fit_log_amplitudes, laplace_intervals
 
-    from fe_core.sensitivity import log_amplitude_jacobian
+    from fe_core.solvers.sensitivity import log_amplitude_jacobian
 
     model = _model()
     rng = np.random.default_rng([seed, k, int(round(sigma * 1e6))])
@@ -166,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     runs.to_csv(out.with_name(out.name + "-runs.csv"), index=False)
     text = markdown(tab)
-    setup = (f"Coverage of the 95 % Laplace intervals (fe_core.intervals) on synthetic data sets: true alpha uniform "
+    setup = (f"Coverage of the 95 % Laplace intervals (fe_core.inference.intervals) on synthetic data sets: true alpha uniform "
              f"in [-{TRUTH_RANGE}, {TRUTH_RANGE}]^6, amplitudes |Z(alpha)| (1 + sigma e) from the direct-solver FRF "
              f"of the fitted FE model, least squares of the log amplitudes with the exact Jacobian started "
              f"at the truth + U(-{START_OFFSET}, {START_OFFSET}). Row 'estimated': sigma from the residual, "

@@ -45,7 +45,7 @@ from benchmarks.bracket import (  # noqa: E402
     volume_cells,
 )
 from benchmarks.timing import median_time  # noqa: E402
-from fe_core import frf  # noqa: E402
+from fe_core.solvers import frf  # noqa: E402
 from fe_core.assembly import assemble  # noqa: E402
 
 log = logging.getLogger("benchmarks.elements")

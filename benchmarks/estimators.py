@@ -11,7 +11,7 @@ Two parts, both against the truth:
     from the same start (the truth + U(-0.05, 0.05)):
 
     * ``least squares``: the optimum of the noise-weighted log residual
-      (:func:`fe_core.intervals.fit_log_amplitudes`), the maximum likelihood estimate
+      (:func:`fe_core.inference.intervals.fit_log_amplitudes`), the maximum likelihood estimate
       of the multiplicative Gaussian noise model;
     * ``lowest Eq. 6b``: the minimiser of the paper's overall error (mean absolute
       relative residual), found from the least-squares optimum by iteratively
@@ -25,7 +25,7 @@ Two parts, both against the truth:
     ``data/effects/clean-seed{0..4}.csv`` (truth ``ALPHA_ACTUAL``, 0.5 % noise), with the
     polish and with ``--no-polish``: the reported ``parameters`` (the FE run with the
     lowest Eq. 6b error) against the least-squares optimum nearest them (a trust-region fit
-    from them, :func:`fe_core.intervals.fit_log_amplitudes`; after the polish it is where
+    from them, :func:`fe_core.inference.intervals.fit_log_amplitudes`; after the polish it is where
     the intervals stage's Gauss-Newton steps end).
 
 "Nearer the truth" is measured per data set in the metric of the Laplace covariance at
@@ -62,7 +62,7 @@ def lowest_overall_error(model, freqs, u, start, std, max_iterations: int = 60):
 
     Returns ``(alpha, error, jacobians)``.
     """
-    from fe_core.sensitivity import log_amplitude_jacobian
+    from fe_core.solvers.sensitivity import log_amplitude_jacobian
 
     def at(a):
         J, Z = log_amplitude_jacobian(model, a, freqs, return_frf=True)
@@ -93,7 +93,7 @@ def lowest_overall_error(model, freqs, u, start, std, max_iterations: int = 60):
 def one_synthetic(k: int, sigma: float, seed: int) -> dict:
     from benchmarks.coverage import START_OFFSET, TRUTH_RANGE, _model
     from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ as freqs
-    from fe_core.intervals import fit_log_amplitudes, laplace_intervals
+    from fe_core.inference.intervals import fit_log_amplitudes, laplace_intervals
 
     model = _model()
     rng = np.random.default_rng([seed, k, int(round(sigma * 1e6))])  # as benchmarks.coverage
@@ -154,7 +154,7 @@ def _cases():
 
 def one_run(measured: str, truth, sigma: float, seed: int, polish: bool, runs_dir: Path) -> dict:
     from fe_core.benchmark import three_plate
-    from fe_core.intervals import fit_log_amplitudes, laplace_intervals
+    from fe_core.inference.intervals import fit_log_amplitudes, laplace_intervals
     from tasks.io.measured import read_measured
 
     run_id = f"{Path(measured).stem}-seed{seed}-{'polish' if polish else 'nopolish'}"

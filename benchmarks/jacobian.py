@@ -7,7 +7,7 @@ For each model, in one process and one run (so the ratios share the machine's lo
 
 * ``frf``: one Krylov FRF at the measurement frequencies (``model.frf``, the
   FE run of the update);
-* ``krylov``: :func:`fe_core.sensitivity.frf_jacobian` with ``method="krylov"``
+* ``krylov``: :func:`fe_core.solvers.sensitivity.frf_jacobian` with ``method="krylov"``
   (FRF and the m derivative columns on one block Krylov space from K^-1 [F, L]);
 * ``direct``: the same with ``method="direct"`` (one complex sparse LU per
   frequency with 1 + n_sensors right-hand sides: the reference; skipped above
@@ -77,7 +77,7 @@ def _timed(fun, repeat: int):
 
 
 def measure(name: str, repeat: int, direct_max_dofs: int) -> dict:
-    from fe_core.sensitivity import frf_jacobian
+    from fe_core.solvers.sensitivity import frf_jacobian
 
     model, alpha, freqs = load(name)
     model.frf(alpha, freqs)  # warm up: imports, the cached segment matrices
@@ -144,7 +144,7 @@ def main(argv=None) -> int:
     load_avg = " ".join(Path("/proc/loadavg").read_text().split()[:3])
     command = " ".join(["python -m benchmarks.jacobian"] + (sys.argv[1:] if argv is None else list(argv)))
     text = (f"Command: `{command}`\n\n"
-            "Cost of one exact Jacobian d ln|Z| / d alpha (fe_core.sensitivity.frf_jacobian) against one FE "
+            "Cost of one exact Jacobian d ln|Z| / d alpha (fe_core.solvers.sensitivity.frf_jacobian) against one FE "
             "run. Models: " + "; ".join(f"{k}: {MODELS[k]}" for k in args.models) + ".\n\n"
             + table(rows, load_avg, args.repeat))
     print(text)

@@ -134,7 +134,7 @@ def measurement_frequencies(natural_hz: np.ndarray) -> np.ndarray:
 
 def main() -> int:
     from fe_core.io import read_model
-    from fe_core.residual import overall_error, relative_residual
+    from fe_core.inference.residual import overall_error, relative_residual
     from tasks.io.measured import MeasuredFRF, write_measured
 
     logging.basicConfig(level=logging.INFO, format="%(message)s")

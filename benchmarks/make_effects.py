@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ, three_plate
-from fe_core.effects import Applied, build_library, extended_frf
+from fe_core.closure.effects import Applied, build_library, extended_frf
 from tasks.io.measured import MeasuredFRF, write_measured
 
 OUT = Path(__file__).resolve().parents[1] / "data" / "effects"

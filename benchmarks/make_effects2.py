@@ -19,7 +19,7 @@ import numpy as np
 
 from benchmarks.make_effects import NOISE, noisy
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ, three_plate
-from fe_core.effects import DOFS_PER_NODE, Applied, Effect, Terms, _free_position, build_library, extended_frf
+from fe_core.closure.effects import DOFS_PER_NODE, Applied, Effect, Terms, _free_position, build_library, extended_frf
 from tasks.io.measured import MeasuredFRF, write_measured
 
 OUT = Path(__file__).resolve().parents[1] / "data" / "effects2"

@@ -8,7 +8,7 @@ the free DOFs (symmetric positive-definite), the time of one solve with one
 right-hand side and with 8 (the Krylov FRF makes one single-column solve per basis
 vector), the relative residual, the resident memory held by the
 factorisation, and the whole 12-frequency Krylov FRF with the candidate in place of
-:func:`fe_core.frf.spd_solver`. The direct FRF's complex ``K - w^2 M + j w C`` is
+:func:`fe_core.solvers.frf.spd_solver`. The direct FRF's complex ``K - w^2 M + j w C`` is
 measured for the factorisations that take complex matrices. Writes ``docs/solvers.md``.
 CHOLMOD is optional here (``pip install scikit-sparse==0.4.16`` with Debian's
 libsuitesparse-dev); a candidate that fails to import is reported and skipped.
@@ -56,7 +56,7 @@ def factorizer(name: str):
 
         return lambda A: cholesky(A.tocsc()).solve_A
     if name == "pardiso":
-        from fe_core.frf import spd_solver
+        from fe_core.solvers.frf import spd_solver
 
         return spd_solver
     if name.endswith("splu-colamd"):
@@ -91,12 +91,12 @@ def measure(name: str, mesh: Path) -> dict:
     """Factor and solve with one candidate; times in s, memory held by the factor in MB.
 
     For the real candidates also the whole 12-frequency Krylov FRF of the bracket with
-    this factorisation in place of :func:`fe_core.frf.spd_solver`.
+    this factorisation in place of :func:`fe_core.solvers.frf.spd_solver`.
     """
     from unittest import mock
 
     from benchmarks.bracket import DAMPING, FREQUENCIES_HZ, problem
-    from fe_core import frf
+    from fe_core.solvers import frf
 
     prob = problem(mesh)
     A = prob.K.tocsc()

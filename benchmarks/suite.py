@@ -60,7 +60,7 @@ METHODS = ("default", "paper", "dfo-ls-nominal", "dfo-ls-random", "least-squares
 
 def jacobian_ratio(model, freqs, repeats: int = 20) -> float:
     """CPU time of an FE run with its exact Jacobian over that of an FE run (benchmark, one thread)."""
-    from fe_core.sensitivity import frf_jacobian
+    from fe_core.solvers.sensitivity import frf_jacobian
 
     rng = np.random.default_rng(0)
     X = rng.uniform(-0.8, 0.8, (repeats, 6))

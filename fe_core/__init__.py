@@ -1,6 +1,15 @@
-"""Finite element core: hex8 solids, segment-parametrised models, FRFs and modes.
+"""Finite element core: segment-parametrised models, their FRFs, derivatives and modes.
 
-Plain numpy/scipy. The public entry for the paper's benchmark is
+Plain numpy/scipy. Its rooms:
+
+* ``elements/`` (hex8 with incompatible modes, tet4, tet10), ``mesh.py``, ``tet_mesh.py``, ``surface.py``,
+  ``material.py``, ``assembly.py``: discretisation;
+* ``model.py``: :class:`ParametricModel`, ``K = sum_i K_i (1 + alpha_i)`` with sensors and excitations;
+* ``io/``: model files (``model.toml`` with a mesh or exported matrices) and the VTU writer;
+* ``solvers/``: FRFs, their exact derivatives, Jacobians, modes;
+* ``inference/``: residual statistics, parameter intervals, the sampled posterior;
+* ``closure/``: effects the model lacks, traced from the residual and fitted;
+* ``benchmark.py``: the paper's three-plate structure. The public entry for the paper's benchmark is
 :func:`fe_core.benchmark.three_plate`::
 
     from fe_core import three_plate, ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ

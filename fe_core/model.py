@@ -20,11 +20,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from .assembly import DOFS_PER_NODE, SegmentedMatrix, assemble, cell_dofs, free_dof_map
-from .frf import direct_frf, hz_to_rad, krylov_frf
+from .solvers.frf import direct_frf, hz_to_rad, krylov_frf
 from .elements.hex8 import element_mass, element_stiffness
 from .material import Material
 from .mesh import Mesh
-from .modal import classify_mode, eigenmodes
+from .solvers.modal import classify_mode, eigenmodes
 
 __all__ = ["ParametricModel", "check_parameters", "build_model"]
 
@@ -96,7 +96,7 @@ class ParametricModel:
         Mass of each segment (clamped nodes included).
     material : Material or None
         The material the element matrices were built with (None if unknown or several);
-        model extensions that add element matrices (:mod:`fe_core.effects`) need it.
+        model extensions that add element matrices (:mod:`fe_core.closure.effects`) need it.
     formulation : str or None
         hex8 stiffness formulation, ``"incompatible"`` or ``"plain"``.
     outputs : scipy.sparse.csr_matrix, shape (n_free, n_sensors), or None

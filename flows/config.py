@@ -131,7 +131,7 @@ class UpdateConfig:
         log-amplitude least-squares optimum, exact Jacobian, at most
         3 Jacobians), written to ``summary.json``.
     posterior_fe : int
-        FE runs of the sampled posterior (:mod:`fe_core.posterior`) that
+        FE runs of the sampled posterior (:mod:`fe_core.inference.posterior`) that
         replaces the Laplace intervals where their linearisation fails its
         check (an interval crossing the box, a curved valley); 0 = never
         sample. Default 400.

@@ -8,7 +8,7 @@ Reads the run's ``summary.json`` (its updated parameters) and ``manifest.json``
    its noise level (configured with ``--noise`` or estimated) and the
    chi-square decision noise / structure;
 2. ``closure-screen``: every candidate effect of the library
-   (:mod:`fe_core.effects`) linearised at that point;
+   (:mod:`fe_core.closure.effects`) linearised at that point;
 3. ``closure-check``: full FE least squares of the best candidates
    (only when the residual is structure);
 4. ``closure-decide``: extended-BIC decision, the updated model, residual
@@ -50,8 +50,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from prefect import flow  # noqa: E402
 
-from fe_core.closure import ALPHA_BOUNDS  # noqa: E402
-from fe_core.effects import registered_effects  # noqa: E402
+from fe_core.closure.fits import ALPHA_BOUNDS  # noqa: E402
+from fe_core.closure.effects import registered_effects  # noqa: E402
 from flows.config import REPO  # noqa: E402
 from tasks import closure as ct  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402

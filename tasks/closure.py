@@ -14,7 +14,7 @@ sub-folder per step with Parquet tables written atomically and a
     closure/closure.json, closure/residuals.png
 
 A finished step is read back, not recomputed; a killed check stage keeps the
-candidates already fitted. Each task wraps plain calls of :mod:`fe_core.closure`.
+candidates already fitted. Each task wraps plain calls of :mod:`fe_core.closure.fits`.
 """
 
 from __future__ import annotations
@@ -33,10 +33,10 @@ from joblib import Parallel, delayed
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from fe_core import closure as core
-from fe_core.effects import Applied, build_library, extended_frf, registered_effects
-from fe_core.selection import IDENTIFIED, forward_select, spread_mm
-from fe_core.residual import analyse_residual, log_residual, overall_error, per_sensor_error
+from fe_core.closure import fits as core
+from fe_core.closure.effects import Applied, build_library, extended_frf, registered_effects
+from fe_core.closure.selection import IDENTIFIED, forward_select, spread_mm
+from fe_core.inference.residual import analyse_residual, log_residual, overall_error, per_sensor_error
 from tasks.runstore import atomic_write_bytes, atomic_write_json
 from tasks.stages import load_model
 

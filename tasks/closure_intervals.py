@@ -1,7 +1,7 @@
 """95 % intervals and the covariance of a finished closure's extended model (alpha and each effect's value).
 
 Called by :func:`tasks.closure.decide_task` on the final fit of the closure
-(:func:`fe_core.intervals.extended_intervals`: Gauss-Newton steps to the
+(:func:`fe_core.inference.intervals.extended_intervals`: Gauss-Newton steps to the
 least-squares optimum of the log residual and the Laplace covariance there,
 every Jacobian column exact: alpha, each effect parameter, a sensor gain's
 analytically). The fields join ``closure.json`` with the names of
@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from fe_core.intervals import extended_intervals
+from fe_core.inference.intervals import extended_intervals
 
 __all__ = ["closure_interval_fields", "COLUMNS"]
 
@@ -25,7 +25,7 @@ log = logging.getLogger(__name__)
 
 #: How the Jacobian's columns are made (written to closure.json).
 COLUMNS = ("exact: d ln|Z| / d theta on one Krylov space for alpha and every structural effect parameter "
-           "(fe_core.sensitivity.extended_log_jacobian), analytic for a sensor gain")
+           "(fe_core.solvers.sensitivity.extended_log_jacobian), analytic for a sensor gain")
 
 
 def closure_interval_fields(model, freqs, amplitude, final, names, noise: float | None, alpha_bounds) -> dict:

@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 
-from fe_core.sensitivity import identifiability, log_amplitude_jacobian, pearson_correlation
+from fe_core.solvers.sensitivity import identifiability, log_amplitude_jacobian, pearson_correlation
 from mrgp_core import adaptive
 from tasks.runstore import _parquet_bytes, atomic_write_bytes, atomic_write_json
 from tasks.stages import evaluate_sample, load_model
@@ -197,7 +197,7 @@ def sensitivity_tables(model_name: str, references: dict[str, np.ndarray], freqs
         ``reference, parameter, sensor, frequency_hz, dlog_amplitude``.
     summary : dict
         JSON-ready, one entry per reference point.
-    results : dict of str to :class:`fe_core.sensitivity.Identifiability`
+    results : dict of str to :class:`fe_core.solvers.sensitivity.Identifiability`
     """
     model = load_model(model_name)
     freqs = np.asarray(freqs_hz, dtype=float)

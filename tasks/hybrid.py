@@ -44,7 +44,7 @@ LOCAL_STAGE, GLOBAL_STAGE, CHECK_STAGE = "local", "global", "check"
 HYBRID_STAGES = (LOCAL_STAGE, GLOBAL_STAGE, CHECK_STAGE)
 
 #: Cost of an FE run with its exact Jacobian, in FE runs: the CPU time ratio of
-#: ``fe_core.sensitivity.frf_jacobian`` (Krylov) to ``model.frf`` on the benchmark, 2.3 measured (one thread,
+#: ``fe_core.solvers.sensitivity.frf_jacobian`` (Krylov) to ``model.frf`` on the benchmark, 2.3 measured (one thread,
 #: load 10), rounded up; ``python -m benchmarks.suite`` measures it again in every run (docs/suite.md). Data with
 #: several references cost this once per reference.
 JACOBIAN_COST = 2.5
@@ -63,14 +63,14 @@ def hybrid_options(config, m: int) -> HybridOptions:
 # -- FE runs with Jacobians (in worker processes) -----------------------------------------------
 def evaluate_sample_jacobian(model_name: str, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray,
                              channels: tuple[np.ndarray, np.ndarray] | None = None) -> pd.DataFrame:
-    """One FE run with the exact derivative of the receptance (:func:`fe_core.sensitivity.frf_jacobian`).
+    """One FE run with the exact derivative of the receptance (:func:`fe_core.solvers.sensitivity.frf_jacobian`).
 
     Columns of :func:`tasks.stages.evaluate_sample` plus ``dreal_<i>``, ``dimag_<i>`` (i = 1..m, the
     parameter vector's order): the derivative of ``real``/``imag`` with respect to parameter i, and
     ``cost`` (FE-run equivalents: :data:`JACOBIAN_COST` per reference of the channels). A failed run has
     NaN everywhere.
     """
-    from fe_core.sensitivity import frf_jacobian
+    from fe_core.solvers.sensitivity import frf_jacobian
 
     t0 = time.perf_counter()
     model = stages.load_model(model_name)

@@ -1,12 +1,12 @@
 """The intervals stage: 95 % intervals and the covariance of the updated parameters.
 
-After the polish, :func:`fe_core.intervals.parameter_intervals` takes
+After the polish, :func:`fe_core.inference.intervals.parameter_intervals` takes
 Gauss-Newton steps with the exact Jacobian (Krylov, with its FRF) from the run's best
 parameters to the least-squares optimum of the log-amplitude residual and
 computes the Laplace intervals there (noise from ``config.noise`` or
 estimated from the residual). Where the Laplace approximation flags a
 parameter (an interval wider than the threshold or crossing the search box),
-the linearity check of :mod:`fe_core.posterior` looks along it (two FE runs
+the linearity check of :mod:`fe_core.inference.posterior` looks along it (two FE runs
 each); if the check fails, a posterior sampled on the FE model (importance
 sampling, ``config.posterior_fe`` FE runs) gives the intervals instead, and
 the summary says which method was used and why
@@ -28,8 +28,8 @@ import pandas as pd
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from fe_core.intervals import parameter_intervals
-from fe_core.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
+from fe_core.inference.intervals import parameter_intervals
+from fe_core.inference.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
 from tasks import stages
 from tasks.runstore import RunStore
 

@@ -451,7 +451,7 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
 
 def _cell_stiffness_of(family, coords: np.ndarray, materials: list, material_of: np.ndarray, options: dict):
     """``cells -> (len(cells), d, d)`` element stiffness matrices (N/m) of a mesh model's cells, each with its
-    material: for effects that stiffen or weaken a set of cells (:mod:`fe_core.effects`)."""
+    material: for effects that stiffen or weaken a set of cells (:mod:`fe_core.closure.effects`)."""
     def cell_stiffness(cells: np.ndarray) -> np.ndarray:
         cells = np.asarray(cells, dtype=int)
         d = coords.shape[1] * DOFS_PER_NODE

@@ -4,7 +4,7 @@ Every FE run goes out in *rounds*: one call ``evaluate(points, jacobian)`` is
 a batch whose runs may execute in parallel and which must finish before the
 next is chosen. A run returns the complex receptance ``Z`` at the k measured
 (frequency, sensor) pairs and, where ``jacobian`` asks for it, its exact
-derivative ``dZ`` (k, m) (an adjoint on the FE model, :mod:`fe_core.sensitivity`;
+derivative ``dZ`` (k, m) (an adjoint on the FE model, :mod:`fe_core.solvers.sensitivity`;
 its cost in FE-run equivalents is the caller's ``jacobian_cost``).
 
 1. **Local phase** (:func:`local_phase`): trust-region Gauss-Newton from the
@@ -12,7 +12,7 @@ its cost in FE-run equivalents is the caller's ``jacobian_cost``).
    model (:mod:`.gauss_newton`), one FE run with its Jacobian per round.
 2. **Check** (:func:`check`): when the local phase has converged above the
    target, is what is left noise? The chi-square test of the log residual
-   (:func:`fe_core.residual.analyse_residual`) against the configured noise,
+   (:func:`fe_core.inference.residual.analyse_residual`) against the configured noise,
    or the noise estimated from second differences along frequency, which a
    misfit smooth in frequency (a wrong basin) does not inflate.
 3. **Global phase** (:func:`global_phase`), only when the check finds
@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import qmc
 
-from fe_core.residual import chi_square_test, estimate_noise
+from fe_core.inference.residual import chi_square_test, estimate_noise
 
 from .gauss_newton import Residual, TrustRegionGN
 
@@ -254,7 +254,7 @@ def local_phase(ledger: Ledger, x0: np.ndarray, lower: np.ndarray, upper: np.nda
 def check(Z: np.ndarray, residual: Residual, layout: Layout, n_fitted: int, options: HybridOptions) -> Check:
     """Is the residual at ``Z`` (shape (k,)) noise? The chi-square test of the log amplitude residual.
 
-    ``ln(|Z| / |measured|)`` (:mod:`fe_core.residual`: multiplicative noise is additive there) against the
+    ``ln(|Z| / |measured|)`` (:mod:`fe_core.inference.residual`: multiplicative noise is additive there) against the
     configured noise, or the noise estimated from second differences along frequency on the lines where every
     channel is kept; an estimate above ``max_noise`` is not believed. Noise when the test passes or the rms is
     within ``noise_ratio`` times the noise (a wrong basin leaves several times the noise: 10-40 % against

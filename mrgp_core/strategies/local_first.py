@@ -13,7 +13,7 @@ next is chosen. The strategy counts FE runs and rounds.
    runs, when DFO-LS converges, or on the budget. It is at the noise floor when the
    residual's root mean square is at most ``noise_ratio`` times the noise
    level estimated from the residual's second differences along frequency
-   (:func:`fe_core.residual.estimate_noise`): a local minimum in the wrong
+   (:func:`fe_core.inference.residual.estimate_noise`): a local minimum in the wrong
    basin leaves a misfit that is smooth in frequency, so its estimated noise
    is far below its rms.
 3. **Global phase**: when stalled above the noise, one round of ``batch``
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import qmc
 
-from fe_core.residual import estimate_noise
+from fe_core.inference.residual import estimate_noise
 
 __all__ = ["LocalFirstResult", "local_first", "at_noise_floor"]
 

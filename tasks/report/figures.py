@@ -206,7 +206,7 @@ def plot_closure_frf(table: pd.DataFrame, path: Path, title: str | None = None) 
     (bands side by side would leave the panel empty between them) when there are at most 3 bands
     and 8 sensors, else one panel per sensor with the lines broken at the gaps.
     """
-    from fe_core.residual import frequency_bands
+    from fe_core.inference.residual import frequency_bands
 
     sensors = sorted(table["sensor"].unique())
     freqs = np.sort(table["frequency_hz"].unique())
@@ -656,7 +656,7 @@ def plot_singular_values(results: dict[str, object], path: Path) -> Path:
 
     Parameters
     ----------
-    results : dict of str to :class:`fe_core.sensitivity.Identifiability`
+    results : dict of str to :class:`fe_core.solvers.sensitivity.Identifiability`
     """
     fig = Figure(figsize=(11, 4.4), layout="constrained")
     ax, ax2 = fig.subplots(1, 2)

@@ -17,7 +17,7 @@ import pytest
 
 from fe_core.assembly import DOFS_PER_NODE
 from fe_core.io import read_model
-from fe_core.residual import relative_residual
+from fe_core.inference.residual import relative_residual
 from mrgp_core.polish import polish
 from tasks.io.measured import read_measured
 

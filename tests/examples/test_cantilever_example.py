@@ -14,9 +14,9 @@ import json
 import numpy as np
 import pytest
 
-from fe_core.closure import close_loop
+from fe_core.closure.loop import close_loop
 from fe_core.io import read_model
-from fe_core.residual import overall_error
+from fe_core.inference.residual import overall_error
 from flows.config import REPO
 from tasks.io.measured import read_measured
 

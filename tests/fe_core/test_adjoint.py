@@ -1,4 +1,4 @@
-"""The FRF and its derivatives from one Krylov space (fe_core.adjoint) against the direct solver."""
+"""The FRF and its derivatives from one Krylov space (fe_core.solvers.adjoint) against the direct solver."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from fe_core.adjoint import ReducedResponse
+from fe_core.solvers.adjoint import ReducedResponse
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ
-from fe_core.frf import direct_frf, hz_to_rad
+from fe_core.solvers.frf import direct_frf, hz_to_rad
 
 FREQS = MEASUREMENT_FREQUENCIES_HZ[[0, 3, 9]]
 #: The Krylov space converges the responses to 1e-10 of the largest per frequency; the direct

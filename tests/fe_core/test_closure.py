@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fe_core.closure import close_loop
-from fe_core.residual import analyse_residual, overall_error
+from fe_core.closure.loop import close_loop
+from fe_core.inference.residual import analyse_residual, overall_error
 from tasks.io.measured import read_measured
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "effects"
@@ -27,7 +27,7 @@ CLEAN_FILES = [name for name, t in TRUTH["data"].items() if not t["effect"]]
 @pytest.fixture(scope="module")
 def library(benchmark_model):
     """Every registered effect for the benchmark, built once for the module's closures."""
-    from fe_core.effects import build_library
+    from fe_core.closure.effects import build_library
 
     return build_library(benchmark_model)
 
@@ -90,8 +90,8 @@ def test_clean_data_gets_no_effect(benchmark_model, library, name):
 
 # -- issue 18: plausibility, verdicts, joint refits -----------------------------------------------------
 def test_a_fit_on_a_plausibility_bound_is_flagged_but_not_one_at_the_effects_absence(benchmark_model):
-    from fe_core.closure import at_bound
-    from fe_core.effects import ElementBand, PointMass
+    from fe_core.closure.fits import at_bound
+    from fe_core.closure.effects import ElementBand, PointMass
 
     pm = PointMass(benchmark_model)
     top = pm.bounds_at("node 337")[1][0]
@@ -104,7 +104,7 @@ def test_a_fit_on_a_plausibility_bound_is_flagged_but_not_one_at_the_effects_abs
 
 
 def test_verdicts_name_noise_explained_and_partly_explained():
-    from fe_core.closure import verdict
+    from fe_core.closure.fits import verdict
 
     class A:  # only .structured is read
         def __init__(self, structured):
@@ -119,8 +119,8 @@ def test_verdicts_name_noise_explained_and_partly_explained():
 def test_an_earlier_effect_is_refitted_with_alpha_and_the_new_one(benchmark_model):
     """Noise-free data with two effects: from a wrong earlier value, the joint fit recovers both."""
     from fe_core.benchmark import ALPHA_ACTUAL
-    from fe_core.closure import fit_update
-    from fe_core.effects import Applied, GroundedSpring, PointMass, extended_frf
+    from fe_core.closure.fits import fit_update
+    from fe_core.closure.effects import Applied, GroundedSpring, PointMass, extended_frf
 
     freqs = np.linspace(20, 400, 40)
     pm, gs = PointMass(benchmark_model), GroundedSpring(benchmark_model)
@@ -143,8 +143,8 @@ def test_the_exact_and_the_difference_jacobian_reach_the_same_optimum(benchmark_
     exact one in fewer FE runs (7 against 56 measured).
     """
     from fe_core.benchmark import ALPHA_ACTUAL
-    from fe_core.closure import fit_update
-    from fe_core.effects import Applied, PointMass, extended_frf
+    from fe_core.closure.fits import fit_update
+    from fe_core.closure.effects import Applied, PointMass, extended_frf
 
     freqs = np.linspace(20, 400, 30)
     pm = PointMass(benchmark_model)
@@ -166,7 +166,7 @@ TRUTH2 = json.loads((DATA2 / "truth.json").read_text())["data"]
 
 def closure2(model, name, kinds):
     """Forward selection from the nominal model with a small library (the cheapest that asserts the point)."""
-    from fe_core.effects import build_library
+    from fe_core.closure.effects import build_library
 
     measured = read_measured(DATA2 / name)
     return close_loop(model, measured.frequencies_hz, measured.amplitude, np.zeros(6),

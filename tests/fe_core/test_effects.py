@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from fe_core import effects as E
+from fe_core.closure import effects as E
 from fe_core.assembly import DOFS_PER_NODE
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ
 

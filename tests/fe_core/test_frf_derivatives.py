@@ -1,4 +1,4 @@
-"""The FRF derivatives on a Krylov space (fe_core.frf_derivatives) against the direct adjoint and
+"""The FRF derivatives on a Krylov space (fe_core.solvers.frf_derivatives) against the direct adjoint and
 central differences: the benchmark, a tet10 model file, the matrices example, general directions."""
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from fe_core import frf
+from fe_core.solvers import frf
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ
-from fe_core.frf_derivatives import Direction, direct_frf_derivatives, krylov_frf_derivatives
+from fe_core.solvers.frf_derivatives import Direction, direct_frf_derivatives, krylov_frf_derivatives
 from fe_core.io import read_model
-from fe_core.sensitivity import frf_jacobian, log_amplitude_jacobian
+from fe_core.solvers.sensitivity import frf_jacobian, log_amplitude_jacobian
 
 REPO = Path(__file__).resolve().parents[2]
 #: Both methods are exact to round-off times the conditioning: the FE core promises 1e-9 of a
@@ -146,7 +146,7 @@ def test_an_unconverged_space_falls_back_to_the_direct_solver(benchmark_model, c
     dirs = [Direction(stiffness=benchmark_model.stiffness_segments.segment(0))]
     omegas = frf.hz_to_rad(MEASUREMENT_FREQUENCIES_HZ[:2])
     args = (K, M, a, b, benchmark_model.combined_load(), benchmark_model.outputs, dirs, omegas)
-    with caplog.at_level(logging.WARNING, logger="fe_core.frf_derivatives"):
+    with caplog.at_level(logging.WARNING, logger="fe_core.solvers.frf_derivatives"):
         Z, dZ, info = krylov_frf_derivatives(*args, max_dimension=12, return_info=True)
     assert not info.converged and "falling back" in caplog.text
     Zd, dZd = direct_frf_derivatives(*args)

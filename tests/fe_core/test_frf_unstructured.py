@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from fe_core import frf
+from fe_core.solvers import frf
 from fe_core.assembly import assemble, free_dof_map
 from fe_core.elements import tet10
 from fe_core.material import isotropic_elasticity

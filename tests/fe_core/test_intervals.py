@@ -1,4 +1,4 @@
-"""Laplace intervals (fe_core.intervals) against linear regression, where they are exact, and the FE fit."""
+"""Laplace intervals (fe_core.inference.intervals) against linear regression, where they are exact, and the FE fit."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 from scipy import stats
 
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ
-from fe_core.intervals import fit_log_amplitudes, laplace_intervals, parameter_intervals
-from fe_core.sensitivity import log_amplitude_jacobian
+from fe_core.inference.intervals import fit_log_amplitudes, laplace_intervals, parameter_intervals
+from fe_core.solvers.sensitivity import log_amplitude_jacobian
 
 
 def _linear_fit(X, y):
@@ -136,7 +136,7 @@ def test_gauss_newton_steps_from_a_nearby_start_reach_the_truth_of_noise_free_da
 # -- the closure's extended model: alpha and the added effects' values ------------------------------------
 def _effects(model):
     """A point mass, a grounded spring, a joint band (scales with alpha), a damping change and a sensor gain."""
-    from fe_core.effects import Applied, GroundedSpring, PointMass, RayleighDamping, SensorGain, build_library
+    from fe_core.closure.effects import Applied, GroundedSpring, PointMass, RayleighDamping, SensorGain, build_library
 
     band = build_library(model, ["joint_band"])[0]
     return [Applied(PointMass(model), "node 337", np.array([0.05])),
@@ -148,8 +148,8 @@ def _effects(model):
 
 def test_extended_jacobian_columns_match_central_differences_of_the_extended_frf(benchmark_model):
     """Every column: alpha (with the band's alpha-dependence), mass, spring, band, damping, gain."""
-    from fe_core.effects import Applied, extended_frf
-    from fe_core.sensitivity import extended_log_jacobian
+    from fe_core.closure.effects import Applied, extended_frf
+    from fe_core.solvers.sensitivity import extended_log_jacobian
 
     freqs = MEASUREMENT_FREQUENCIES_HZ[[0, 3, 6, 9]]
     alpha = ALPHA_ACTUAL
@@ -179,8 +179,8 @@ def test_extended_jacobian_columns_match_central_differences_of_the_extended_frf
 
 @pytest.mark.slow
 def test_extended_intervals_step_to_the_truth_of_noise_free_data_and_flag_an_absent_effect(benchmark_model):
-    from fe_core.effects import Applied, RayleighDamping, extended_frf
-    from fe_core.intervals import extended_intervals
+    from fe_core.closure.effects import Applied, RayleighDamping, extended_frf
+    from fe_core.inference.intervals import extended_intervals
 
     freqs = MEASUREMENT_FREQUENCIES_HZ
     truth = _effects(benchmark_model)[:2]  # point mass and spring
@@ -205,8 +205,8 @@ def test_extended_intervals_of_a_model_with_mass_factors_are_those_of_its_stiffn
     """The extended model holds updated mass factors at nominal: the same alpha box and intervals, no crash."""
     import dataclasses
 
-    from fe_core.effects import extended_frf
-    from fe_core.intervals import extended_intervals
+    from fe_core.closure.effects import extended_frf
+    from fe_core.inference.intervals import extended_intervals
 
     freqs = MEASUREMENT_FREQUENCIES_HZ[[0, 3, 6, 9]]
     truth = _effects(benchmark_model)[:1]  # the point mass

@@ -287,7 +287,7 @@ def test_segment_mass_factors_are_updated_where_asked_and_recovered_from_scikit_
     scikit-fem's own FRF with those segments' mass matrices scaled (an independent path) is the model's, and
     least squares from the nominal model (exact Jacobian with the gamma columns) recovers every factor."""
     from benchmarks.make_matrix_example import skfem_frf, skfem_model, write_files
-    from fe_core.intervals import fit_log_amplitudes
+    from fe_core.inference.intervals import fit_log_amplitudes
 
     fem = skfem_model(n_x=10, n_y=1, n_z=1)
     write_files(fem, tmp_path)

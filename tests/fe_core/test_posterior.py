@@ -1,4 +1,4 @@
-"""The linearity check and the importance-sampled posterior (fe_core.posterior) on problems with known answers."""
+"""The linearity check and the importance-sampled posterior (fe_core.inference.posterior) on problems with known answers."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from fe_core.intervals import laplace_intervals
-from fe_core.posterior import importance_posterior, linearity_check
+from fe_core.inference.intervals import laplace_intervals
+from fe_core.inference.posterior import importance_posterior, linearity_check
 
 
 def _linear(rng, m=3, n=40, sigma=0.01):

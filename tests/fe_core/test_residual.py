@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ
-from fe_core.residual import (
+from fe_core.inference.residual import (
     analyse_residual,
     chi_square_test,
     estimate_noise,

@@ -1,4 +1,4 @@
-"""Forward selection with swaps, joint relocation and the evidence of each effect (fe_core.selection).
+"""Forward selection with swaps, joint relocation and the evidence of each effect (fe_core.closure.selection).
 
 The full table on data/effects2 is ``python -m benchmarks.closure --table``; here the pieces, cheaply:
 the evidence weights by hand, a relocation on noise-free data, and two closures with small libraries.
@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fe_core.closure import Candidate, Fit, close_loop, fit_update, verdict
-from fe_core.effects import Applied, GroundedSpring, PointMass, build_library, extended_frf
-from fe_core.selection import IDENTIFIED, evidence, refine
+from fe_core.closure.fits import Candidate, Fit, fit_update, verdict
+from fe_core.closure.loop import close_loop
+from fe_core.closure.effects import Applied, GroundedSpring, PointMass, build_library, extended_frf
+from fe_core.closure.selection import IDENTIFIED, evidence, refine
 from tasks.io.measured import read_measured
 
 DATA2 = Path(__file__).resolve().parents[2] / "data" / "effects2"
@@ -102,7 +103,7 @@ def test_a_point_mass_or_a_stiffer_patch_the_data_cannot_tell_is_ambiguous(bench
 def test_the_location_spread_says_how_far_the_evidence_reaches(benchmark_model):
     """A damaged patch is pinned to two overlapping patches; a point mass far from the sensors' strong
     points spreads over tens of nodes (data/effects2, fitted at the true location from the true alpha)."""
-    from fe_core.selection import location_spread, spread_mm
+    from fe_core.closure.selection import location_spread, spread_mm
 
     lib = {e.kind: e for e in build_library(benchmark_model, ["patch", "point_mass"])}
     spans = {}
@@ -121,7 +122,7 @@ def test_the_location_spread_says_how_far_the_evidence_reaches(benchmark_model):
 
 
 def test_an_effect_is_located_when_the_evidence_stays_within_five_percent_of_the_structure(benchmark_model):
-    from fe_core.selection import located
+    from fe_core.closure.selection import located
 
     pm = PointMass(benchmark_model)
     size = 1e3 * np.linalg.norm(np.ptp(benchmark_model.mesh.nodes, axis=0))  # 641 mm: 32 mm allowed

@@ -7,7 +7,7 @@ import pytest
 from scipy import stats
 
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ
-from fe_core.sensitivity import frf_jacobian, identifiability, log_amplitude_jacobian, pearson_correlation
+from fe_core.solvers.sensitivity import frf_jacobian, identifiability, log_amplitude_jacobian, pearson_correlation
 
 
 # -- Pearson correlation --------------------------------------------------------------------------

@@ -210,7 +210,7 @@ def timoshenko_correction(support: str) -> float:
 
 
 def beam_first_frequency(family: str, m: int, support: str) -> float:
-    from fe_core.frf import spd_solver
+    from fe_core.solvers.frf import spd_solver
 
     cell_type, order = FAMILIES[family]
     module = ELEMENTS[cell_type]

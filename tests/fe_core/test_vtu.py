@@ -96,13 +96,13 @@ def test_wrong_number_of_factors_is_refused(model):
 @pytest.mark.parametrize("max_bandwidth", [0, 10**9])
 def test_modes_by_sparse_cholesky_and_by_superlu_equal_the_dense_solve(model, monkeypatch, max_bandwidth):
     """A wide-band K (any gmsh mesh) is factored by PARDISO for the modes, a banded one by SuperLU."""
-    import fe_core.frf
-    from fe_core.modal import eigenmodes
+    import fe_core.solvers.frf
+    from fe_core.solvers.modal import eigenmodes
 
     calls = []
-    real = fe_core.frf.spd_solver
-    monkeypatch.setattr(fe_core.frf, "MAX_BANDWIDTH", max_bandwidth)
-    monkeypatch.setattr(fe_core.frf, "spd_solver", lambda A: calls.append(A.shape) or real(A))
+    real = fe_core.solvers.frf.spd_solver
+    monkeypatch.setattr(fe_core.solvers.frf, "MAX_BANDWIDTH", max_bandwidth)
+    monkeypatch.setattr(fe_core.solvers.frf, "spd_solver", lambda A: calls.append(A.shape) or real(A))
     K, M = model.stiffness(ALPHA), model.mass(GAMMA)
     freqs, vecs = eigenmodes(K, M, N_MODES)
     assert len(calls) == (1 if max_bandwidth == 0 else 0)

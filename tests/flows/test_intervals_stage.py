@@ -101,7 +101,7 @@ def test_noise_key_is_validated_and_reaches_the_config(tmp_path):
 def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(tmp_path, rng):
     from types import SimpleNamespace
 
-    from fe_core.intervals import laplace_intervals
+    from fe_core.inference.intervals import laplace_intervals
     from tasks.report.sections import intervals_section
 
     X = rng.normal(size=(40, 3))
@@ -120,7 +120,7 @@ def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(t
     # A sampled posterior: its weighted samples are drawn from the stage's posterior.parquet.
     import pandas as pd
 
-    from fe_core.posterior import LinearityCheck, Posterior, sampled_summary
+    from fe_core.inference.posterior import LinearityCheck, Posterior, sampled_summary
 
     names = iv.names
     X = iv.estimate + 0.01 * rng.normal(size=(200, 3))

@@ -3,7 +3,7 @@
 Error model
 -----------
 The project's synthetic measurements (``benchmarks.compare.make_far_noisy``,
-``benchmarks.coverage``) and the residual analysis (:mod:`fe_core.residual`)
+``benchmarks.coverage``) and the residual analysis (:mod:`fe_core.inference.residual`)
 take the noise as multiplicative on each FRF amplitude::
 
     u_fs = |Z_fs(alpha_true)| (1 + sigma e_fs),   e_fs ~ N(0, 1) independent,
@@ -20,7 +20,7 @@ whose maximum is the least-squares optimum ``alpha^`` of ``||r||^2``
 (noise-weighted: ``||r / sigma||^2``; one sigma for every value, since the
 noise is relative). Near ``alpha^`` the model is linearised with the exact
 Jacobian ``J = d ln|Z| / d alpha`` (adjoint, on one Krylov space with the FRF:
-:func:`fe_core.sensitivity.log_amplitude_jacobian`), which gives the
+:func:`fe_core.solvers.sensitivity.log_amplitude_jacobian`), which gives the
 Gauss-Newton (Laplace) covariance::
 
     C = sigma^2 (J^T J)^-1.
@@ -323,7 +323,7 @@ def fit_log_amplitudes(model, freqs_hz, measured_amplitude, alpha0, lower, upper
 
     ``scipy.optimize.least_squares`` (trust region reflective, bounds
     ``[lower, upper]``). The search's Jacobian is the exact adjoint one
-    (:func:`fe_core.sensitivity.log_amplitude_jacobian` on a Krylov space,
+    (:func:`fe_core.solvers.sensitivity.log_amplitude_jacobian` on a Krylov space,
     about 2 Krylov FRFs of time on the benchmark) or, with ``search_jacobian =
     "2-point"``, forward differences of step 1e-6 (m Krylov FRFs; the same
     optimum to the accuracy of the differences).
@@ -350,7 +350,7 @@ def fit_log_amplitudes(model, freqs_hz, measured_amplitude, alpha0, lower, upper
     -------
     LogFit
     """
-    from .sensitivity import log_amplitude_jacobian
+    from ..solvers.sensitivity import log_amplitude_jacobian
 
     freqs, lo, hi, log_residual = _log_problem(model, freqs_hz, measured_amplitude, lower, upper)
     counts = {"fe": 0, "jac": 0}
@@ -424,7 +424,7 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     The update's result (the polish's best FE run) is within a fraction of
     an interval of the optimum, but it minimised the relative residual and
     stopped when it stalled, so Gauss-Newton steps with the exact Jacobian
-    (:func:`fe_core.sensitivity.log_amplitude_jacobian`) finish the job:
+    (:func:`fe_core.solvers.sensitivity.log_amplitude_jacobian`) finish the job:
     ``step = -(J^T J)^-1 J^T r``, taken (clipped to the box) while it lowers
     ``||r||^2``, until the step is below ``step_tolerance`` standard
     deviations in every parameter or ``max_jacobians`` Jacobians are spent.
@@ -451,7 +451,7 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     -------
     RefinedIntervals
     """
-    from .sensitivity import log_amplitude_jacobian
+    from ..solvers.sensitivity import log_amplitude_jacobian
 
     freqs, lo, hi, _ = _log_problem(model, freqs_hz, measured_amplitude, lower, upper)
     log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
@@ -518,10 +518,10 @@ def extended_intervals(model, freqs_hz, measured_amplitude, alpha0, applied, alp
 
     The same as :func:`parameter_intervals` on ``theta = [alpha, values of
     each applied effect in order]``, with the exact Jacobian of the extended
-    model (:func:`fe_core.sensitivity.extended_log_jacobian`: every column,
+    model (:func:`fe_core.solvers.sensitivity.extended_log_jacobian`: every column,
     effects' included, a derivative on one Krylov space; a sensor gain's
     analytic). The box is ``alpha_bounds`` for alpha and each effect's
-    plausible range (:meth:`fe_core.effects.Effect.bounds_at`); an effect
+    plausible range (:meth:`fe_core.closure.effects.Effect.bounds_at`); an effect
     value whose interval contains zero is flagged (the data do not tell the
     effect from its absence), alpha as in :func:`laplace_intervals`.
 
@@ -531,7 +531,7 @@ def extended_intervals(model, freqs_hz, measured_amplitude, alpha0, applied, alp
     freqs_hz : array_like, shape (p,), Hz
     measured_amplitude : array_like, shape (p, n), m/N
     alpha0 : array_like, shape (m,)
-    applied : sequence of fe_core.effects.Applied
+    applied : sequence of fe_core.closure.effects.Applied
         The effects with their fitted values (the start of the steps).
     alpha_bounds : (float, float)
     noise, level, width_threshold, max_jacobians, step_tolerance
@@ -544,8 +544,8 @@ def extended_intervals(model, freqs_hz, measured_amplitude, alpha0, applied, alp
     RefinedIntervals
         ``intervals.estimate`` is the refined ``theta``.
     """
-    from .effects import Applied
-    from .sensitivity import extended_log_jacobian
+    from ..closure.effects import Applied
+    from ..solvers.sensitivity import extended_log_jacobian
 
     applied = list(applied)
     m = model.n_segments  # the extended model's alpha; mass factors stay nominal there (extended_matrices)

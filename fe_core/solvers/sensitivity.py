@@ -30,7 +30,7 @@ import numpy as np
 
 from .frf import hz_to_rad
 from .frf_derivatives import Direction, direct_frf_derivatives, krylov_frf_derivatives
-from .model import ParametricModel, check_parameters
+from ..model import ParametricModel, check_parameters
 
 __all__ = [
     "pearson_correlation",
@@ -104,7 +104,7 @@ JACOBIAN_METHODS = ("krylov", "direct")
 
 
 def segment_directions(model: ParametricModel) -> list:
-    """The derivative directions of the parameter vector, as :class:`fe_core.frf_derivatives.Direction` (cached).
+    """The derivative directions of the parameter vector, as :class:`fe_core.solvers.frf_derivatives.Direction` (cached).
 
     ``dK / dalpha_i = K_i`` for every segment, then ``dM / dgamma_j = M_j`` for every
     segment whose mass is updated (:attr:`ParametricModel.mass_parameters`). The
@@ -139,7 +139,7 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
         dZ_s / dalpha_i = -(1 + j w b) g_s^T K_i h,    dZ_s / dgamma_i = -(-w^2 + j w a) g_s^T M_i h
 
     ``method="krylov"`` (default) evaluates this on one block Krylov space
-    carrying both h and the g_s (:func:`fe_core.frf_derivatives.krylov_frf_derivatives`:
+    carrying both h and the g_s (:func:`fe_core.solvers.frf_derivatives.krylov_frf_derivatives`:
     one real factorisation of K, the space grown until Z and dZ stop changing
     to 1e-8; about 2.5 Krylov FRFs of time on the benchmark); ``"direct"``
     solves one complex sparse LU per frequency with 1 + n_sensors right-hand
@@ -155,7 +155,7 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
     freqs_hz : array_like, shape (p,), Hz
     method : {"krylov", "direct"}
     return_info : bool
-        Also return the :class:`fe_core.frf_derivatives.DerivativeInfo` of a
+        Also return the :class:`fe_core.solvers.frf_derivatives.DerivativeInfo` of a
         Krylov evaluation (None for ``"direct"``).
     channels : (responses, references), optional
         As in :meth:`ParametricModel.parameter_frf`: the (sensor, excitation) channels, one space
@@ -215,10 +215,10 @@ def log_amplitude_jacobian(model: ParametricModel, alpha, freqs_hz, method: str 
 
 
 def extended_log_jacobian(model: ParametricModel, alpha, freqs_hz, applied=(), method: str = "krylov"):
-    """``d ln|Z| / d [alpha, effect values]`` of a model with effects added (:mod:`fe_core.effects`), exact.
+    """``d ln|Z| / d [alpha, effect values]`` of a model with effects added (:mod:`fe_core.closure.effects`), exact.
 
     Every column is a direction of the dynamic stiffness on one Krylov space
-    (:func:`fe_core.frf_derivatives.krylov_frf_derivatives`): ``alpha_i``
+    (:func:`fe_core.solvers.frf_derivatives.krylov_frf_derivatives`): ``alpha_i``
     moves ``K_i`` plus any alpha-dependence of the applied effects (an element
     band scales with its segments' factors); an effect parameter moves the
     effect's terms at a unit value (``Effect.derivative``: effects are linear
@@ -231,7 +231,7 @@ def extended_log_jacobian(model: ParametricModel, alpha, freqs_hz, applied=(), m
     model : ParametricModel
     alpha : array_like, shape (m,)
     freqs_hz : array_like, shape (p,), Hz
-    applied : sequence of fe_core.effects.Applied
+    applied : sequence of fe_core.closure.effects.Applied
         The effects in the model, each with its values (the point of linearisation).
     method : {"krylov", "direct"}
 
@@ -242,9 +242,9 @@ def extended_log_jacobian(model: ParametricModel, alpha, freqs_hz, applied=(), m
         (k in all); rows frequency-major, sensors fastest.
     Z : ndarray, shape (p, n_sensors), complex, m/N
         The extended model's receptance as compared with the data (gains applied),
-        as :func:`fe_core.effects.extended_frf`.
+        as :func:`fe_core.closure.effects.extended_frf`.
     """
-    from .effects import extended_matrices, sensor_gain
+    from ..closure.effects import extended_matrices, sensor_gain
 
     if method not in JACOBIAN_METHODS:
         raise ValueError(f"unknown Jacobian method {method!r}; choose one of {JACOBIAN_METHODS}")

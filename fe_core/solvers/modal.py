@@ -76,7 +76,7 @@ def classify_mode(
 def _cholesky_inverse(K: sp.csc_matrix, sigma: float):
     """``K^-1`` by PARDISO's sparse Cholesky for an unstructured mesh's K, else None (SuperLU).
 
-    The same rule as the FRF's solver (:func:`fe_core.frf._shifted_solver`): a banded K (the
+    The same rule as the FRF's solver (:func:`fe_core.solvers.frf._shifted_solver`): a banded K (the
     benchmark) keeps ARPACK's own SuperLU; a wide band (any gmsh mesh) is factored once by
     PARDISO, about twice as fast as SuperLU for the six modes of the 33,681-DOF bracket
     (docs/mesh-pictures.md).

@@ -4,10 +4,10 @@ Steps (each a plain function, so a flow can store and resume them one by one):
 
 1. :func:`fit_update` without an effect: the best stiffness factors alpha
    alone (least squares on the FE model from the earlier updated point), and
-   :func:`fe_core.residual.analyse_residual` of what remains.
+   :func:`fe_core.inference.residual.analyse_residual` of what remains.
 2. :func:`screen`: every candidate (effect type x location) linearised at
    that point. With ``r`` the log residual and ``J_alpha`` its Jacobian, a
-   candidate with sensitivity ``j`` (from :class:`fe_core.effects.LinearisedResponse`,
+   candidate with sensitivity ``j`` (from :class:`fe_core.closure.effects.LinearisedResponse`,
    one field solve for all candidates) explains
    ``||P r||^2 - min_d ||P (r + j d)||^2`` of the residual sum of squares,
    where ``P`` projects out ``J_alpha`` (alpha is re-fitted with the effect)
@@ -23,13 +23,13 @@ Steps (each a plain function, so a flow can store and resume them one by one):
    fit too). An effect is added only if the residual before it is
    structure (chi-square test) and its extended BIC beats the model without it.
 
-5. Forward selection (:func:`fe_core.selection.forward_select`): steps 2-4
+5. Forward selection (:func:`fe_core.closure.selection.forward_select`): steps 2-4
    repeat with the effects added so far in the model, all of them refitted
    together with alpha at every step, while the residual is structure and an
    effect improves the extended BIC (up to ``max_effects``); with two or more
    effects, each is swapped for the best alternative in its place while that
    improves the extended BIC. A fit that ends on an effect's plausibility
-   bound (:meth:`fe_core.effects.Effect.bounds_at`) is reported implausible
+   bound (:meth:`fe_core.closure.effects.Effect.bounds_at`) is reported implausible
    and never added.
 6. The verdict: ``noise`` (the residual before was noise, nothing to add),
    ``explained`` (effects were added, the residual after them is noise and
@@ -55,8 +55,8 @@ import numpy as np
 from scipy.optimize import least_squares, lsq_linear
 
 from .effects import Applied, Effect, LinearisedResponse, build_library, extended_frf
-from .model import ParametricModel, check_parameters
-from .residual import (
+from ..model import ParametricModel, check_parameters
+from ..inference.residual import (
     ResidualAnalysis,
     analyse_residual,
     log_residual,
@@ -77,7 +77,6 @@ __all__ = [
     "check",
     "decide",
     "score",
-    "close_loop",
     "scores",
     "rank",
     "dedupe",
@@ -133,7 +132,7 @@ class Fit:
     message: str = ""
     #: Effects added at earlier steps, with their values refitted in this fit.
     prior: list = field(default_factory=list)
-    #: The newest effect as an :class:`fe_core.effects.Applied` (None without one).
+    #: The newest effect as an :class:`fe_core.closure.effects.Applied` (None without one).
     added: Applied | None = None
 
     @property
@@ -199,14 +198,14 @@ class ClosureResult:
     implausible: list[Candidate] = field(default_factory=list)
     rounds: list[list[Candidate]] = field(default_factory=list)
     #: Per added effect: its kind's share of the evidence among the kinds checked in its place, and
-    #: the rivals (:class:`fe_core.selection.Rival`) holding at least 1 % of it.
+    #: the rivals (:class:`fe_core.closure.selection.Rival`) holding at least 1 % of it.
     weights: list[float] = field(default_factory=list)
     rivals: list[list] = field(default_factory=list)
     #: Swaps made by the swap passes and moves of earlier effects (joint relocation), as text.
     swaps: list[str] = field(default_factory=list)
     moves: list[str] = field(default_factory=list)
     #: Per added effect: the locations of its kind holding 95 % of the linearised evidence, with weights,
-    #: and whether they lie close together (:func:`fe_core.selection.located`).
+    #: and whether they lie close together (:func:`fe_core.closure.selection.located`).
     spreads: list[list[tuple[str, float]]] = field(default_factory=list)
     located: list[bool] = field(default_factory=list)
 
@@ -225,7 +224,7 @@ def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effe
     Minimises ``sum ln(|Z_model| / u)^2`` with scipy's trust-region
     reflective method (``least_squares``, ``trf``) in parameters scaled by
     their typical size, by default (``jacobian="exact"``) with the exact Jacobian of
-    :class:`fe_core.effects.LinearisedResponse` (one Krylov space of the load
+    :class:`fe_core.closure.effects.LinearisedResponse` (one Krylov space of the load
     and the sensor loads per point gives the FRF and its derivatives with
     respect to every parameter, about 1.3 FRF costs, where forward
     differences cost one FRF per parameter); the parameters stay inside their
@@ -236,7 +235,7 @@ def fit_update(model: ParametricModel, freqs_hz, amplitude, alpha0, effect: Effe
     ``FD_STEP`` = 1e-4 of each parameter's scale (1e-5 in alpha). That step is
     set by the FRF's accuracy, not by round-off of one CPU: the Krylov FRF
     agrees with the direct solve to 1e-10 on the benchmark's banded path but
-    only to ~1e-8 on PARDISO's (``fe_core.frf.STAGNATION_RTOL``), and a forward
+    only to ~1e-8 on PARDISO's (``fe_core.solvers.frf.STAGNATION_RTOL``), and a forward
     difference over a step h carries that error divided by h. At 1e-7 in alpha
     the Jacobian of the cantilever example was 0.4 % wrong, and on another
     CPU's BLAS kernels the fit stopped early (``xtol``) at a cost 42 % above
@@ -667,67 +666,6 @@ def rank(candidates: Sequence[Candidate]) -> list[Candidate]:
     checked = sorted((c for c in candidates if c.fit is not None), key=lambda c: c.ebic)
     rest = sorted((c for c in candidates if c.fit is None), key=lambda c: c.linear_delta_ebic)
     return checked + rest
-
-
-# -- the whole loop -----------------------------------------------------------------------------------
-def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library: Sequence[Effect] | None = None,
-               noise: float | None = None, significance: float = 0.01, per_type: int = 2,
-               max_moves: int = 6, restarts: int = 0, seed: int = 0, check_noise: bool = False,
-               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, max_effects: int = 3,
-               swaps: bool = True) -> ClosureResult:
-    """Baseline fit, residual analysis, then forward selection: screening, checks and a decision per step.
-
-    Parameters
-    ----------
-    model : ParametricModel
-    freqs_hz : ndarray, shape (p,)
-    amplitude : ndarray, shape (p, n)
-        Measured amplitudes, m/N.
-    alpha_start : array_like, shape (m,)
-        The earlier updated parameters (from an MRGP run, say).
-    library : sequence of Effect, optional
-        Candidates; all registered effects by default.
-    noise : float, optional
-        Relative noise level of the amplitudes; estimated when None.
-    significance : float
-        Of the chi-square test "noise or structure".
-    per_type : int
-        Candidates per effect type given a full FE check.
-    max_moves : int
-        Moves of a searched location to a neighbour after its fit.
-    restarts : int
-        Extra starts of the alpha-only baseline fit when its residual is
-        structure (:func:`baseline`).
-    seed : int
-        Of the restarts' Sobol points.
-    check_noise : bool
-        Make the full checks even when the residual is noise (no effect can
-        be added then; the checks only refine the candidates' scores).
-    alpha_bounds : (float, float)
-        Box of the stiffness factors.
-    max_effects : int
-        Most effects added (forward selection stops earlier at noise or when
-        no effect improves the extended BIC).
-    swaps : bool
-        Swap passes after each addition (:func:`fe_core.selection.swap_pass`).
-    """
-    from .selection import forward_select
-
-    times = {"baseline": 0.0, "screen": 0.0, "check": 0.0}
-    t = time.perf_counter()
-    library = build_library(model) if library is None else list(library)
-    freqs = np.asarray(freqs_hz, float)
-    u = np.asarray(amplitude, float)
-    base, before = baseline(model, freqs, u, alpha_start, noise, significance, restarts, seed, alpha_bounds)
-    times["baseline"] = time.perf_counter() - t
-    log.info("baseline: %s", before.summary())
-    sel = forward_select(model, freqs, u, base, before, library, significance=significance, per_type=per_type,
-                         max_moves=max_moves, check_noise=check_noise, alpha_bounds=alpha_bounds,
-                         max_effects=max_effects, times=times, swaps=swaps)
-    return ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
-                         sel.final, sel.after, times, sel.steps,
-                         verdict(before, sel.after, len(sel.steps), sel.identified), sel.implausible, sel.rounds,
-                         sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads, sel.located)
 
 
 def dedupe(checked: Sequence[Candidate]) -> list[Candidate]:

@@ -22,8 +22,8 @@ Two solvers with one signature:
     entry-wise, so the result carries its own convergence check. The reduced
     pencil is diagonalised once, after which any number of frequencies costs
     a few small matrix products. The space is grown by :class:`BlockKrylov`,
-    the one builder that :mod:`fe_core.frf_derivatives` and
-    :mod:`fe_core.adjoint` use as well.
+    the one builder that :mod:`fe_core.solvers.frf_derivatives` and
+    :mod:`fe_core.solvers.adjoint` use as well.
 
     The factorisation at ``sigma = 0`` (K positive-definite) is a LAPACK banded
     Cholesky when the bandwidth is small (the structured meshes here number
@@ -280,8 +280,8 @@ class BlockKrylov:
     """The block Krylov space of ``(K - sigma M)^-1 M`` from ``(K - sigma M)^-1 start``, grown a block at a time.
 
     The one builder of projection spaces in the code base: :func:`krylov_space`
-    (and so :func:`krylov_frf` and :class:`fe_core.adjoint.ReducedResponse`) and
-    :func:`fe_core.frf_derivatives.krylov_frf_derivatives` grow their spaces
+    (and so :func:`krylov_frf` and :class:`fe_core.solvers.adjoint.ReducedResponse`) and
+    :func:`fe_core.solvers.frf_derivatives.krylov_frf_derivatives` grow their spaces
     with it and differ only in what they test for convergence between blocks.
 
     Each block is orthogonalised twice against the whole basis (full

@@ -4,7 +4,7 @@ With the dynamic stiffness ``D(w) = K - w^2 M + j w (a M + b K)``, the
 model's load F and output vectors ``l_s``, the receptance is
 ``Z_s = l_s^T D^-1 F`` and, for a change ``dD``,
 ``dZ_s = -(D^-1 l_s)^T dD (D^-1 F)`` (D is complex symmetric: reciprocity).
-Both fields lie in the block Krylov space of :func:`fe_core.frf.krylov_space`
+Both fields lie in the block Krylov space of :func:`fe_core.solvers.frf.krylov_space`
 started from the load *and* the sensor loads, ``V`` (n x d, d about 36 on the
 benchmark). In the modal coordinates of the reduced pencil,
 ``W = V phi`` with ``W^T K W = diag(mu)``, ``W^T M W = I``, every field is
@@ -23,11 +23,11 @@ the primal and the dual solutions converged in ``V`` the derivative is that
 of the FE model to the space's convergence (compared against central
 differences of the direct solver in ``tests/fe_core/test_adjoint.py``).
 
-The space is the same one :func:`fe_core.frf_derivatives.krylov_frf_derivatives`
-differentiates on, grown by the same builder (:class:`fe_core.frf.BlockKrylov`,
+The space is the same one :func:`fe_core.solvers.frf_derivatives.krylov_frf_derivatives`
+differentiates on, grown by the same builder (:class:`fe_core.solvers.frf.BlockKrylov`,
 the only one in the code base). Two front-ends remain because they answer
 different questions: ``krylov_frf_derivatives`` takes its directions
-(:class:`fe_core.frf_derivatives.Direction`) before the space is built and
+(:class:`fe_core.solvers.frf_derivatives.Direction`) before the space is built and
 grows the space until the derivatives along them stop changing, which suits a
 Jacobian over a fixed parameter list; this class builds the space once,
 converged on the responses to the load *and* to the sensor loads at the
@@ -36,7 +36,7 @@ modal coordinates, so that changes not known in advance are differentiated
 afterwards at the price of a row-sparse projection: the closure screens
 hundreds of candidate effects per fit (:meth:`diagonal_dlog`), and the sensor
 gains enter ``ln|Z|`` directly. ``dlog`` takes the four parts of a
-``Direction`` (``fe_core.effects.Terms`` has them) and a gain change.
+``Direction`` (``fe_core.closure.effects.Terms`` has them) and a gain change.
 One reduced-model object serving both (space plus modal coordinates) is the
 next step.
 """

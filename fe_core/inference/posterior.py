@@ -1,6 +1,6 @@
 """Where the Laplace intervals' linearisation is poor: a check, and a sampled posterior on the FE model.
 
-The Laplace intervals (:mod:`fe_core.intervals`) treat the model as linear
+The Laplace intervals (:mod:`fe_core.inference.intervals`) treat the model as linear
 within the intervals and ignore the search box. Two things break that:
 an interval that crosses a bound of the box (the posterior is cut there),
 and a curved or skewed valley (a wide, poorly determined parameter).
@@ -118,7 +118,7 @@ def linearity_check(residual, intervals, optimum_residual, lower, upper, which=N
     ----------
     residual : callable
         ``residual(theta) -> ndarray (N,)``, the log residual (one FE run).
-    intervals : fe_core.intervals.Intervals
+    intervals : fe_core.inference.intervals.Intervals
         Laplace intervals at the optimum ``intervals.estimate``.
     optimum_residual : ndarray, shape (N,)
         The residual at the optimum.
@@ -241,7 +241,7 @@ def importance_posterior(residual, intervals, lower, upper, rng: np.random.Gener
     ----------
     residual : callable
         ``residual(theta) -> ndarray (N,)``, one FE run.
-    intervals : fe_core.intervals.Intervals
+    intervals : fe_core.inference.intervals.Intervals
         The Laplace approximation (estimate, covariance, noise, level).
     lower, upper : float or array_like (m,)
     rng : numpy.random.Generator

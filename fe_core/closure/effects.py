@@ -48,12 +48,12 @@ factor at most 10. A fit that ends on such a bound is not a finding
 
 Every extension keeps K symmetric positive definite and M positive definite
 within the parameter bounds (springs and masses are non-negative, factors
-stay above -1), so the Krylov FRF of :mod:`fe_core.frf` (banded Cholesky of
+stay above -1), so the Krylov FRF of :mod:`fe_core.solvers.frf` (banded Cholesky of
 K) applies unchanged and an extended model costs what the base model costs.
 
 Users add their own effect with :func:`register_effect`::
 
-    from fe_core.effects import Effect, Terms, register_effect
+    from fe_core.closure.effects import Effect, Terms, register_effect
 
     class TipSpring(Effect):
         kind = "tip_spring"
@@ -74,10 +74,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from .assembly import DOFS_PER_NODE, SegmentedMatrix, cell_dofs
-from .frf import direct_frf, hz_to_rad, krylov_frf
-from .elements.hex8 import element_stiffness
-from .model import ParametricModel, check_parameters
+from ..assembly import DOFS_PER_NODE, SegmentedMatrix, cell_dofs
+from ..solvers.frf import direct_frf, hz_to_rad, krylov_frf
+from ..elements.hex8 import element_stiffness
+from ..model import ParametricModel, check_parameters
 
 __all__ = [
     "Terms",
@@ -954,7 +954,7 @@ class LinearisedResponse:
     ``dZ_s = -l_s^T D^-1 dD h``. D is complex symmetric, so ``l_s^T D^-1`` is
     the response ``X_s`` to a unit load along ``l_s`` (reciprocity), and
     ``dZ_s = -X_s^T (dD h)``: one Krylov space of F and the sensor loads
-    (:class:`fe_core.adjoint.ReducedResponse`) gives the sensitivity to *every*
+    (:class:`fe_core.solvers.adjoint.ReducedResponse`) gives the sensitivity to *every*
     candidate, e.g. a point mass at each of hundreds of nodes, without a solve
     per candidate.
 
@@ -968,7 +968,7 @@ class LinearisedResponse:
     """
 
     def __init__(self, model: ParametricModel, alpha, freqs_hz, applied: Sequence[Applied] = ()):
-        from .adjoint import ReducedResponse
+        from ..solvers.adjoint import ReducedResponse
 
         self.model = model
         self.alpha = check_parameters(alpha, model.n_segments, "alpha")

@@ -1,6 +1,6 @@
 """The FRF and its exact parameter derivatives on one Krylov space: a Jacobian for the price of a few FRFs.
 
-For Rayleigh damping the dynamic stiffness is a pencil in K and M (:mod:`fe_core.frf`)::
+For Rayleigh damping the dynamic stiffness is a pencil in K and M (:mod:`fe_core.solvers.frf`)::
 
     D(w) = K - w^2 M + j w (a M + b K) = (1 + j w b) (K - lambda(w) M),
 
@@ -15,7 +15,7 @@ and Z by ``dZ = -L^T D^-1 dD D^-1 F`` (``D`` is complex symmetric, so
 
 :func:`krylov_frf_derivatives` builds the block Krylov space of
 ``(K - sigma M)^-1 M`` started from ``(K - sigma M)^-1 [F, L]`` (one real
-factorisation, as :func:`fe_core.frf.krylov_frf`) and differentiates the
+factorisation, as :func:`fe_core.solvers.frf.krylov_frf`) and differentiates the
 Galerkin-reduced model on it. Because the space holds both the forward
 (load) and the adjoint (output) Krylov spaces, the reduced model matches
 moments of both ``D^-1 F`` and ``D^-1 L`` about sigma, and the derivative of
@@ -71,7 +71,7 @@ class Direction:
     damping_b : float
         ``db / dtheta``, s per unit theta.
 
-    Any object with these four attributes will do (``fe_core.effects.Terms``
+    Any object with these four attributes will do (``fe_core.closure.effects.Terms``
     at a unit value is one).
     """
 
@@ -165,10 +165,10 @@ def krylov_frf_derivatives(
         derivative (1e-8: far below anything a Jacobian is used for) ...
     frf_rtol : float
         ... and the responses by at most ``frf_rtol`` of each frequency's
-        largest response (1e-10, as :func:`fe_core.frf.krylov_frf`: the
+        largest response (1e-10, as :func:`fe_core.solvers.frf.krylov_frf`: the
         responses are then the FRF itself, to the FE core's 1e-9).
     sigma : float, optional, rad^2/s^2
-        Shift of the factorised pencil (see :func:`fe_core.frf.krylov_frf`).
+        Shift of the factorised pencil (see :func:`fe_core.solvers.frf.krylov_frf`).
     max_dimension : int
         Upper bound on the space's size; unconverged there, the direct
         solver is used (logged as a warning).
@@ -196,7 +196,7 @@ def krylov_frf_derivatives(
 
     lam = (omegas**2 - 1j * omegas * a) / (1.0 + 1j * omegas * b)
     scale = 1.0 / (1.0 + 1j * omegas * b)
-    # The space and its reduced matrices V^T A V for K, M and every dK_i, dM_i (fe_core.frf.BlockKrylov).
+    # The space and its reduced matrices V^T A V for K, M and every dK_i, dM_i (fe_core.solvers.frf.BlockKrylov).
     extra = [A for A in dK if A is not None] + [A for A in dM if A is not None]
     k_index = {i: 2 + j for j, i in enumerate(i for i in range(m) if dK[i] is not None)}
     n_k = len(k_index)

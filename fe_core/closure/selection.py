@@ -37,7 +37,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .closure import (
+from .fits import (
     ALPHA_BOUNDS,
     Candidate,
     Fit,
@@ -55,7 +55,7 @@ from .closure import (
     screen,
 )
 from .effects import Effect
-from .residual import ResidualAnalysis, analyse_residual
+from ..inference.residual import ResidualAnalysis, analyse_residual
 
 __all__ = [
     "Selection",

@@ -1,0 +1,81 @@
+"""The closure in one call: baseline fit, residual analysis, forward selection of effects.
+
+:func:`close_loop` chains the pieces of :mod:`.fits` (fits, screening, checks, decisions) and
+:mod:`.selection` (forward selection with moves and swaps) for an in-memory closure; the flow
+(``flows.diagnose``) runs the same pieces as stages with their results stored.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..model import ParametricModel
+from .effects import Effect, build_library
+from .fits import ALPHA_BOUNDS, ClosureResult, baseline, verdict
+from .selection import forward_select
+
+__all__ = ["close_loop"]
+
+log = logging.getLogger(__name__)
+
+
+def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library: Sequence[Effect] | None = None,
+               noise: float | None = None, significance: float = 0.01, per_type: int = 2,
+               max_moves: int = 6, restarts: int = 0, seed: int = 0, check_noise: bool = False,
+               alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, max_effects: int = 3,
+               swaps: bool = True) -> ClosureResult:
+    """Baseline fit, residual analysis, then forward selection: screening, checks and a decision per step.
+
+    Parameters
+    ----------
+    model : ParametricModel
+    freqs_hz : ndarray, shape (p,)
+    amplitude : ndarray, shape (p, n)
+        Measured amplitudes, m/N.
+    alpha_start : array_like, shape (m,)
+        The earlier updated parameters (from an MRGP run, say).
+    library : sequence of Effect, optional
+        Candidates; all registered effects by default.
+    noise : float, optional
+        Relative noise level of the amplitudes; estimated when None.
+    significance : float
+        Of the chi-square test "noise or structure".
+    per_type : int
+        Candidates per effect type given a full FE check.
+    max_moves : int
+        Moves of a searched location to a neighbour after its fit.
+    restarts : int
+        Extra starts of the alpha-only baseline fit when its residual is
+        structure (:func:`baseline`).
+    seed : int
+        Of the restarts' Sobol points.
+    check_noise : bool
+        Make the full checks even when the residual is noise (no effect can
+        be added then; the checks only refine the candidates' scores).
+    alpha_bounds : (float, float)
+        Box of the stiffness factors.
+    max_effects : int
+        Most effects added (forward selection stops earlier at noise or when
+        no effect improves the extended BIC).
+    swaps : bool
+        Swap passes after each addition (:func:`fe_core.closure.selection.swap_pass`).
+    """
+    times = {"baseline": 0.0, "screen": 0.0, "check": 0.0}
+    t = time.perf_counter()
+    library = build_library(model) if library is None else list(library)
+    freqs = np.asarray(freqs_hz, float)
+    u = np.asarray(amplitude, float)
+    base, before = baseline(model, freqs, u, alpha_start, noise, significance, restarts, seed, alpha_bounds)
+    times["baseline"] = time.perf_counter() - t
+    log.info("baseline: %s", before.summary())
+    sel = forward_select(model, freqs, u, base, before, library, significance=significance, per_type=per_type,
+                         max_moves=max_moves, check_noise=check_noise, alpha_bounds=alpha_bounds,
+                         max_effects=max_effects, times=times, swaps=swaps)
+    return ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
+                         sel.final, sel.after, times, sel.steps,
+                         verdict(before, sel.after, len(sel.steps), sel.identified), sel.implausible, sel.rounds,
+                         sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads, sel.located)
