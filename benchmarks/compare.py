@@ -124,11 +124,11 @@ class Oracle:
         self.history: list[tuple[np.ndarray, float]] = []
 
     def residuals(self, x) -> np.ndarray:
-        from mrgp_core import adaptive
+        from mrgp_core import errors
 
         x = np.asarray(x, float)
         amp = np.abs(self.model.frf(x, self.measured.frequencies_hz))
-        r = adaptive.relative_residuals(amp[None], self.measured.amplitude)[0]
+        r = errors.relative_residuals(amp[None], self.measured.amplitude)[0]
         self.history.append((x.copy(), float(np.mean(np.abs(r)))))
         return r
 
@@ -164,8 +164,7 @@ def run_adaptive(ds: Dataset, seed: int, trainer: str, strategy: str = "adaptive
                  polish: bool = True) -> list[tuple]:
     from flows.config import UpdateConfig
     from flows.update import update_flow
-    from tasks import stages
-    from tasks.polish import polish_results
+    from flows.hybrid import run_history
     from tasks.runstore import RunStore
 
     run_id = f"{ds.name}-{strategy}-{trainer}-seed{seed}" + ("" if polish else "-no-polish")
@@ -174,20 +173,9 @@ def run_adaptive(ds: Dataset, seed: int, trainer: str, strategy: str = "adaptive
                           strategy=strategy, seed=seed, n_jobs=2, true_parameters=ds.truth.tolist(),
                           polish=polish)
     summary = update_flow(config)
-    store = RunStore(runs_dir / run_id)
-    ids, X, _, E = stages.training_data(store, summary["iterations"])
-    iteration_of = {int(sid): k for k in range(1, summary["iterations"] + 1)
-                    for sid in store.read_table(k, "samples")["sample_id"]}
-    order = np.argsort(ids, kind="stable")
-    history = [(X[i], float(E[i]), 1.0, iteration_of.get(int(ids[i]), summary["iterations"])) for i in order]
-    polished = polish_results(store, summary["iterations"]) if strategy == "adaptive" else None
-    if polished is not None:
-        table = store.read_table(summary["iterations"], "polish").sort_values("step")
-        cols = [c for c in table.columns if c.startswith("alpha_")]
-        history += [(x, float(e)) for x, e in zip(table[cols].to_numpy(), table["overall_error"].to_numpy())]
-    # FE runs that failed are not in the histories above; they still cost an FE run.
-    missing = summary["fe_evaluations"] - len(history)
-    history += [(np.full(X.shape[1], np.nan), np.inf)] * max(missing, 0)
+    # Every FE run in order, failed ones included (they cost an FE run): the loop's, then the polish's.
+    history = [(h["x"], h["error"], 1.0, h["round"]) for h in run_history(RunStore(runs_dir / run_id),
+                                                                          summary["iterations"])]
     return history
 
 

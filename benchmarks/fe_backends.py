@@ -4,7 +4,7 @@
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python -m benchmarks.fe_backends
 
-The stage is the flow's own ``fe`` task (``tasks.stages.fe_task.fn``: submit,
+The stage is the flow's own ``fe`` task (``tasks.paper.fe_task.fn``: submit,
 write one Parquet file and one log line per result as it arrives, then the
 stage table), on ``--runs`` uniform samples of the three-plate model, in a
 fresh run folder each time. Cases:
@@ -33,23 +33,22 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ  # noqa: E402
 from flows.config import UpdateConfig  # noqa: E402
-from tasks import stages  # noqa: E402
+from flows.problem import resolve  # noqa: E402
+from tasks import paper  # noqa: E402
 from tasks.runstore import RunStore  # noqa: E402
 
 
 def stage_time(config: UpdateConfig) -> tuple[float, pd.DataFrame]:
-    """Wall time of one FE stage (iteration 1) in a fresh run folder, and its FE table."""
+    """Wall time of one FE stage (iteration 1) in a fresh run folder, and its responses table."""
     root = str(Path(config.runs_dir) / config.run_id)
-    m = stages.load_model(config.model).n_parameters
-    stages.samples_task.fn(root, config, 1, m)
+    problem = resolve(config)  # the model is read once per process (its file hashed once per call)
+    paper.samples_task.fn(root, problem, config, 1)
     t0 = time.perf_counter()
-    ran = stages.fe_task.fn(root, config, 1, np.asarray(MEASUREMENT_FREQUENCIES_HZ, float))
+    ran = paper.fe_task.fn(root, problem, config, 1)
     seconds = time.perf_counter() - t0
     assert ran == config.q, (ran, config.q)
-    fe = RunStore(root).read_table(1, "fe")
-    return seconds, fe
+    return seconds, RunStore(root).read_table(1, "fe", "responses")
 
 
 def main(argv=None) -> int:
@@ -68,9 +67,9 @@ def main(argv=None) -> int:
             return UpdateConfig(runs_dir=tmp, run_id=f"run-{next(counter)}", q=args.runs, seed=0, polish=False,
                                 max_fe_evaluations=args.runs, **kw)
 
-        stages.load_model("three_plate")  # this process's model, built once, outside the timings
+        resolve(config())  # this process's model, built once, outside the timings
         serial_t, reference = stage_time(config(n_jobs=1))
-        keep = ["sample_id", "frequency_hz", "sensor", "real", "imag", "status"]
+        keep = ["sample_id", "frequency_hz", "sensor", "real", "imag"]
 
         def same(fe: pd.DataFrame) -> bool:
             return fe[keep].reset_index(drop=True).equals(reference[keep].reset_index(drop=True))

@@ -5,7 +5,7 @@
 
 For each data set, trainer and seed it runs the paper's loop alone (``flows.update
 --no-polish``) for 3 iterations (60 FE runs), then, for k = 1, 2, 3, polishes
-(``mrgp_core.polish`` with the flow's settings: target 1e-4) from the best
+(``mrgp_core.strategies.polish`` with the flow's settings: target 1e-4) from the best
 sample after k iterations and counts the FE runs, loop and polish, until the
 overall error first reaches the data set's noise floor (as in
 ``benchmarks.compare``). This is how the default ``polish_max_fe`` (the hand-over
@@ -50,7 +50,7 @@ def loop_runs(ds, trainer: str, seed: int, runs_dir: Path):
 
 def polish_from(ds, x0: np.ndarray, r0: np.ndarray) -> int | None:
     """FE runs of the polish from ``x0`` until the floor (None if not within the budget)."""
-    from mrgp_core.polish import polish
+    from mrgp_core.strategies.polish import polish
 
     oracle = Oracle(ds.path)
     polish(lambda pts: [oracle.residuals(p) for p in pts], x0, np.full(6, LOWER), np.full(6, UPPER),
@@ -59,7 +59,7 @@ def polish_from(ds, x0: np.ndarray, r0: np.ndarray) -> int | None:
 
 
 def main(argv=None) -> int:
-    from tasks import stages
+    from tasks.paper import training_data
 
     p = argparse.ArgumentParser(prog="python -m benchmarks.handover", description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
@@ -78,7 +78,7 @@ def main(argv=None) -> int:
             for seed in args.seeds:
                 store = loop_runs(ds, trainer, seed, runs_dir)
                 for k in (1, 2, 3):
-                    _, X, Y, E = stages.training_data(store, k)
+                    _, X, Y, E = training_data(store, k)
                     b = int(np.argmin(E))
                     n = polish_from(ds, X[b], Y[b])
                     total = None if n is None else len(E) + n

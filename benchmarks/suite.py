@@ -21,7 +21,7 @@ Methods, all on the relative amplitude residuals of Eq. 5 in the box
   (Table 2: 20 uniform samples, 20 per iteration, 240 FE runs), trainer ``--trainer``;
 * ``dfo-ls-nominal`` / ``dfo-ls-random``: DFO-LS 1.6 (library defaults) from
   alpha = 0 / from one uniform random start per truth (core-level calls);
-* ``least-squares-nominal``: :func:`mrgp_core.polish.polish` (trust-region
+* ``least-squares-nominal``: :func:`mrgp_core.strategies.polish.polish` (trust-region
   least squares, forward-difference Jacobian in one batch) from alpha = 0.
 
 Scoring: the floor is 1e-4 on noise-free data and the overall error at the
@@ -81,14 +81,14 @@ class Problem:
     """One truth and noise level; ``evaluate(points)`` is one round of FE runs, every one logged."""
 
     def __init__(self, model, freqs, truth, noise, seed):
-        from mrgp_core import adaptive
+        from mrgp_core import errors
 
         self.model, self.freqs, self.truth, self.noise = model, freqs, truth, noise
         u = np.abs(model.frf(truth, freqs, method="direct"))
         if noise:
             u = u * (1.0 + noise * np.random.default_rng(seed).standard_normal(u.shape))
         self.u = u
-        self._rel = adaptive.relative_residuals
+        self._rel = errors.relative_residuals
         self.history: list[dict] = []  # round (at 20 workers), x, error, cost
         self.rounds = 0
         self.floor = (float(np.mean(np.abs(self.residuals(truth)))) if noise else 0.0) + 1e-4
@@ -120,7 +120,6 @@ def run_flow(prob: Problem, strategy: str, budget: int, seed: int, trainer: str,
     from flows.config import UpdateConfig
     from flows.hybrid import run_history
     from flows.update import update_flow
-    from tasks import stages
     from tasks.runstore import RunStore
 
     folder = Path(tempfile.mkdtemp(dir=work))
@@ -133,19 +132,10 @@ def run_flow(prob: Problem, strategy: str, budget: int, seed: int, trainer: str,
         settings.update(polish=False)  # the paper's loop alone, Table 2 (240 FE runs)
     summary = update_flow(UpdateConfig(**settings))
     store = RunStore(folder / "runs" / "run")
-    if strategy == "hybrid":
-        for h in run_history(store, summary["iterations"]):
+    for h in run_history(store, summary["iterations"]):  # every FE run, failed ones included (error inf)
+        if strategy == "hybrid":
             h["cost"] = ratio if h["jacobian"] else 1.0
-            prob.history.append(h)
-    else:
-        ids, X, _, E = stages.training_data(store, summary["iterations"])
-        iteration_of = {int(sid): k for k in range(1, summary["iterations"] + 1)
-                        for sid in store.read_table(k, "samples")["sample_id"]}
-        for i in np.argsort(ids, kind="stable"):  # one round per iteration (its batch of at most 20)
-            prob.history.append({"round": iteration_of[int(ids[i])], "x": X[i], "error": float(E[i]), "cost": 1.0})
-        missing = summary["fe_evaluations"] - len(prob.history)  # failed FE runs still cost one
-        prob.history += [{"round": summary["iterations"], "x": np.full(6, np.nan), "error": np.inf,
-                          "cost": 1.0}] * max(missing, 0)
+        prob.history.append(h)
     return summary
 
 
@@ -163,7 +153,7 @@ def run_method(method: str, prob: Problem, budget: int, seed: int, trainer: str,
         np.random.seed(0)
         dfols.solve(lambda x: prob.evaluate([x])[0], x0, bounds=(lower, upper), maxfun=budget, do_logging=False)
     elif method == "least-squares-nominal":
-        from mrgp_core.polish import polish
+        from mrgp_core.strategies.polish import polish
 
         polish(prob.evaluate, np.zeros(6), lower, upper, target=1e-4, max_evaluations=budget)
     else:

@@ -14,28 +14,31 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["UpdateConfig", "ConfigError", "load_config", "stored_settings", "TRAINERS", "STRATEGIES", "LOOPS",
+__all__ = ["UpdateConfig", "ConfigError", "load_config", "stored_settings", "TRAINERS", "STRATEGIES",
            "EMULATES", "MODELS", "OUTPUTS", "LINES", "RESIDUALS", "parse_windows"]
 
 REPO = Path(__file__).resolve().parents[1]
 TRAINERS = ("sao", "pso", "gradient")
 STRATEGIES = ("hybrid", "adaptive", "conventional")
-LOOPS = ("trust-region", "paper")  # the adaptive strategy's loop (tasks.trust_region)
-EMULATES = ("modes", "errors")  # what the paper loop's MRGP emulates (tasks.modal_emulation)
+EMULATES = ("modes", "errors")  # what the paper loop's MRGP emulates (mrgp_core.strategies.paper)
 MODELS = ("three_plate",)
 FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
-OUTPUTS = ("full", "reduced", "auto")  # tasks.stages.reduced_outputs
+OUTPUTS = ("full", "reduced", "auto")  # mrgp_core.strategies.emulation.reduced_outputs
 LINES = ("all", "windows", "resonances")  # tasks.lines.LINE_MODES
 RESIDUALS = ("auto", "amplitude", "complex")  # tasks.update_data.RESIDUALS
 
 #: Keys added after runs were made whose default changed what a run does: a run manifest without the key was
 #: made with this value (a run of the paper loop before ``emulate`` existed emulated the errors).
 BEFORE_THEIR_KEY = {"emulate": "errors"}
+#: Keys of earlier versions that are gone, and why.
+REMOVED_KEYS = {"loop": "the trust-region variant of the paper loop, dominated by its modal emulation: "
+                        "docs/update-results.md"}
 
 
 def stored_settings(config: dict) -> dict:
-    """A run manifest's ``config`` with the values its run used for keys added since (:data:`BEFORE_THEIR_KEY`)."""
-    return {**BEFORE_THEIR_KEY, **config}
+    """A run manifest's ``config`` with the values its run used for keys added since (:data:`BEFORE_THEIR_KEY`),
+    without keys that are gone (:data:`REMOVED_KEYS`)."""
+    return {k: v for k, v in {**BEFORE_THEIR_KEY, **config}.items() if k not in REMOVED_KEYS}
 
 
 class ConfigError(ValueError):
@@ -63,7 +66,7 @@ class UpdateConfig:
         global cycles (``s`` space-filling FE runs, an MRGP emulator over
         ``w`` candidates, ``starts`` parallel Gauss-Newton runs); its budget
         ``max_fe_evaluations`` counts FE-run equivalents (an FE run with its
-        Jacobian costs :data:`tasks.hybrid.JACOBIAN_COST`), its target is
+        Jacobian costs :data:`tasks.fe_runs.JACOBIAN_COST`), its target is
         ``polish_target``, its noise level ``noise`` (or estimated).
         ``adaptive`` is the paper's MRGP loop (with ``polish = false``
         exactly its procedure); ``conventional`` is Section 3.4's baseline:
@@ -163,22 +166,14 @@ class UpdateConfig:
         How the MRGP emulates the k responses: ``full`` (the paper's k x k
         ``Q``), ``reduced`` (a reduced output basis, :mod:`mrgp_core.reduced`)
         or ``auto`` (default): reduced when k > 200
-        (:data:`tasks.stages.AUTO_REDUCED_ABOVE`), so the benchmark's k = 72
+        (:data:`mrgp_core.strategies.emulation.AUTO_REDUCED_ABOVE`), so the benchmark's k = 72
         keeps the full MRGP.
     starts : int
         Parallel Gauss-Newton runs of a global cycle of the hybrid strategy,
         started from the emulator's best distinct candidates.
-    loop : {"trust-region", "paper"}
-        The adaptive strategy's loop. ``paper`` (default): Table 2's steps
-        (normal distribution of the best z samples, the MRGP on the relative
-        residuals, isotropic). ``trust-region`` (:mod:`tasks.trust_region`,
-        a change to the paper's loop): the nominal model among the first
-        samples, candidates in a region following the best sample, the MRGP
-        (one length scale per parameter) on the inverse receptance near it,
-        Gauss-Newton on its mean; same q, s, w and trainers.
     emulate : {"modes", "errors"}
         What the MRGP of the adaptive strategy's paper loop emulates.
-        ``modes`` (default, :mod:`tasks.modal_emulation`, a change to the
+        ``modes`` (default, :mod:`mrgp_core.strategies.modal_emulation`, a change to the
         paper's loop): the lowest modes of each FE run and the remainder of
         its receptance, one length scale per parameter; a candidate's error
         is computed from the receptance they give, Gauss-Newton end points on
@@ -227,7 +222,6 @@ class UpdateConfig:
     min_coherence: float = 0.9
     residuals: str = "auto"
     starts: int = 6
-    loop: str = "paper"
     emulate: str = "modes"
 
     def __post_init__(self) -> None:
@@ -250,15 +244,10 @@ class UpdateConfig:
                                       "e.g. tcp://127.0.0.1:8786")
         if self.trainer not in TRAINERS:
             raise bad("trainer", f"unknown trainer {self.trainer!r}; choose one of {', '.join(TRAINERS)}")
-        if self.loop not in LOOPS:
-            raise bad("loop", f"unknown loop {self.loop!r}; choose one of {', '.join(LOOPS)}")
         if self.emulate not in EMULATES:
             raise bad("emulate", f"unknown emulation {self.emulate!r}; choose one of {', '.join(EMULATES)}")
         if self.strategy not in STRATEGIES:
             raise bad("strategy", f"unknown strategy {self.strategy!r}; choose one of {', '.join(STRATEGIES)}")
-        if self.loop != "paper" and self.strategy != "adaptive":
-            raise bad("loop", f"{self.loop!r} is a loop of the adaptive strategy, not of {self.strategy!r}; "
-                              "add --strategy adaptive (config key strategy)")
         if self.model not in MODELS:
             check_model_path(self, bad)
         if not self.threshold > 0:
@@ -360,6 +349,8 @@ for _f in dataclasses.fields(UpdateConfig):
 def _check_types(values: dict[str, Any], source: str) -> dict[str, Any]:
     known = {f.name for f in dataclasses.fields(UpdateConfig)}
     for key, value in values.items():
+        if key in REMOVED_KEYS:
+            raise ConfigError(f"{source}: key '{key}' was removed ({REMOVED_KEYS[key]}); delete it")
         if key not in known:
             raise ConfigError(f"{source}: unknown key '{key}'; valid keys are {', '.join(sorted(known))}")
         expected = _TYPES[key]

@@ -45,7 +45,8 @@ from joblib import Parallel, delayed  # noqa: E402
 from prefect import flow, task  # noqa: E402
 from prefect.cache_policies import NO_CACHE  # noqa: E402
 
-from flows.config import REPO  # noqa: E402
+from flows.config import REPO, ConfigError  # noqa: E402
+from flows.problem import load_model  # noqa: E402
 from tasks import correlation as corr  # noqa: E402
 from tasks.report import figures  # noqa: E402
 from tasks.report.data import ReportError, load_run  # noqa: E402
@@ -70,7 +71,7 @@ def _logger():
 
 
 @task(name="fe-samples", cache_policy=NO_CACHE)
-def fe_samples_task(folder: str, meta: dict, n_samples: int, n_jobs: int) -> dict:
+def fe_samples_task(folder: str, meta: dict, n_samples: int, n_jobs: int, ref, names: list[str]) -> dict:
     """FE runs of every chunk not on disk yet, in parallel; returns counts and seconds."""
     logger = _logger()
     path = Path(folder)
@@ -82,7 +83,7 @@ def fe_samples_task(folder: str, meta: dict, n_samples: int, n_jobs: int) -> dic
     done = 0
     if todo:
         parallel = Parallel(n_jobs=n_jobs, backend="loky", return_as="generator_unordered")
-        for _ in parallel(delayed(corr.evaluate_chunk)(folder, c, meta) for c in todo):
+        for _ in parallel(delayed(corr.evaluate_chunk)(folder, c, meta, ref, names) for c in todo):
             done += 1
             if done % max(1, len(todo) // 20) == 0 or done == len(todo):
                 logger.info("FE chunks: %d/%d done (%.0f s)", done, len(todo), time.perf_counter() - t0)
@@ -91,16 +92,16 @@ def fe_samples_task(folder: str, meta: dict, n_samples: int, n_jobs: int) -> dic
 
 
 @task(name="pearson", cache_policy=NO_CACHE)
-def pearson_task(folder: str, meta: dict, n_samples: int) -> dict:
-    X, A, columns, failed = corr.load_amplitudes(Path(folder), n_samples, meta)
-    table = corr.correlation_table(X, A, columns, corr.parameter_names(meta))
+def pearson_task(folder: str, meta: dict, n_samples: int, names: list[str]) -> dict:
+    X, A, columns, failed = corr.load_amplitudes(Path(folder), n_samples, meta, names)
+    table = corr.correlation_table(X, A, columns, names)
     atomic_write_bytes(Path(folder) / "correlation.parquet", _parquet_bytes(table))
     return {"n_ok": int(X.shape[0]), "failed": failed}
 
 
 @task(name="sensitivity", cache_policy=NO_CACHE)
-def sensitivity_task(folder: str, meta: dict, references: dict, noise: float, tolerance: float):
-    table, summary, results = corr.sensitivity_tables(meta["model"], {k: np.asarray(v) for k, v in references.items()},
+def sensitivity_task(folder: str, meta: dict, references: dict, noise: float, tolerance: float, model):
+    table, summary, results = corr.sensitivity_tables(model, {k: np.asarray(v) for k, v in references.items()},
                                                       meta["frequencies_hz"], noise, tolerance)
     atomic_write_bytes(Path(folder) / "sensitivity.parquet", _parquet_bytes(table))
     atomic_write_json(Path(folder) / "identifiability.json", _finite_or_none(summary))
@@ -120,10 +121,9 @@ def _finite_or_none(obj):
 
 @task(name="correlation-page", cache_policy=NO_CACHE)
 def page_task(folder: str, meta: dict, n_samples: int, counts: dict, summary: dict, results: dict,
-              fe_info: dict) -> str:
+              fe_info: dict, names: list[str]) -> str:
     out = Path(folder)
     table = pd.read_parquet(out / "correlation.parquet")
-    names = corr.parameter_names(meta)
     f1 = figures.plot_correlation(table, names, out / "correlation.png", counts["n_ok"])
     f2 = figures.plot_correlation_heatmap(table, names, out / "correlation_map.png")
     f3 = figures.plot_singular_values(results, out / "singular_values.png")
@@ -165,10 +165,12 @@ def correlation_flow(folder: str, meta: dict, n_samples: int, n_jobs: int, refer
     """N FE samples, Pearson correlation, sensitivity at the reference points, figures and page."""
     t0 = time.perf_counter()
     corr.prepare_folder(Path(folder), meta)
-    fe_info = fe_samples_task(folder, meta, n_samples, n_jobs)
-    counts = pearson_task(folder, meta, n_samples)
-    summary, results = sensitivity_task(folder, meta, references, noise, tolerance)
-    page = page_task(folder, meta, n_samples, counts, summary, results, fe_info)
+    model, ref = load_model(meta["model"])  # the model, read once for the whole analysis
+    names = corr.parameter_names(meta, model)
+    fe_info = fe_samples_task(folder, meta, n_samples, n_jobs, ref, names)
+    counts = pearson_task(folder, meta, n_samples, names)
+    summary, results = sensitivity_task(folder, meta, references, noise, tolerance, model)
+    page = page_task(folder, meta, n_samples, counts, summary, results, fe_info, names)
     out = {"page": page, "n_samples": n_samples, **counts, **fe_info, "seconds": time.perf_counter() - t0}
     print(f"{n_samples} samples ({fe_info['samples_run']} FE runs now, {fe_info['fe_seconds']:.1f} s); "
           f"page {page}")
@@ -237,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         folder, meta, references = _setup(args)
         corr.prepare_folder(folder, meta)
-    except (ReportError, corr.CorrelationError) as exc:
+    except (ReportError, corr.CorrelationError, ConfigError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     result = correlation_flow(str(folder), meta, args.samples, args.n_jobs, references, args.noise, args.tolerance)

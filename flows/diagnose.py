@@ -97,7 +97,7 @@ def closure_measurements(path: Path, model_name: str, selection: dict) -> tuple[
     measured = read_measured(path)
     if measured.legacy:
         return measured.frequencies_hz, np.asarray(measured.sensors), measured.amplitude
-    from tasks.stages import load_model
+    from tasks.closure import load_model
     from tasks.update_data import update_data
 
     model = load_model(model_name)

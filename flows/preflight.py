@@ -38,6 +38,8 @@ from tasks.io.measured import MeasuredDataError
 __all__ = ["max_frequency_hz", "check_inputs", "check_resume", "check_disk", "expected_output_mb",
            "ELEMENTS_PER_WAVELENGTH"]
 
+#: The run folder's layout this version writes and resumes (flows.run.RECORD_VERSION).
+RECORD_VERSION = 2
 #: Linear elements per bending wavelength below which the mesh no longer resolves the response.
 ELEMENTS_PER_WAVELENGTH = 6
 
@@ -125,8 +127,9 @@ def check_band(config: UpdateConfig, measured, model) -> None:
         )
 
 
-def check_resume(config: UpdateConfig, root: Path, resumable: set[str]) -> None:
-    """An existing run folder may be resumed only with the settings it was started with."""
+def check_resume(config: UpdateConfig, root: Path, resumable: set[str], model_checksum: str | None = None) -> None:
+    """An existing run folder may be resumed only with the settings and the model it was started with
+    (``model_checksum``: of the model file and its mesh/matrices now)."""
     manifest = root / "manifest.json"
     if not manifest.exists():
         return
@@ -135,7 +138,10 @@ def check_resume(config: UpdateConfig, root: Path, resumable: set[str]) -> None:
         old = stored_settings(record["config"])
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"{manifest}: unreadable run manifest ({exc}); choose a new --run-id") from None
-    check_model_unchanged(config, manifest, record)
+    if record.get("record_version") != RECORD_VERSION:
+        raise ConfigError(f"{manifest}: run {root.name!r} was made by an earlier version of this tool (another layout "
+                          "of its run folder); finish it with that version or choose a new --run-id")
+    check_model_unchanged(config, manifest, record, model_checksum)
     cfg = config.to_dict()
     changed = sorted(k for k in cfg if k not in resumable and old.get(k, cfg[k]) != cfg[k])
     if changed:
@@ -145,14 +151,12 @@ def check_resume(config: UpdateConfig, root: Path, resumable: set[str]) -> None:
         )
 
 
-def check_model_unchanged(config: UpdateConfig, manifest: Path, record: dict) -> None:
+def check_model_unchanged(config: UpdateConfig, manifest: Path, record: dict, checksum: str | None) -> None:
     """A run on a model file resumes only if the file and its mesh/matrices are unchanged (SHA-256)."""
-    from tasks.stages import model_fingerprint
-
     stored = record.get("model_checksum")
-    if stored is None or record.get("config", {}).get("model") != config.model:
+    if stored is None or checksum is None or record.get("config", {}).get("model") != config.model:
         return
-    if model_fingerprint(config.model) != stored:
+    if checksum != stored:
         raise ConfigError(f"{manifest}: run {manifest.parent.name!r} was started with another version of the model "
                           f"file {config.model} or its mesh/matrices (checksum differs); restore them or choose a "
                           "new --run-id")

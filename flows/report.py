@@ -11,8 +11,9 @@ Examples::
     python -m flows.report --run-id repeats-5                 # a --repeats run: Figures 10-13
     python -m flows.report --run-id my-run --runs-dir /data/runs --out /tmp/my-report
 
-What it draws depends on the folder: every run gets Figures 3-9 (FRF,
-errors, samples, parameters, distributions, training time) and, for a model with
+What it draws depends on the folder: every run, of any strategy, gets Figures 3-9 (FRF,
+errors, samples, parameters; sampling distributions and training time where the
+paper's loop made them) and, for a model with
 a mesh, the mesh by segment with its sensors and excitation and the updated factors
 as colours (a model given as matrices gets one line saying why not); a ``--repeats``
 folder gets the statistics of Figures 10-13 and the FRF of its best run; a
@@ -37,7 +38,8 @@ from pathlib import Path  # noqa: E402
 from prefect import flow, task  # noqa: E402
 from prefect.cache_policies import NO_CACHE  # noqa: E402
 
-from flows.config import REPO  # noqa: E402
+from flows.config import REPO, ConfigError  # noqa: E402
+from flows.problem import load_model  # noqa: E402
 from tasks.report import sections as sec  # noqa: E402
 from tasks.report.data import ReportError, is_repeats_folder, load_repeats, load_run  # noqa: E402
 from tasks.report.html import write_page  # noqa: E402
@@ -76,6 +78,7 @@ def report_flow(run_root: str, out_dir: str | None = None) -> str:
     if is_repeats_folder(root):
         rep = load_repeats_task(root)
         best = rep.best_run()
+        best.model = _run_model(best)
         parts = [*repeats_task(rep, out),
                  frf_task(best, out, f" - best run, {best.root.name}"), mesh_task(best, out)]
         closure = closure_task(best, out)
@@ -84,6 +87,7 @@ def report_flow(run_root: str, out_dir: str | None = None) -> str:
                  f"{root.name}/repeat=<i>."] + sec.run_intro(best)[1:2]
     else:
         data = load_run_task(root)
+        data.model = _run_model(data)
         parts = [frf_task(data, out), lines_task(data, out), mesh_task(data, out), errors_task(data, out),
                  parameters_task(data, out),
                  intervals_task(data, out), training_task(data, out)]
@@ -96,6 +100,16 @@ def report_flow(run_root: str, out_dir: str | None = None) -> str:
     page = page_task(out / PAGE, title, [p for p in parts if p is not None], intro)
     print(f"report written to {page}")
     return str(page)
+
+
+def _run_model(data):
+    """The run's model, read once from its manifest's model (and checked against the run's checksum)."""
+    model, ref = load_model(data.config.get("model", "three_plate"))
+    stored = data.manifest.get("model_checksum")
+    if stored is not None and stored != ref.checksum:
+        data.notes.append(f"the model file {ref.path} changed since the run (checksum differs): the FRF curves and "
+                          "mesh pictures show the file as it is now")
+    return model
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -121,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         page = report_flow(str(root), args.out)
-    except ReportError as exc:
+    except (ReportError, ConfigError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(page)

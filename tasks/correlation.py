@@ -29,9 +29,9 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from fe_core.solvers.sensitivity import identifiability, log_amplitude_jacobian, pearson_correlation
-from mrgp_core import adaptive
+from mrgp_core.strategies import table2
 from tasks.runstore import _parquet_bytes, atomic_write_bytes, atomic_write_json
-from tasks.stages import evaluate_sample, load_model
+from tasks.fe_runs import evaluate_sample
 
 __all__ = [
     "CorrelationError",
@@ -74,26 +74,26 @@ def prepare_folder(folder: Path, meta: dict) -> dict:
 def chunk_samples(seed: int, chunk: int, size: int, m: int, lower: float, upper: float) -> np.ndarray:
     """The parameter samples of one chunk, uniform in the box, shape (size, m)."""
     rng = np.random.default_rng([seed, chunk])
-    return adaptive.uniform_samples(size, np.full(m, lower), np.full(m, upper), rng)
+    return table2.uniform_samples(size, np.full(m, lower), np.full(m, upper), rng)
 
 
 def chunk_path(folder: Path, chunk: int) -> Path:
     return folder / "fe" / f"chunk={chunk:06d}.parquet"
 
 
-def evaluate_chunk(folder: str, chunk: int, meta: dict) -> int:
+def evaluate_chunk(folder: str, chunk: int, meta: dict, ref, names: list[str]) -> int:
     """FE runs of one chunk's samples, written to ``fe/chunk=<c>.parquet``; returns the chunk index.
 
-    Runs in a worker process. Failed FE runs are kept with ``status = "failed"``
-    (see :func:`tasks.stages.evaluate_sample`) and left out of the statistics.
+    Runs in a worker process (``ref``: the model's :class:`tasks.problem.ModelRef`, ``names``: its
+    parameters). Failed FE runs are kept with ``status = "failed"`` (see
+    :func:`tasks.fe_runs.evaluate_sample`) and left out of the statistics.
     """
     m, size = int(meta["n_parameters"]), int(meta["chunk_size"])
     X = chunk_samples(meta["seed"], chunk, size, m, meta["lower"], meta["upper"])
     freqs = np.asarray(meta["frequencies_hz"], dtype=float)
-    names = parameter_names(meta)
     parts = []
     for j, alpha in enumerate(X):
-        df = evaluate_sample(meta["model"], chunk * size + j, alpha, freqs)
+        df = evaluate_sample(ref, chunk * size + j, alpha, freqs)
         for i, name in enumerate(names):
             df[name] = alpha[i]
         parts.append(df.drop(columns=["message", "pid"]))
@@ -121,7 +121,8 @@ def chunks_needed(n_samples: int, chunk_size: int) -> list[int]:
     return list(range(math.ceil(n_samples / chunk_size)))
 
 
-def load_amplitudes(folder: Path, n_samples: int, meta: dict) -> tuple[np.ndarray, np.ndarray, pd.MultiIndex, int]:
+def load_amplitudes(folder: Path, n_samples: int, meta: dict, names: list[str]) -> tuple[np.ndarray, np.ndarray,
+                                                                                      pd.MultiIndex, int]:
     """The first ``n_samples`` samples and their FRF amplitudes.
 
     Returns
@@ -149,15 +150,15 @@ def load_amplitudes(folder: Path, n_samples: int, meta: dict) -> tuple[np.ndarra
     fe = fe[fe["sample_id"].isin(ok_ids)]
     fe = fe.assign(amplitude=np.hypot(fe["real"], fe["imag"]))
     wide = fe.pivot_table(index="sample_id", columns=["frequency_hz", "sensor"], values="amplitude").sort_index(axis=1)
-    cols = parameter_names(meta)
+    cols = names
     X = fe.groupby("sample_id")[cols].first().loc[wide.index].to_numpy()
     return X, wide.to_numpy(), wide.columns, int((status != "ok").sum())
 
 
-def parameter_names(meta: dict) -> list[str]:
+def parameter_names(meta: dict, model) -> list[str]:
     """The model's parameter names (``alpha_i``, and ``gamma_j`` for updated masses); ``meta["n_parameters"]``
     of them."""
-    names = load_model(meta["model"]).parameter_names
+    names = model.parameter_names
     if len(names) != int(meta["n_parameters"]):
         raise CorrelationError(f"the model {meta['model']} has {len(names)} parameters ({', '.join(names)}), "
                                f"the samples {meta['n_parameters']}")
@@ -187,7 +188,7 @@ def correlation_table(X: np.ndarray, A: np.ndarray, columns: pd.MultiIndex,
     })
 
 
-def sensitivity_tables(model_name: str, references: dict[str, np.ndarray], freqs_hz, noise: float,
+def sensitivity_tables(model, references: dict[str, np.ndarray], freqs_hz, noise: float,
                        tolerance: float) -> tuple[pd.DataFrame, dict, dict]:
     """Normalised sensitivity ``d log|Z| / d alpha`` and its identifiability summary at each reference point.
 
@@ -199,7 +200,6 @@ def sensitivity_tables(model_name: str, references: dict[str, np.ndarray], freqs
         JSON-ready, one entry per reference point.
     results : dict of str to :class:`fe_core.solvers.sensitivity.Identifiability`
     """
-    model = load_model(model_name)
     freqs = np.asarray(freqs_hz, dtype=float)
     n, m = model.n_sensors, model.n_parameters
     names = model.parameter_names

@@ -30,7 +30,7 @@ from prefect.cache_policies import NO_CACHE
 
 from fe_core.inference.intervals import parameter_intervals
 from fe_core.inference.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
-from tasks import stages
+from tasks.common import logger as run_logger
 from tasks.runstore import RunStore
 
 __all__ = ["INTERVALS_STAGE", "POSTERIOR_TABLE", "intervals_task"]
@@ -41,8 +41,7 @@ POSTERIOR_TABLE = "posterior"
 
 
 @task(name="intervals", task_run_name="iteration-{iteration}-intervals", cache_policy=NO_CACHE)
-def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, measured_amplitude: np.ndarray,
-                   start, data=None) -> dict:
+def intervals_task(root: str, problem, config, iteration: int, start, output_stage: str = INTERVALS_STAGE) -> dict:
     """Intervals near ``start`` (shape (n_parameters,), the run's best parameters); returns the stage record's info.
 
     The info holds the ``summary.json`` fields (``intervals``, ``covariance``,
@@ -50,34 +49,31 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
     (``interval_cost``: Jacobians, FE runs besides them, seconds; the flow adds the
     cost in FE runs of the update).
 
-    With ``data`` (:class:`tasks.update_data.UpdateData`): the log amplitudes of its
-    channels on the lines where every channel is kept (coherence), through the model
-    seen with the channels' one reference as its load; the phase of complex data is
-    not used here (the intervals' error model is the relative amplitude noise). Data
-    with several references (MIMO) get no intervals: ``{"skipped": reason}``.
+    The data (``problem.data``): the log amplitudes of its channels on the lines where every channel is kept
+    (coherence), through the model seen with the channels' one reference as its load; the phase of complex
+    data is not used here (the intervals' error model is the relative amplitude noise). Data with several
+    references (MIMO) get no intervals: ``{"skipped": reason}``. ``output_stage``: another folder (a rerun).
     """
     store = RunStore(root)
-    logger = stages._logger()
+    logger = run_logger()
     settings = {"noise_config": config.noise, "posterior_fe_config": config.posterior_fe}
-    if store.is_finished(iteration, INTERVALS_STAGE):
-        info = store.stage_info(iteration, INTERVALS_STAGE)
+    if store.is_finished(iteration, output_stage):
+        info = store.stage_info(iteration, output_stage)
         old = {k: info.get(k) for k in settings}  # a record from before the sampled posterior: computed again
         if old == settings:
             logger.info("iteration %d, stage intervals: finished earlier, read back", iteration)
             return info
         logger.info("iteration %d, stage intervals: settings changed from %s to %s, computed again", iteration,
                     old, settings)
-    model = full_model = stages.load_model(config.model)
-    if data is not None:
-        try:
-            model = data.single_reference_model(model)
-        except ValueError as exc:
-            logger.warning("iteration %d, stage intervals: skipped: %s", iteration, exc)
-            return {"skipped": str(exc)}
-        lines = data.complete_lines
-        freqs_hz, measured_amplitude = data.frequencies_hz[lines], data.amplitude[lines]
-    m = model.n_parameters
-    lower, upper = stages.solver_box(config, m)
+    data, full_model = problem.data, problem.model
+    try:
+        model = data.single_reference_model(full_model)
+    except ValueError as exc:
+        logger.warning("iteration %d, stage intervals: skipped: %s", iteration, exc)
+        return {"skipped": str(exc)}
+    lines = data.complete_lines
+    freqs_hz, measured_amplitude = data.frequencies_hz[lines], data.amplitude[lines]
+    lower, upper = problem.solver_box
     t0, c0 = time.perf_counter(), time.process_time()
     refined = parameter_intervals(model, freqs_hz, measured_amplitude, np.asarray(start, float), lower, upper,
                                   noise=config.noise)
@@ -94,24 +90,18 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
                           "laplace_std": iv.std})
     for j, c in enumerate(cols):
         table[f"cov_{c}"] = reported[:, j]
-    store.write_table(iteration, INTERVALS_STAGE, INTERVALS_STAGE, table)
+    store.write_table(iteration, output_stage, INTERVALS_STAGE, table)
     names = [INTERVALS_STAGE]
     if post is not None:  # the weighted samples, for the report's marginal posteriors
         samples = pd.DataFrame(post.samples, columns=cols).assign(weight=post.weights)
-        store.write_table(iteration, INTERVALS_STAGE, POSTERIOR_TABLE, samples)
+        store.write_table(iteration, output_stage, POSTERIOR_TABLE, samples)
         names.append(POSTERIOR_TABLE)
     fe_runs = refined.fe_runs + (check.fe_runs if check is not None else 0) + (post.fe_runs if post else 0)
-    if data is None:
-        # The paper's errors at the least-squares optimum, from its log residual (no FE run): (|Z| - u) / u = e^r - 1.
-        rel = np.expm1(refined.residual)
-        n = np.shape(measured_amplitude)[1]
-        per_channel = np.mean(np.abs(rel.reshape(-1, n)), axis=0)
-    else:
-        # The run's own error measure (its lines, coherence mask and residual kind, which the log amplitudes
-        # of the complete lines are not): one FE run at the optimum.
-        rel = data.residuals(full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))
-        per_channel = data.channel_errors(rel)
-        fe_runs += 1
+    # The run's own error measure (its lines, coherence mask and residual kind, which the log amplitudes of the
+    # complete lines are not): one FE run at the optimum.
+    rel = data.residuals(full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))
+    per_channel = data.channel_errors(rel)
+    fe_runs += 1
     fields["estimate_errors"] = {"overall_error": float(np.mean(np.abs(rel))),
                                  "per_sensor_error": np.asarray(per_channel, float).tolist(),
                                  "at_optimum": refined.at_optimum}
@@ -123,13 +113,13 @@ def intervals_task(root: str, config, iteration: int, freqs_hz: np.ndarray, meas
                                                    else None),
                               "check_fe_runs": check.fe_runs if check is not None else 0,
                               "posterior_fe_runs": post.fe_runs if post else 0}}
-    store.finish(iteration, INTERVALS_STAGE, names, info)
+    store.finish(iteration, output_stage, names, info)
     logger.info("iteration %d, stage intervals: %s; %s noise %.3g %%, %d exact Jacobians with their FRF and %d FE "
                 "runs (%.2f s)", iteration, fields["interval_method"], iv.noise_source, 100 * iv.noise_sigma,
                 refined.jacobians, fe_runs, seconds)
     for line in fields["interval_details"]["flags"]:
         logger.warning(line)
-    return store.stage_info(iteration, INTERVALS_STAGE)
+    return store.stage_info(iteration, output_stage)
 
 
 def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config):

@@ -17,7 +17,7 @@ import numpy as np
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from tasks import stages
+from tasks.common import logger as run_logger
 from tasks.runstore import atomic_write_file
 
 __all__ = ["VTU_NAME", "factors_from_parameters", "write_model_vtu", "model_vtu_task"]
@@ -42,15 +42,15 @@ def factors_from_parameters(parameters: dict, model) -> tuple[np.ndarray, np.nda
     return model.factors([float(parameters[n]) for n in names])
 
 
-def write_model_vtu(root: str | Path, model_name: str, parameters: dict, n_modes: int | None = None) -> Path | None:
+def write_model_vtu(root: str | Path, model, parameters: dict, n_modes: int | None = None) -> Path | None:
     """Write ``<root>/model.vtu`` of the run's model at its updated parameters.
 
     Parameters
     ----------
     root : path
         The run folder.
-    model_name : str
-        The run's model (a name or a model-file path, as in its config).
+    model : fe_core.model.ParametricModel
+        The run's model.
     parameters : dict
         The summary's ``parameters`` (``alpha_i``, and ``gamma_i`` if updated).
     n_modes : int, optional
@@ -66,10 +66,9 @@ def write_model_vtu(root: str | Path, model_name: str, parameters: dict, n_modes
 
     from fe_core.io.vtu import DEFAULT_MODES, model_vtu
 
-    logger = stages._logger()
-    model = stages.load_model(model_name)
+    logger = run_logger()
     if model.mesh is None:
-        logger.info("%s not written: the model %s is given as matrices (no mesh to draw)", VTU_NAME, model_name)
+        logger.info("%s not written: the model is given as matrices (no mesh to draw)", VTU_NAME)
         return None
     alpha, gamma = factors_from_parameters(parameters, model)
     t0 = time.perf_counter()

@@ -272,6 +272,11 @@ class RunStore:
             p.unlink()
         return stale
 
+    def stage_files(self, iteration: int, stage: str) -> list[str]:
+        """The tables a stage's record lists (none when it has no readable record)."""
+        record = self._record(iteration, stage)
+        return list((record or {}).get("files", {}))
+
     def stage_info(self, iteration: int, stage: str) -> dict:
         return json.loads((self.stage_dir(iteration, stage) / STAGE_RECORD).read_text()).get("info", {})
 

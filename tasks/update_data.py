@@ -18,7 +18,7 @@ Lines
 Residual
     ``residuals = "amplitude"``: Eq. (5), ``(|Z| - u) / u``; ``"complex"``:
     the real and imaginary parts of ``(Z - H) / |H|``
-    (:func:`mrgp_core.adaptive.complex_relative_residuals`), k doubles;
+    (:func:`mrgp_core.errors.complex_relative_residuals`), k doubles;
     ``"auto"``: complex when the data carry phase, except the legacy form,
     which keeps the paper's amplitude residual (its ``real``/``imag``
     columns were optional extras, and the benchmark's results stay as they
@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mrgp_core import adaptive
+from mrgp_core import errors
 from tasks.io.measured import MeasuredDataError, MeasuredFRF, dof_label, parse_dof
 from tasks.lines import select_lines
 
@@ -133,7 +133,7 @@ class UpdateData:
         # in the last bit, and the legacy path must stay bit for bit what it was.
         z = np.ascontiguousarray(np.asarray(Z)[..., line, channel])
         if self.residual == "complex":
-            return adaptive.complex_relative_residuals(z, self.complex_frf[line, channel])
+            return errors.complex_relative_residuals(z, self.complex_frf[line, channel])
         u = self.amplitude[line, channel]
         return (_modulus(z) - u) / u
 
@@ -150,7 +150,7 @@ class UpdateData:
         out = {"frequency_hz": self.frequencies_hz[line], "sensor": self.sensors[channel].astype(np.int64),
                "residual": (_modulus(z) - u) / u}
         if self.residual == "complex":
-            r = adaptive.complex_relative_residuals(z, self.complex_frf[line, channel])
+            r = errors.complex_relative_residuals(z, self.complex_frf[line, channel])
             out.update(residual_real=r[: line.size], residual_imag=r[line.size:])
         return out
 

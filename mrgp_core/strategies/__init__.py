@@ -1,10 +1,9 @@
-"""Updating strategies that decide which FE runs to make next, one parallel round at a time.
+"""Search strategies behind one interface (:mod:`.base`: propose, evaluate, update, stop).
 
-* :mod:`.local_first`: the default candidate (issue 17) -- Gauss-Newton from the
-  nominal model with parallel trial steps, and space-filling restarts when the
-  local phase stalls above the noise.
+* :mod:`.paper`: the paper's adaptive MRGP loop (Table 2), its steps in :mod:`.table2`, its emulators in
+  :mod:`.emulation` (the residuals, as the paper) and :mod:`.modal_emulation` (the modes, the default);
+* :mod:`.polish`: least squares on the FE model after the paper's loop (the ``adaptive`` strategy);
+* :mod:`.hybrid`: the default, Gauss-Newton with exact Jacobians from the nominal model and global cycles
+  with the MRGP emulator when the residual is not noise (phases in :mod:`.hybrid_phases`, Gauss-Newton in
+  :mod:`.gauss_newton`, the round counting in :mod:`.ledger`).
 """
-
-from .local_first import LocalFirstResult, local_first
-
-__all__ = ["LocalFirstResult", "local_first"]

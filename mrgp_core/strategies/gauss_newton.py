@@ -47,7 +47,7 @@ class Residual:
 
     ``Residual(u)``: the paper's amplitude residual ``|Z| / u - 1`` (Eq. 5), shape (..., k).
     ``Residual(u, zeta)``: with the measured complex FRF ``zeta`` (k,), the real and imaginary parts of
-    ``(Z - zeta) / |zeta|``, shape (..., 2 k) (:func:`mrgp_core.adaptive.complex_relative_residuals`).
+    ``(Z - zeta) / |zeta|``, shape (..., 2 k) (:func:`mrgp_core.errors.complex_relative_residuals`).
     """
 
     def __init__(self, u: np.ndarray, zeta: np.ndarray | None = None):

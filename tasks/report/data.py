@@ -1,14 +1,10 @@
 """Read one run folder into plain DataFrames for the report (nothing but its Parquet and JSON).
 
-Everything is read tolerantly: only stages whose ``_stage.json`` record
-exists are used (a run that is still going, or was killed, gives a report of
-what is finished); stage folders this module does not know (a ``polish``
-stage, ``train.rerun-*`` folders, stages added later) are listed, not
-refused; a polish table is picked up when one with ``alpha_*`` columns exists.
-
-The measured amplitudes are recovered from the run's own data: the errors
-stage stores ``residual = (|Z| - u) / u`` beside the FE stage's ``Z``, so
-``u = |Z| / (1 + residual)``.
+The FE runs come from the run record every strategy writes (:mod:`tasks.record`: the paper loop's ``fe``
+stages, the hybrid's ``local`` and ``global``, the polish), the measured values from ``measured.parquet``,
+the sampling distributions and training times from the paper loop's stages when it has them. Only finished
+stages are used (a run that is still going, or was killed, gives a report of what is finished); stage folders
+this module does not know (``*.rerun-*`` folders, stages added later) are listed, not refused.
 """
 
 from __future__ import annotations
@@ -21,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mrgp_core import adaptive
+from tasks import record
+from tasks.runstore import CorruptFileError, RunStore
 
 __all__ = [
     "ReportError",
@@ -34,14 +31,14 @@ __all__ = [
     "param_columns",
     "best_so_far",
     "stage_inventory",
-    "find_polish",
     "find_closure",
     "residual_frame",
 ]
 
 STAGE_RECORD = "_stage.json"
 #: Stages this report draws (``polish``: its points, when the folder holds them).
-KNOWN_STAGES = ("samples", "fe", "errors", "distribution", "train", "predict", "select", "polish")
+KNOWN_STAGES = ("samples", "fe", "errors", "distribution", "train", "predict", "select", "polish", "local", "global",
+                "check", "intervals")
 _ITER = re.compile(r"^iteration=(\d+)$")
 _STAGE = re.compile(r"^stage=(.+)$")
 _REPEAT = re.compile(r"^repeat=(\d+)$")
@@ -132,10 +129,8 @@ class RunData:
         ``sample_id, iteration, alpha_*`` of every FE-evaluated batch.
     errors : DataFrame
         ``sample_id, iteration, overall_error, status, error_sensor_*``.
-    residuals : DataFrame
-        ``sample_id, frequency_hz, sensor, residual`` (relative, Eq. 5).
     measured : DataFrame
-        ``frequency_hz, sensor, amplitude`` (m/N), recovered from the run.
+        ``frequency_hz, sensor, amplitude`` (m/N): the values the run fitted.
     distributions : DataFrame
         ``iteration, kind, parameter, mean, std``.
     training : DataFrame
@@ -146,6 +141,8 @@ class RunData:
         Points of a polish stage (``alpha_*`` and, when known, ``overall_error``).
     closure : dict or None
         ``closure.json`` of a close-the-loop run, with its folder under ``"_folder"``.
+    model : fe_core.model.ParametricModel or None
+        The run's model, when the caller resolved it (``flows.report``: the FRF curves and mesh pictures).
     """
 
     root: Path
@@ -153,7 +150,6 @@ class RunData:
     summary: dict | None
     samples: pd.DataFrame
     errors: pd.DataFrame
-    residuals: pd.DataFrame
     measured: pd.DataFrame
     distributions: pd.DataFrame
     training: pd.DataFrame
@@ -161,6 +157,7 @@ class RunData:
     polish: pd.DataFrame | None = None
     closure: dict | None = None
     notes: list[str] = field(default_factory=list)
+    model: object = None
 
     @property
     def config(self) -> dict:
@@ -210,12 +207,12 @@ def is_repeats_folder(root: Path) -> bool:
 
 
 def load_run(root: Path | str) -> RunData:
-    """Read one (single, not repeats) run folder.
+    """Read one (single, not repeats) run folder of any strategy from its run record (:mod:`tasks.record`).
 
     Raises
     ------
     ReportError
-        If the folder or its manifest is missing, or no iteration has a finished errors stage.
+        If the folder or its manifest is missing, or no FE stage has finished yet.
     """
     root = Path(root)
     if not root.is_dir():
@@ -224,17 +221,19 @@ def load_run(root: Path | str) -> RunData:
     if manifest is None:
         raise ReportError(f"{root}: no manifest.json; is this a run folder of flows.update?")
     summary = _read_json(root / "summary.json")
-    samples, errors, residuals, fe_first = [], [], [], None
+    try:
+        runs = record.fe_runs(RunStore(root))
+    except CorruptFileError as exc:
+        raise ReportError(str(exc)) from None
+    if runs.empty:
+        raise ReportError(f"{root}: no finished FE stage yet")
+    names = record.parameter_columns(runs)
+    sensor_cols = [c for c in runs.columns if c.startswith("error_sensor_")]
+    loop = runs[runs["stage"] != "polish"]
+    polish = runs[runs["stage"] == "polish"]
     dists, training = [], []
     for k in _iterations(root):
-        if not (_finished(root, k, "samples") and _finished(root, k, "errors")):
-            continue
         base = root / f"iteration={k}"
-        samples.append(_read_parquet(base / "stage=samples" / "samples.parquet"))
-        errors.append(_read_parquet(base / "stage=errors" / "errors.parquet"))
-        residuals.append(_read_parquet(base / "stage=errors" / "residuals.parquet"))
-        if fe_first is None and _finished(root, k, "fe"):
-            fe_first = (_read_parquet(base / "stage=fe" / "fe.parquet"), residuals[-1])
         if _finished(root, k, "distribution"):
             d = _read_parquet(base / "stage=distribution" / "distribution.parquet")
             d.insert(0, "kind", _stage_record(root, k, "distribution").get("info", {}).get("kind", "normal"))
@@ -247,26 +246,21 @@ def load_run(root: Path | str) -> RunData:
                 training.append({"iteration": k, "stage": name, "trainer": info.get("trainer", "?"),
                                  "seconds": float(info.get("seconds", np.nan)),
                                  "n_train": info.get("n_train", np.nan)})
-    if not samples:
-        raise ReportError(f"{root}: no iteration with finished 'samples' and 'errors' stages yet")
-    samples_df = pd.concat(samples, ignore_index=True)
-    errors_df = pd.concat(errors, ignore_index=True)
-    if fe_first is None:
-        raise ReportError(f"{root}: no finished 'fe' stage to recover the measured amplitudes from")
     data = RunData(
         root=root,
         manifest=manifest,
         summary=summary,
-        samples=samples_df,
-        errors=errors_df,
-        residuals=pd.concat(residuals, ignore_index=True),
-        measured=_measured_from_run(*fe_first, root),
+        samples=loop[["sample_id", "iteration", *names]].reset_index(drop=True),
+        errors=loop[["sample_id", "iteration", "overall_error", "status", *sensor_cols]].reset_index(drop=True),
+        measured=_measured_of_run(root),
         distributions=pd.concat(dists, ignore_index=True) if dists else pd.DataFrame(
             columns=["iteration", "kind", "parameter", "mean", "std"]),
         training=pd.DataFrame(training, columns=["iteration", "stage", "trainer", "seconds", "n_train"]),
         stages=stage_inventory(root),
     )
-    data.polish = find_polish(root, data.names)
+    if len(polish):
+        data.polish = polish[polish["status"] == "ok"][["sample_id", "iteration", *names, "overall_error"]].assign(
+            source="stage=polish").reset_index(drop=True)
     data.closure = find_closure(root)
     unknown = sorted(set(data.stages.loc[~data.stages["known"], "stage"]))
     if unknown:
@@ -274,15 +268,14 @@ def load_run(root: Path | str) -> RunData:
     return data
 
 
-def _measured_from_run(fe: pd.DataFrame, residuals: pd.DataFrame, root: Path) -> pd.DataFrame:
-    """``u = |Z| / (1 + residual)`` over the successful samples of one iteration (median per point)."""
-    ok = fe[fe["status"] == "ok"]
-    if ok.empty:
-        raise ReportError(f"{root}: the first finished FE stage has no successful sample")
-    merged = ok.merge(residuals, on=["sample_id", "frequency_hz", "sensor"], how="inner")
-    amp = np.hypot(merged["real"].to_numpy(), merged["imag"].to_numpy()) / (1.0 + merged["residual"].to_numpy())
-    out = merged.assign(amplitude=amp).groupby(["frequency_hz", "sensor"], as_index=False)["amplitude"].median()
-    return out.sort_values(["frequency_hz", "sensor"], ignore_index=True)
+def _measured_of_run(root: Path) -> pd.DataFrame:
+    """``frequency_hz, sensor, amplitude`` of the values the run fitted (``measured.parquet``, ``used``)."""
+    path = root / "measured.parquet"
+    if not path.exists():
+        raise ReportError(f"{path}: missing; the run's measured values are written when it starts")
+    table = _read_parquet(path)
+    used = table[table["used"]] if "used" in table.columns else table
+    return used[["frequency_hz", "sensor", "amplitude"]].sort_values(["frequency_hz", "sensor"], ignore_index=True)
 
 
 def best_so_far(data: RunData) -> pd.DataFrame:
@@ -309,52 +302,7 @@ def best_so_far(data: RunData) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-# -- optional parts: polish, close-the-loop -----------------------------------------------------
-def find_polish(root: Path, names: list[str]) -> pd.DataFrame | None:
-    """Points of a polish stage, if the run has one: ``sample_id, alpha_*, overall_error, ...``.
-
-    Looks at ``iteration=*/stage=polish*/`` (where :mod:`tasks.polish` writes
-    ``polish.parquet``, one row per FE run) and ``polish/``. Without a
-    ``polish.parquet``, any table there with ``alpha_*`` and ``overall_error``
-    columns is used; failing that, the per-sample files (``sample=*.parquet``)
-    give the points and a residual table (``sample_id, frequency_hz, sensor,
-    residual``), if any, their overall error (Eq. 6b).
-    """
-    folders = sorted(root.glob("iteration=*/stage=polish*")) + [p for p in [root / "polish"] if p.is_dir()]
-    frames = []
-    for folder in folders:
-        if (folder / "polish.parquet").exists():
-            df = _read_parquet(folder / "polish.parquet")
-        else:
-            tables = {p.name: _read_parquet(p) for p in sorted(folder.glob("*.parquet"))}
-            with_error = [t for t in tables.values() if {*names, "overall_error"} <= set(t.columns)]
-            if with_error:
-                df = pd.concat(with_error, ignore_index=True)
-            else:
-                per_sample = [_read_parquet(p) for p in sorted(folder.glob("sample=*.parquet"))]
-                per_sample = [t for t in per_sample if {*names, "sample_id"} <= set(t.columns)]
-                if not per_sample:
-                    continue
-                df = pd.concat(per_sample, ignore_index=True).groupby("sample_id", as_index=False)[names].first()
-                res = [t for t in tables.values() if {"sample_id", "residual"} <= set(t.columns)]
-                if res:
-                    r = pd.concat(res, ignore_index=True)
-                    err = r.groupby("sample_id")["residual"].apply(
-                        lambda x: float(adaptive.overall_error(x.to_numpy())))
-                    df = df.merge(err.rename("overall_error"), left_on="sample_id", right_index=True, how="left")
-        if not set(names) <= set(df.columns):
-            continue
-        m = re.search(r"iteration=(\d+)", str(folder))
-        df = df.assign(iteration=int(m.group(1)) if m else np.nan, source=str(folder.relative_to(root)))
-        frames.append(df)
-    if not frames:
-        return None
-    out = pd.concat(frames, ignore_index=True)
-    if "status" in out.columns:
-        out = out[out["status"] == "ok"]
-    return out.reset_index(drop=True)
-
-
+# -- optional parts: close-the-loop ------------------------------------------------------------
 def find_closure(root: Path) -> dict | None:
     """``closure.json`` in the run folder or one level below, with ``"_folder"`` added."""
     for path in [root / "closure.json", *sorted(root.glob("*/closure.json"))]:

@@ -61,14 +61,16 @@ def zoom_windows(freqs_hz) -> list[tuple[float, float]]:
     return out
 
 
-def dense_frf(model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndarray, cache: Path,
+def dense_frf(model, model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndarray, cache: Path,
               channels: tuple[np.ndarray, np.ndarray] | None = None, names: list[str] | None = None) -> pd.DataFrame:
     """FRF amplitude of each named parameter vector at every frequency, from the cache when valid.
 
     Parameters
     ----------
+    model : fe_core.model.ParametricModel
+        The run's model (run only for curves the cache does not hold).
     model_name : str
-        As in the run's manifest (``three_plate``).
+        As in the run's manifest (``three_plate``): the cache's key.
     vectors : dict of str to ndarray, shape (n_parameters,)
         Curve name -> parameter vector, e.g. ``{"initial": zeros, "updated": alpha}``.
     freqs_hz : ndarray
@@ -87,8 +89,6 @@ def dense_frf(model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndar
     DataFrame
         ``curve, frequency_hz, sensor, real, imag, amplitude`` plus the curve's parameters (``alpha_*``, ``gamma_*``).
     """
-    from tasks.stages import load_model  # the run's FE model by name
-
     freqs_hz = np.asarray(freqs_hz, dtype=float)
     cached = None
     if cache.exists():
@@ -97,14 +97,12 @@ def dense_frf(model_name: str, vectors: dict[str, np.ndarray], freqs_hz: np.ndar
         except Exception:
             log.warning("report cache %s is unreadable; recomputing", cache)
     frames, changed = [], False
-    model = None
     for name, alpha in vectors.items():
         alpha = np.asarray(alpha, dtype=float)
         cols = list(names) if names is not None else [f"alpha_{i + 1}" for i in range(alpha.size)]
         key = "" if channels is None else repr([list(map(int, c)) for c in channels])
         hit = _cached_curve(cached, model_name, name, alpha, cols, freqs_hz, key)
         if hit is None:
-            model = model or load_model(model_name)
             Z = model.parameter_frf(alpha, freqs_hz, channels)  # (p, n_channels), m/N
             p, n = Z.shape
             hit = pd.DataFrame({

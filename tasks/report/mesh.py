@@ -29,7 +29,7 @@ from fe_core.surface import boundary_faces, dof_arrows, face_normals  # noqa: E4
 from tasks.report.html import Section  # noqa: E402
 
 __all__ = ["MeshView", "plot_mesh_segments", "plot_mesh_factors", "mesh_section",
-           "read_run_model", "SEGMENTS_PNG", "FACTORS_PNG"]
+           "SEGMENTS_PNG", "FACTORS_PNG"]
 
 REPO = Path(__file__).resolve().parents[2]
 SEGMENTS_PNG = "mesh_segments.png"
@@ -206,26 +206,13 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
-def read_run_model(name: str):
-    """The run's model, read from its model file for its geometry (no FE run, no process cache).
-
-    ``name`` as in the run's config: a shortcut (``three_plate``) or a model-file path,
-    relative to the repository when not absolute.
-    """
-    from fe_core.io import read_model
-    from tasks.stages import MODEL_SHORTCUTS
-
-    path = Path(MODEL_SHORTCUTS.get(name, name))
-    return read_model(path if path.is_absolute() else REPO / path)
-
-
 def mesh_section(data, out: Path) -> Section:
     """The mesh pictures of a run (or one line saying why there are none)."""
     from tasks.model_vtu import VTU_NAME, factors_from_parameters
 
     title = "Mesh, segments, sensors and updated factors"
     name = data.config.get("model", "three_plate")
-    model = read_run_model(name)
+    model = data.model
     if model.mesh is None:
         return Section(title=title, notes=[f"No mesh pictures: the model {name} is given as matrices (no node "
                                            "coordinates or cells to draw), and no model.vtu is written for it."])

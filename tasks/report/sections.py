@@ -73,8 +73,8 @@ def frf_section(data: RunData, out: Path, label: str = "") -> Section:
     grid = dense_frequencies(freqs)
     windows = zoom_windows(freqs)
     model_name = data.config.get("model", "three_plate")
-    dense = dense_frf(model_name, {"initial": initial, "updated": updated}, grid, out / CACHE / "frf_dense.parquet",
-                      channels=_run_channels(data, model_name), names=names)
+    dense = dense_frf(data.model, model_name, {"initial": initial, "updated": updated}, grid,
+                      out / CACHE / "frf_dense.parquet", channels=_run_channels(data), names=names)
     info = data.manifest.get("measured_data") or {}
     labels = None if info.get("form", "legacy").startswith("legacy") else {
         j + 1: f"{c['label']} ({c['sensor']} / {c['excitation']})" for j, c in enumerate(info["channels"])}
@@ -111,15 +111,14 @@ def frf_section(data: RunData, out: Path, label: str = "") -> Section:
     )
 
 
-def _run_channels(data: RunData, model_name: str):
+def _run_channels(data: RunData):
     """The run's measured channels on the model (None: its sensors under its default excitation)."""
     info = data.manifest.get("measured_data")
     if not info or info["form"].startswith("legacy"):  # the model's own FRF: no model needed to say so
         return None
     from tasks.report.lines import channels_of_run
-    from tasks.stages import load_model
 
-    return channels_of_run(data.manifest, load_model(model_name))
+    return channels_of_run(data.manifest, data.model)
 
 
 # -- Figures 4, 5 ---------------------------------------------------------------------------------

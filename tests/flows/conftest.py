@@ -9,9 +9,9 @@ from flows.config import UpdateConfig
 # 16 FE runs for the MRGP loop, then 7 for the polish (one Jacobian of 6 parameters and one step);
 # no intervals (up to 3 exact Jacobians, seconds per run: tests/flows/test_intervals_stage.py turns them on).
 # The adaptive strategy with the paper's loop (+ polish): these tests are about its stages. The hybrid default
-# (tests/flows/test_hybrid_flow.py) and the trust-region loop (tests/flows/test_trust_region_loop.py) have their own.
+# (tests/flows/test_hybrid_flow.py) has its own.
 REDUCED = dict(q=8, w=400, s=4, z=6, max_iterations=3, max_fe_evaluations=23, polish_max_fe=7, threshold=1e-6,
-               n_jobs=1, trainer="gradient", seed=11, intervals=False, strategy="adaptive", loop="paper")
+               n_jobs=1, trainer="gradient", seed=11, intervals=False, strategy="adaptive")
 
 
 @pytest.fixture
@@ -64,7 +64,7 @@ def two_iterations(prefect_harness):
     import numpy as np
 
     from flows import update
-    from tasks import stages
+    from tasks.record import parameter_columns
     from tasks.runstore import RunStore
 
     def run(config):
@@ -73,7 +73,7 @@ def two_iterations(prefect_harness):
         store = RunStore(config.resolve(config.runs_dir) / config.run_id)
         assert summary["iterations"] == 2 and summary["fe_evaluations"] == 12
         first = store.read_table(1, "samples")
-        cols = stages.parameter_columns(first)
+        cols = parameter_columns(first)
         assert np.allclose(first[cols].to_numpy()[0], 0.0)  # the nominal model is one of the first samples
         return store, cols
 

@@ -21,6 +21,7 @@ import pytest
 
 from fe_core.benchmark import ALPHA_ACTUAL
 from flows import update
+from flows.run import write_manifest
 from flows.config import REPO, load_config
 from tasks.io.measured import read_measured, write_measured
 from tasks.runstore import RunStore
@@ -171,8 +172,7 @@ BAD_INPUTS = [
     ("config negative disk reserve", None, None, "min_free_mb = -5", [], ["{config}", "key 'min_free_mb'"]),
     ("command line s of zero", None, None, "", ["-s", "0"], ["command line", "key 's'"]),
     ("command line unknown trainer", None, None, "", ["--trainer", "newton"], ["--trainer", "invalid choice"]),
-    ("command line loop of another strategy", None, None, "", ["--loop", "trust-region"],
-     ["command line", "key 'loop'", "--strategy adaptive"]),
+    ("config key that is gone", None, None, 'loop = "paper"', [], ["{config}", "key 'loop'", "removed"]),
     ("config unknown emulation", None, None, 'emulate = "frf"', [], ["{config}", "key 'emulate'", "modes, errors"]),
 ]
 
@@ -189,7 +189,7 @@ def existing_run(tmp_path) -> Path:
     # As the command line makes it for the benchmark measurement (true parameters known).
     config = load_config(None, runs_dir=str(runs), run_id="existing", true_parameters=ALPHA_ACTUAL.tolist())
     store = RunStore(runs / "existing")
-    update._write_manifest(store, config)
+    write_manifest(store, config)
     (store.root / "iteration=1" / "stage=samples").mkdir(parents=True)
     return store.root
 

@@ -20,7 +20,11 @@ from flows.config import REPO, UpdateConfig
 from flows.diagnose import DiagnoseError, closure_measurements
 from fe_core.benchmark import ALPHA_ACTUAL
 from tasks.io.measured import read_measured, write_measured
-from tasks.stages import load_model
+from flows.problem import load_model as _load
+
+
+def load_model(name):
+    return _load(name)[0]
 from tasks.update_data import update_data
 
 HAMMER = REPO / "data" / "benchmark" / "hammer.uff"

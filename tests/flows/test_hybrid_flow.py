@@ -22,8 +22,11 @@ import pytest
 
 from flows import update
 from flows.config import REPO, UpdateConfig
+from flows.problem import load_model
+from flows.summary import _cost_against_update
 from tasks import hybrid as htasks
-from tasks import stages
+from tasks import record
+from tasks.fe_runs import JACOBIAN_COST, read_fe_log
 from tasks.runstore import RunStore
 
 MODEL = "data/examples/cantilever_matrices/model.toml"
@@ -37,7 +40,7 @@ TIMING_KEYS = {"wall_seconds", "run_folder"}
 def measured_file(tmp_path_factory) -> Path:
     from tasks.io.measured import MeasuredFRF, read_measured, write_measured
 
-    model = stages.load_model(MODEL)
+    model = load_model(MODEL)[0]
     lines = read_measured(REPO / "data/examples/cantilever_matrices/measured.csv")
     Z = model.frf(np.array(TRUTH), lines.frequencies_hz, method="direct")
     path = tmp_path_factory.mktemp("hybrid-data") / "measured.csv"
@@ -68,14 +71,14 @@ def test_hybrid_goes_global_and_finds_the_truth(hybrid_run):
 
 def test_every_fe_run_is_counted_stored_and_logged_once(hybrid_run):
     summary, store = hybrid_run
-    runs, responses = htasks.all_runs(store, summary["iterations"])
+    runs = record.fe_runs(store, summary["iterations"])
     assert summary["fe_evaluations"] == len(runs) == runs["sample_id"].nunique()
     assert summary["jacobians"] == int(runs["jacobian"].sum()) > 0
-    assert summary["rounds"] == sum(store.stage_info(k, s)["rounds"] for k, s in htasks._stage_list(store, 99))
-    assert summary["fe_equivalents"] == pytest.approx(len(runs) + (htasks.JACOBIAN_COST - 1) * runs["jacobian"].sum())
+    assert summary["rounds"] == sum(store.stage_info(k, s)["rounds"] for k, s in record.fe_stages(store))
+    assert summary["fe_equivalents"] == pytest.approx(len(runs) + (JACOBIAN_COST - 1) * runs["jacobian"].sum())
     assert summary["fe_equivalents"] <= SETTINGS["max_fe_evaluations"]
     assert summary["rounds"] < summary["fe_evaluations"]  # the global cycle's batches
-    log = [e for e in stages.read_fe_log(store.root) if e["event"] in ("evaluated", "recovered")]
+    log = [e for e in read_fe_log(store.root) if e["event"] in ("evaluated", "recovered")]
     assert Counter(e["sample_id"] for e in log) == Counter(runs["sample_id"].tolist())
     # The stored derivative is the FE model's: central differences of the direct-solver FRF, step 1e-4 (truncation
     # ~1e-8 of the derivative, round-off ~1e-12 / 1e-4 of the response).
@@ -83,7 +86,7 @@ def test_every_fe_run_is_counted_stored_and_logged_once(hybrid_run):
     stage = j["stage"]
     df = pd.read_parquet(store.stage_dir(int(j["iteration"]), stage) / f"sample={int(j['sample_id']):06d}.parquet")
     x = j[[c for c in runs.columns if c.startswith("alpha_")]].to_numpy(float)
-    model = stages.load_model(MODEL)
+    model = load_model(MODEL)[0]
     freqs = np.sort(df["frequency_hz"].unique())
     h = 1e-4
     e = np.zeros_like(x)
@@ -144,7 +147,7 @@ def test_kill_inside_hybrid_stages_then_resume_gives_the_uninterrupted_run(tmp_p
     assert got_tables.keys() == want_tables.keys()
     for name, df in want_tables.items():
         pd.testing.assert_frame_equal(got_tables[name], df, obj=name)
-    log = stages.read_fe_log(victim)
+    log = read_fe_log(victim)
     per_sample = Counter(e["sample_id"] for e in log if e["event"] in ("evaluated", "recovered"))
     assert max(per_sample.values()) == 1, "an FE run was made twice"
     assert len(per_sample) == got["fe_evaluations"]
@@ -157,11 +160,10 @@ def test_the_intervals_cost_is_measured_in_fe_runs_of_the_hybrid_update(hybrid_r
     """The stored runs carry their own seconds and cost: an FE run's time is seconds / cost, and the intervals'
     share is of the update's FE-run equivalents."""
     summary, store = hybrid_run
-    config = UpdateConfig(run_id="hybrid", runs_dir=str(store.root.parent), **SETTINGS)
-    runs, _ = htasks.all_runs(store, summary["iterations"])
-    assert (runs["seconds"] > 0).all() and set(runs.loc[runs["jacobian"], "cost"]) == {htasks.JACOBIAN_COST}
+    runs = record.fe_runs(store, summary["iterations"])
+    assert (runs["seconds"] > 0).all() and set(runs.loc[runs["jacobian"], "cost"]) == {JACOBIAN_COST}
     fe_run = float(np.median(runs["seconds"] / runs["cost"]))
-    cost = update._cost_against_update(config, store, summary["iterations"], summary, seconds=2 * fe_run)
+    cost = _cost_against_update(store, summary["iterations"], summary, seconds=2 * fe_run)
     assert cost["fe_run_seconds"] == pytest.approx(fe_run, abs=5e-5)  # stored rounded to 4 decimals
     assert cost["fe_run_equivalents"] == pytest.approx(2.0, abs=0.01)
     assert cost["share_of_update_fe_runs"] == pytest.approx(2.0 / summary["fe_equivalents"], rel=1e-2)

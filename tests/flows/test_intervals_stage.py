@@ -12,6 +12,7 @@ from scipy import stats
 
 from fe_core.benchmark import ALPHA_ACTUAL
 from flows import update
+from flows.summary import report_least_squares_optimum
 from flows.config import ConfigError, UpdateConfig, load_config
 from tasks.intervals import INTERVALS_STAGE
 from tasks.runstore import RunStore
@@ -151,7 +152,7 @@ def test_the_least_squares_optimum_is_reported_and_the_lowest_error_run_kept_bes
                "parameter_errors": {"alpha_1": 0.02, "alpha_2": 0.01},
                "interval_details": {"estimate": {"alpha_1": 0.11, "alpha_2": -0.19}},
                "estimate_errors": {"overall_error": 0.0072, "per_sensor_error": [0.0065, 0.0079], "at_optimum": True}}
-    out = update.report_least_squares_optimum(summary, [1, 3], truth=[0.12, -0.21])
+    out = report_least_squares_optimum(summary, [1, 3], truth=[0.12, -0.21])
     assert out["parameters"] == {"alpha_1": 0.11, "alpha_2": -0.19}
     assert out["parameters_source"] == update.LEAST_SQUARES_SOURCE and "estimate_errors" not in out
     assert out["overall_error"] == 0.0072 and out["per_sensor_error"] == {"sensor_1": 0.0065, "sensor_3": 0.0079}
@@ -164,7 +165,7 @@ def test_the_least_squares_optimum_is_reported_and_the_lowest_error_run_kept_bes
                           "iterations": 2, "fe_evaluations": 100, "wall_seconds": 1.0}, file=text)
     assert "at the reported parameters, the least-squares optimum" in text.getvalue() and "lowest 6b" in text.getvalue()
     # Gauss-Newton not settled: the lowest-error run stays, and the summary says why
-    kept = update.report_least_squares_optimum({**summary, "estimate_errors": {**summary["estimate_errors"],
+    kept = report_least_squares_optimum({**summary, "estimate_errors": {**summary["estimate_errors"],
                                                                                "at_optimum": False}}, [1, 3])
     assert kept["parameters"] == summary["parameters"] and "lowest_error" not in kept
     assert "did not settle" in kept["parameters_source"] and names == list(kept["parameters"])

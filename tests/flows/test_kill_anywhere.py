@@ -29,7 +29,7 @@ import pandas as pd
 import pytest
 
 from flows.config import REPO
-from tasks import stages
+from tasks.fe_runs import read_fe_log
 from tasks.runstore import RunStore
 
 TIMING_KEYS = {"wall_seconds", "run_folder"}
@@ -126,13 +126,13 @@ def _assert_same_run(victim: Path, ref_root: Path, recovered: list[int]) -> None
     for name, df in want_tables.items():
         pd.testing.assert_frame_equal(got_tables[name], df, obj=name)
 
-    log = stages.read_fe_log(victim)
+    log = read_fe_log(victim)
     runs_per_sample = Counter((e["iteration"], e["sample_id"]) for e in log if e["event"] in ("evaluated", "recovered"))
     assert not [e for e in log if e["event"] == "discarded"]
     assert max(runs_per_sample.values()) == 1, "an FE sample was evaluated twice"
     store = RunStore(victim)
     expected = {(k, int(sid)) for k in (1, 2, 3) for sid in store.read_table(k, "samples")["sample_id"]}
-    expected |= {(3, int(sid)) for sid in store.read_table(3, "polish")["sample_id"]}
+    expected |= {(3, int(sid)) for sid in store.read_table(3, "polish", "runs")["sample_id"]}
     assert set(runs_per_sample) == expected, "an FE sample was lost"
     assert len(expected) == got["fe_evaluations"] == 16 + got["polish"]["n"]
     # A kill between an FE result and its log line is repaired from the result on disk.

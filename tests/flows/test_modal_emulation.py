@@ -6,7 +6,10 @@ import numpy as np
 
 from flows import update
 from mrgp_core.modal_outputs import BAND_FACTOR
-from tasks import modal_emulation, stages
+from flows.rerun import run_problem as resolve
+from mrgp_core.strategies import modal_emulation
+from mrgp_core.strategies.emulation import length_scales
+from tasks import paper
 from tasks.runstore import RunStore
 
 
@@ -14,8 +17,8 @@ def test_fe_runs_carry_the_modes_and_predict_adds_gauss_newton_points(reduced_co
     config = reduced_config.replace(emulate="modes")
     store, cols = two_iterations(config)
     first = store.read_table(1, "samples")
-    fe = store.read_table(1, "fe")
-    model = stages.load_model(config.model)
+    fe = store.read_table(1, "fe", "responses")
+    model = resolve(config).model
     nominal = model.natural_frequencies(np.zeros(6), 6)
     n = int(np.sum(nominal < BAND_FACTOR * fe["frequency_hz"].max())) + 1
     assert n == 3 and [c for c in fe.columns if c.startswith("omega2_")] == ["omega2_1", "omega2_2", "omega2_3"]
@@ -27,7 +30,8 @@ def test_fe_runs_carry_the_modes_and_predict_adds_gauss_newton_points(reduced_co
     cand = store.read_table(1, "predict", "candidates")
     assert config.w < len(cand) <= config.w + 2 * modal_emulation.GN_STARTS  # the Gauss-Newton end points
     assert np.all(np.isfinite(cand["predicted_error"]))
-    low, high = stages.parameter_box(config, 6)
+    problem = resolve(config)
+    low, high = problem.lower, problem.upper
     assert np.all(cand[cols].to_numpy() >= low - 1e-12) and np.all(cand[cols].to_numpy() <= high + 1e-12)
     # a rerun of the predict stage from its stored inputs predicts what the run did
     out = update.rerun_stage(store.root, 1, "predict")
@@ -59,13 +63,12 @@ def test_with_reduced_outputs_the_modes_keep_an_mrgp_of_their_own(reduced_config
     store = RunStore(config.resolve(config.runs_dir) / config.run_id)
     info = store.stage_info(1, "train")
     assert info["modal"] == {"modes": 3, "outputs": 165, "modes_separate": True} and info["outputs"] == "full"
-    data = update.prepare_data(config, update.read_measured(config.resolve(config.measured)),
-                               stages.load_model(config.model))
-    X, Y, _, lay = modal_emulation.training_set(store, config, 1, data)
+    problem = resolve(config)
+    X, Y, _, lay = paper.modal_training_set(store, problem, 1)
     hp = store.read_table(1, "train", "hyperparameters")
     hyper = dict(zip(hp["name"], hp["value"]))
-    h = mrgp_core.Hyperparameters(length_scale=stages._length_scales(hyper), nugget=float(hyper["nugget"]))
-    mean = modal_emulation.Emulator(config, X, Y, lay, h).mean(X)
+    h = mrgp_core.Hyperparameters(length_scale=length_scales(hyper), nugget=float(hyper["nugget"]))
+    mean = modal_emulation.Emulator(X, Y, lay, h, modal_emulation.separate_modes(config.outputs, lay)).mean(X)
     hz = np.sqrt(mean[:, :3]) / (2 * np.pi)
     np.testing.assert_allclose(hz, np.sqrt(Y[:, :3]) / (2 * np.pi), atol=0.5)  # Hz, at the training runs
 

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 from flows import update
+from flows.run import write_manifest
 from flows.config import REPO
-from tasks import stages
+from flows.problem import resolve
+from tasks.problem import model_checksum, model_path, read_model_ref
 from tasks.runstore import RunStore
 
 BENCH_TOML = "data/benchmark/model.toml"
@@ -24,7 +26,7 @@ def _strip(summary: dict) -> dict:
 @pytest.mark.slow
 def test_the_name_three_plate_is_a_shortcut_to_the_benchmark_model_file(reduced_config, prefect_harness):
     """Same run by name and by path (tests/fe_core/test_model_file.py: the file's FRF is three_plate()'s)."""
-    assert stages.load_model("three_plate") is stages.load_model(BENCH_TOML)
+    assert read_model_ref("three_plate")[0] is read_model_ref(BENCH_TOML)[0]
     by_name = update.update_flow(reduced_config)
     by_file = update.update_flow(reduced_config.replace(model=BENCH_TOML, run_id="by-file"))
     assert _strip(by_file) == _strip(by_name)
@@ -98,16 +100,16 @@ def test_the_model_is_cached_by_the_checksum_of_its_files(tmp_path):
     for f in ("model.toml", "three_plate.inp"):
         shutil.copy(REPO / "data" / "benchmark" / f, tmp_path / f)
     path = str(tmp_path / "model.toml")
-    first = stages.load_model(path)
-    assert stages.load_model(path) is first
+    first = read_model_ref(path)[0]
+    assert read_model_ref(path)[0] is first
     assert first.placements[0] == "sensor 1 's1': nearest node 79 at 0 from [0.02875, 0.02, 0.01]"
     text = (tmp_path / "model.toml").read_text()
     (tmp_path / "model.toml").write_text(text.replace("a = 0.01", "a = 0.02"))
-    edited = stages.load_model(path)
+    edited = read_model_ref(path)[0]
     assert edited is not first and edited.damping == (0.02, 1e-4)
     mesh = (tmp_path / "three_plate.inp").read_text()
     (tmp_path / "three_plate.inp").write_text(mesh.replace("*NSET, NSET=top", "*NSET, NSET=upper"))
-    assert stages.load_model(path) is not edited  # the mesh file is part of the checksum
+    assert read_model_ref(path)[0] is not edited  # the mesh file is part of the checksum
 
 
 def test_resuming_after_the_model_file_changed_is_refused(tmp_path, capsys):
@@ -119,8 +121,8 @@ def test_resuming_after_the_model_file_changed_is_refused(tmp_path, capsys):
     runs = tmp_path / "runs"
     config = load_config(None, model=str(tmp_path / "model.toml"), runs_dir=str(runs), run_id="r")
     store = RunStore(runs / "r")
-    update._write_manifest(store, config)
-    assert store.read_manifest()["model_checksum"] == stages.model_fingerprint(config.model)
+    write_manifest(store, config, resolve(config))
+    assert store.read_manifest()["model_checksum"] == model_checksum(model_path(config.model))
     inp = tmp_path / "three_plate.inp"
     inp.write_text(inp.read_text().replace("*NSET, NSET=top", "*NSET, NSET=upper"))
     before = (runs / "r" / "manifest.json").read_bytes()

@@ -10,7 +10,8 @@ import pytest
 
 from flows import update
 from flows.config import ConfigError, UpdateConfig, load_config
-from tasks import stages
+from flows.run import write_manifest
+from mrgp_core.strategies.emulation import AUTO_REDUCED_ABOVE, reduced_outputs
 from tasks.runstore import RunStore
 
 TIMING_KEYS = {"wall_seconds", "run_folder"}
@@ -21,10 +22,10 @@ def _strip(summary: dict) -> dict:
 
 
 def test_auto_switches_to_the_reduced_basis_only_above_the_threshold():
-    k = stages.AUTO_REDUCED_ABOVE
-    assert not stages.reduced_outputs("auto", 72) and not stages.reduced_outputs("auto", k)
-    assert stages.reduced_outputs("auto", k + 1) and stages.reduced_outputs("reduced", 72)
-    assert not stages.reduced_outputs("full", 10 * k)
+    k = AUTO_REDUCED_ABOVE
+    assert not reduced_outputs("auto", 72) and not reduced_outputs("auto", k)
+    assert reduced_outputs("auto", k + 1) and reduced_outputs("reduced", 72)
+    assert not reduced_outputs("full", 10 * k)
 
 
 @pytest.mark.slow
@@ -101,9 +102,9 @@ def test_outputs_from_toml_and_command_line(tmp_path):
 def test_a_run_started_before_the_key_existed_resumes(reduced_config, tmp_path):
     """Manifests written before ``outputs`` existed lack the key; such runs used the full MRGP (k = 72: auto)."""
     store = RunStore(Path(reduced_config.runs_dir) / "reduced")
-    update._write_manifest(store, reduced_config)
+    write_manifest(store, reduced_config)
     manifest = store.read_manifest()
     del manifest["config"]["outputs"]
     store.write_manifest(manifest)
-    update._write_manifest(store, reduced_config)  # no ConfigError
+    write_manifest(store, reduced_config)  # no ConfigError
     assert "resumes" in store.read_manifest()

@@ -11,9 +11,11 @@ import pytest
 
 from fe_core.benchmark import ALPHA_ACTUAL
 from flows import update
+from flows.problem import resolve
+from tasks.paper import loop_budget
 from flows.config import ConfigError, UpdateConfig
-from mrgp_core import adaptive
-from mrgp_core.polish import polish
+from mrgp_core import errors
+from mrgp_core.strategies.polish import polish
 from tasks.io.measured import read_measured
 from tasks.polish import POLISH_STAGE, polish_task
 from tasks.runstore import RunStore
@@ -31,7 +33,7 @@ def test_from_about_one_percent_the_polish_reaches_the_noise_floor_of_noise_free
     freqs, amp = measured.frequencies_hz, measured.amplitude
 
     def evaluate(points):
-        return [adaptive.relative_residuals(np.abs(benchmark_model.frf(x, freqs))[None], amp)[0] for x in points]
+        return [errors.relative_residuals(np.abs(benchmark_model.frf(x, freqs))[None], amp)[0] for x in points]
 
     start = ALPHA_ACTUAL + np.array([0.004, -0.006, 0.006, 0.004, -0.004, 0.002])
     before = float(np.mean(np.abs(evaluate([start])[0])))
@@ -51,7 +53,7 @@ def test_on_noisy_data_the_polish_stops_where_the_error_levels_off_at_the_noise(
     freqs, amp = noisy.frequencies_hz, noisy.amplitude
 
     def evaluate(points):
-        return [adaptive.relative_residuals(np.abs(benchmark_model.frf(x, freqs))[None], amp)[0] for x in points]
+        return [errors.relative_residuals(np.abs(benchmark_model.frf(x, freqs))[None], amp)[0] for x in points]
 
     floor = float(np.mean(np.abs(evaluate([ALPHA_FAR])[0])))
     assert 0.006 < floor < 0.01  # 1 % noise: mean |r| about 0.8 %
@@ -70,7 +72,7 @@ def test_polish_stage_is_counted_stored_and_resumes_from_its_fe_runs(reduced_con
     root = Path(reduced_config.runs_dir) / reduced_config.run_id
     store = RunStore(root)
     k = summary["iterations"]
-    table = store.read_table(k, POLISH_STAGE)
+    table = store.read_table(k, POLISH_STAGE, "runs")
     info = store.stage_info(k, POLISH_STAGE)
     loop_runs = sum(len(store.read_table(i, "samples")) for i in range(1, k + 1))
     # Counted: the budget is shared, the polish's runs are in fe_evaluations.
@@ -96,7 +98,7 @@ def test_polish_stage_is_counted_stored_and_resumes_from_its_fe_runs(reduced_con
     # Resumable, as after a kill with FE runs finishing out of order (n_jobs > 1): the 2nd
     # and the last two results never reached the disk (nor the log), a later one did.
     d = store.stage_dir(k, POLISH_STAGE)
-    for name in ("_stage.json", "polish.parquet", "residuals.parquet"):
+    for name in ("_stage.json", "runs.parquet", "responses.parquet"):
         (d / name).unlink()
     lost = {files[1], *files[-2:]}
     lost_ids = {int(f.stem.split("=")[1]) for f in lost}
@@ -108,10 +110,11 @@ def test_polish_stage_is_counted_stored_and_resumes_from_its_fe_runs(reduced_con
     # ... and one stored result was damaged afterwards.
     damaged = files[2]
     damaged.write_bytes(b"not a parquet file")
-    again = polish_task.fn(str(root), reduced_config, k, measured.frequencies_hz, measured.amplitude)
+    again = polish_task.fn(str(root), resolve(reduced_config), reduced_config, k)
     assert again["ran_now"] == len(lost) + 1  # only the lost and the damaged runs are made again
-    pd.testing.assert_frame_equal(store.read_table(k, POLISH_STAGE), table)  # same ids, same points
-    assert again["error_after"] == info["error_after"] and again["best_sample_id"] == info["best_sample_id"]
+    pd.testing.assert_frame_equal(store.read_table(k, POLISH_STAGE, "runs").drop(columns="seconds"),
+                                  table.drop(columns="seconds"))  # same ids, same points
+    assert again["error_after"] == info["error_after"]
     events = [json.loads(line) for line in log_path.read_text().splitlines()]
     runs = [e["sample_id"] for e in events if e.get("stage") == POLISH_STAGE and e["event"] != "discarded"]
     discarded = [e["sample_id"] for e in events if e.get("stage") == POLISH_STAGE and e["event"] == "discarded"]
@@ -129,7 +132,7 @@ def test_polish_settings_are_checked_and_can_be_switched_off(tmp_path):
     with pytest.raises(ConfigError, match="polish_stall_rtol"):
         UpdateConfig(polish_stall_rtol=-0.1)
     # Off, or for the conventional baseline, the loop keeps the whole budget.
-    assert update.loop_budget(UpdateConfig(polish=False)) == 240
-    assert update.loop_budget(UpdateConfig(strategy="conventional")) == 240
-    assert update.loop_budget(UpdateConfig(strategy="adaptive")) == 240 - 200
-    assert update.loop_budget(UpdateConfig()) == 240  # the hybrid default has no polish
+    assert loop_budget(UpdateConfig(polish=False)) == 240
+    assert loop_budget(UpdateConfig(strategy="conventional")) == 240
+    assert loop_budget(UpdateConfig(strategy="adaptive")) == 240 - 200
+    assert loop_budget(UpdateConfig()) == 240  # the hybrid default has no polish

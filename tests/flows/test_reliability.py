@@ -27,7 +27,11 @@ import mrgp_core
 from fe_core.benchmark import ALPHA_ACTUAL, three_plate
 from flows import update
 from flows.config import REPO
-from tasks import stages
+from flows.problem import resolve
+from flows.run import write_manifest
+from mrgp_core.strategies.emulation import merge_duplicates, train_mrgp
+from tasks import paper
+from tasks.fe_runs import read_fe_log
 from tasks.io.measured import read_measured
 from tasks.runlock import LOCK_NAME, RunLock, RunLockedError
 from tasks.runstore import CorruptFileError, RunStore
@@ -43,9 +47,10 @@ def measured():
 def first_stages(config, measured) -> RunStore:
     store = RunStore(config.resolve(config.runs_dir) / config.run_id)
     root = str(store.root)
-    stages.samples_task.fn(root, config, 1, 6)
-    stages.fe_task.fn(root, config, 1, measured.frequencies_hz)
-    stages.errors_task.fn(root, config, 1, measured.amplitude)
+    problem = resolve(config)
+    paper.samples_task.fn(root, problem, config, 1)
+    paper.fe_task.fn(root, problem, config, 1)
+    paper.errors_task.fn(root, problem, config, 1)
     return store
 
 
@@ -78,11 +83,11 @@ def test_a_damaged_stage_file_is_never_read_and_its_stage_is_recomputed(
     with pytest.raises(CorruptFileError, match=f"{path}: {why}"):
         store.read_table(1, "errors", "errors")  # every read-back is checked, not only the resume
     with pytest.raises(CorruptFileError, match=str(path)):
-        stages.training_data(store, 1)
+        paper.training_data(store, 1)
     with caplog.at_level(logging.WARNING):
         assert not store.is_finished(1, "errors")
     assert f"{path}: {why}" in caplog.text and "will be recomputed" in caplog.text
-    stages.errors_task.fn(str(store.root), reduced_config, 1, measured.amplitude)
+    paper.errors_task.fn(str(store.root), resolve(reduced_config), reduced_config, 1)
     pd.testing.assert_frame_equal(good, store.read_table(1, "errors", "errors"))
 
 
@@ -97,7 +102,7 @@ def test_a_stage_record_written_half_is_a_stage_not_finished(reduced_config, mea
 
 def test_damaged_fe_results_are_set_aside_logged_and_evaluated_again(reduced_config, measured, caplog):
     store = first_stages(reduced_config, measured)
-    before = store.read_table(1, "fe").drop(columns=["seconds", "pid"])
+    before = store.read_table(1, "fe", "responses")
     (store.stage_dir(1, "fe") / "_stage.json").unlink()  # as if the run had stopped inside the FE stage
     truncated, other_alpha, wrong_schema = (store.sample_path(1, i) for i in (2, 4, 6))
     _truncate(truncated)
@@ -106,13 +111,13 @@ def test_damaged_fe_results_are_set_aside_logged_and_evaluated_again(reduced_con
     df.to_parquet(other_alpha)
     _wrong_schema(wrong_schema)
     with caplog.at_level(logging.WARNING):
-        ran = stages.fe_task.fn(str(store.root), reduced_config, 1, measured.frequencies_hz)
+        ran = paper.fe_task.fn(str(store.root), resolve(reduced_config), reduced_config, 1)
     assert ran == 3
     for path, why in ((truncated, "unreadable"), (other_alpha, "computed for other parameters"), (wrong_schema, "wrong schema")):
-        assert f"FE result {path} is not valid ({why}" in caplog.text
+        assert f"FE result {path}: {why}" in caplog.text
         assert len(list(path.parent.glob(path.name + ".corrupt-*"))) == 1  # kept for inspection
-    pd.testing.assert_frame_equal(before, store.read_table(1, "fe").drop(columns=["seconds", "pid"]))
-    log = stages.read_fe_log(store.root)
+    pd.testing.assert_frame_equal(before, store.read_table(1, "fe", "responses"))
+    log = read_fe_log(store.root)
     discarded = {e["sample_id"]: e["reason"] for e in log if e["event"] == "discarded"}
     assert sorted(discarded) == [2, 4, 6] and "other parameters" in discarded[4]
     evaluated = [e["sample_id"] for e in log if e["event"] == "evaluated"]
@@ -241,7 +246,7 @@ def test_a_read_only_run_folder_is_refused_on_resume(tmp_path, capsys):
     runs = tmp_path / "runs"
     root = runs / "old"
     config = update.load_config(None, runs_dir=str(runs), run_id="old", true_parameters=list(ALPHA_ACTUAL))
-    update._write_manifest(RunStore(root), config)
+    write_manifest(RunStore(root), config)
     before = _snapshot(root)
     with read_only(root):
         assert update.main(["--run-id", "old", "--runs-dir", str(runs)]) == 2
@@ -286,12 +291,12 @@ def test_duplicated_samples_are_merged_so_the_mrgp_is_fitted_as_without_them(rng
     Y = np.sin(X @ W * 0.8) + 0.3 * (X @ W * 0.8) ** 2
     Xd = np.vstack([X, X[:5], X[5:8] + 1e-13])
     Yd = np.vstack([Y, Y[:5], Y[5:8]])
-    Xm, Ym = stages.merge_duplicates(Xd, Yd)
+    Xm, Ym = merge_duplicates(Xd, Yd)
     assert Xm.shape == X.shape
     np.testing.assert_allclose(Xm, X, atol=1e-12)
     np.testing.assert_allclose(Ym, Y)
     alone = mrgp_core.fit(X, Y, "gradient", rng=np.random.default_rng(1)).hyperparameters
-    hyper, _ = stages.train_mrgp(Xd, Yd, "gradient", np.random.default_rng(1), None)
+    hyper, _ = train_mrgp(Xd, Yd, "gradient", np.random.default_rng(1), None)
     assert hyper["length_scale_1"] == pytest.approx(float(np.atleast_1d(alone.length_scale)[0]), rel=1e-6)
     # Without the merge the duplicates make Sigma singular but for its jitter, and the likelihood
     # drives the length scale towards zero (the MRGP degenerates to its trend): the fault being fixed.
@@ -336,14 +341,13 @@ def test_the_flow_goes_on_through_duplicates_failed_fe_runs_and_constant_respons
 
     errors = store.read_table(1, "errors", "errors").set_index("sample_id")
     assert list(errors.index[errors["status"] != "ok"]) == [3, 4]
-    fe = store.read_table(1, "fe")
-    messages = fe.groupby("sample_id")["message"].first()
+    messages = store.read_table(1, "fe", "runs").set_index("sample_id")["message"]
     assert "alpha_2 = -1.0 is outside the valid domain" in messages[3]
     assert "LinAlgError: singular matrix" in messages[4]
-    log = stages.read_fe_log(store.root)
+    log = read_fe_log(store.root)
     assert sorted(e["sample_id"] for e in log if e.get("status") == "failed") == [3, 4]
     assert summary["iterations"] == 3
-    ids, Xt, Yt, E = stages.training_data(store, 3)
+    ids, Xt, Yt, E = paper.training_data(store, 3)
     assert 3 not in ids and 4 not in ids and np.all(np.isfinite(Yt))
     assert np.ptp(Yt[:, 0]) == 0.0  # the constant response reached the MRGP
     hyper = store.read_table(1, "train", "hyperparameters").set_index("name")["value"]

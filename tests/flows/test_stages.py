@@ -9,8 +9,9 @@ import pandas as pd
 import pytest
 
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ, three_plate
-from mrgp_core import adaptive
-from tasks import stages
+from flows.problem import resolve
+from mrgp_core.errors import overall_error
+from tasks import paper
 from tasks.io.measured import read_measured
 from tasks.runstore import RunStore
 from flows.config import REPO
@@ -23,9 +24,10 @@ def measured():
 
 def run_first_stages(config, measured):
     root = str(RunStore(config.resolve(config.runs_dir) / config.run_id).root)
-    stages.samples_task.fn(root, config, 1, 6)
-    stages.fe_task.fn(root, config, 1, measured.frequencies_hz)
-    stages.errors_task.fn(root, config, 1, measured.amplitude)
+    problem = resolve(config)
+    paper.samples_task.fn(root, problem, config, 1)
+    paper.fe_task.fn(root, problem, config, 1)
+    paper.errors_task.fn(root, problem, config, 1)
     return RunStore(root)
 
 
@@ -43,12 +45,12 @@ def test_measured_benchmark_file_is_the_model_at_the_actual_alpha(measured):
 
 def test_first_samples_are_uniform_in_the_box_and_seeded(reduced_config, tmp_path):
     root = str(tmp_path / "a")
-    stages.samples_task.fn(root, reduced_config, 1, 6)
+    paper.samples_task.fn(root, resolve(reduced_config), reduced_config, 1)
     X = RunStore(root).read_table(1, "samples")
     assert len(X) == reduced_config.q and list(X["sample_id"]) == list(range(reduced_config.q))
     cols = [f"alpha_{i}" for i in range(1, 7)]
     assert np.all(X[cols].to_numpy() > -1) and np.all(X[cols].to_numpy() <= 1)
-    stages.samples_task.fn(str(tmp_path / "b"), reduced_config, 1, 6)
+    paper.samples_task.fn(str(tmp_path / "b"), resolve(reduced_config), reduced_config, 1)
     pd.testing.assert_frame_equal(X, RunStore(tmp_path / "b").read_table(1, "samples"))
 
 
@@ -63,27 +65,25 @@ def test_fe_and_error_stages_match_a_direct_computation(reduced_config, measured
         expected = np.mean(np.abs(amp / measured.amplitude - 1))
         got = errors.loc[errors["sample_id"] == row["sample_id"], "overall_error"].item()
         assert got == pytest.approx(expected, rel=1e-7)
-    ids, X, Y, E = stages.training_data(store, 1)
+    ids, X, Y, E = paper.training_data(store, 1)
     assert X.shape == (reduced_config.q, 6) and Y.shape == (reduced_config.q, 72)
-    np.testing.assert_allclose(adaptive.overall_error(Y), E)
+    np.testing.assert_allclose(overall_error(Y), E)
 
 
 def test_fe_stage_resumes_without_rerunning_finished_samples(reduced_config, measured):
     store = run_first_stages(reduced_config, measured)
     log_lines = (store.root / "fe_evaluations.jsonl").read_text().splitlines()
     assert len(log_lines) == reduced_config.q
-    before = store.read_table(1, "fe")
+    before = store.read_table(1, "fe", "responses")
     # Simulate a crash after three results were written: drop the stage record and four results.
     (store.stage_dir(1, "fe") / "_stage.json").unlink()
     for path in sorted(store.stage_dir(1, "fe").glob("sample=*.parquet"))[3:7]:
         path.unlink()
-    ran = stages.fe_task.fn(str(store.root), reduced_config, 1, measured.frequencies_hz)
+    ran = paper.fe_task.fn(str(store.root), resolve(reduced_config), reduced_config, 1)
     assert ran == 4
-    pd.testing.assert_frame_equal(
-        before.drop(columns=["seconds", "pid"]), store.read_table(1, "fe").drop(columns=["seconds", "pid"])
-    )
+    pd.testing.assert_frame_equal(before, store.read_table(1, "fe", "responses"))
     # A finished stage is read back, not recomputed.
-    assert stages.fe_task.fn(str(store.root), reduced_config, 1, measured.frequencies_hz) == 0
+    assert paper.fe_task.fn(str(store.root), resolve(reduced_config), reduced_config, 1) == 0
 
 
 def test_a_corrupted_stage_file_is_recomputed(reduced_config, measured):
@@ -92,14 +92,14 @@ def test_a_corrupted_stage_file_is_recomputed(reduced_config, measured):
     good = store.read_table(1, "errors", "errors")
     path.write_bytes(path.read_bytes()[:100])
     assert not store.is_finished(1, "errors")
-    stages.errors_task.fn(str(store.root), reduced_config, 1, measured.amplitude)
+    paper.errors_task.fn(str(store.root), resolve(reduced_config), reduced_config, 1)
     pd.testing.assert_frame_equal(good, store.read_table(1, "errors", "errors"))
 
 
 def test_failed_fe_run_is_recorded_and_excluded(reduced_config, measured, monkeypatch):
     store = RunStore(reduced_config.resolve(reduced_config.runs_dir) / "failing")
     root = str(store.root)
-    stages.samples_task.fn(root, reduced_config, 1, 6)
+    paper.samples_task.fn(root, resolve(reduced_config), reduced_config, 1)
     real_frf = type(three_plate()).frf
 
     def flaky(self, alpha, freqs, *args, **kwargs):
@@ -108,12 +108,12 @@ def test_failed_fe_run_is_recorded_and_excluded(reduced_config, measured, monkey
         return real_frf(self, alpha, freqs, *args, **kwargs)
 
     monkeypatch.setattr(type(three_plate()), "frf", flaky)
-    stages.fe_task.fn(root, reduced_config, 1, measured.frequencies_hz)
-    info = stages.errors_task.fn(root, reduced_config, 1, measured.amplitude)
+    paper.fe_task.fn(root, resolve(reduced_config), reduced_config, 1)
+    info = paper.errors_task.fn(root, resolve(reduced_config), reduced_config, 1)
     assert info["failed"] == 1
     errors = store.read_table(1, "errors", "errors")
     assert (errors["status"] == "failed").sum() == 1
-    ids, X, Y, E = stages.training_data(store, 1)
+    ids, X, Y, E = paper.training_data(store, 1)
     assert len(ids) == reduced_config.q - 1 and np.all(np.isfinite(Y))
     log = [json.loads(x) for x in (store.root / "fe_evaluations.jsonl").read_text().splitlines()]
     assert sum(entry["status"] == "failed" for entry in log) == 1

@@ -25,7 +25,8 @@ def _toy(x, noise=None):
 
 
 def _evaluate(noise=None, log=None):
-    def evaluate(points, jacobian):
+    def evaluate(batch):
+        points, jacobian = batch.points, batch.jacobian
         if log is not None:
             log.append((len(points), sum(jacobian)))
         out = []
@@ -98,7 +99,7 @@ def test_the_budget_is_never_exceeded():
 
 
 def test_global_points_are_uniform_in_the_square_root_of_the_factor():
-    from mrgp_core.strategies.hybrid import _from_unit, _warped
+    from mrgp_core.strategies.hybrid_phases import _from_unit, _warped
 
     lower, upper = np.array([-0.75, -0.96]), np.array([3.0, 0.44])  # sqrt(1 + x): [0.5, 2] and [0.2, 1.2]
     q = np.array([[0.0, 0.0], [0.5, 0.25], [1.0, 1.0]])

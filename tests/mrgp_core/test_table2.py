@@ -5,36 +5,37 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mrgp_core import adaptive
+from mrgp_core import errors
+from mrgp_core.strategies import table2
 
 
 def test_residual_layout_and_errors_follow_eqs_5_6b_15(rng):
     p, n = 4, 3
     measured = rng.uniform(1.0, 2.0, (p, n))
     model = measured * (1 + rng.normal(0, 0.1, (p, n)))
-    res = adaptive.relative_residuals(model, measured)
+    res = errors.relative_residuals(model, measured)
     # Eq. 5: [du_11 .. du_n1, du_12, ..., du_np] -- sensors fastest.
     expected = [(model[j, i] - measured[j, i]) / measured[j, i] for j in range(p) for i in range(n)]
     np.testing.assert_allclose(res, expected)
     overall = sum(abs(model[j, i] - measured[j, i]) / measured[j, i] for i in range(n) for j in range(p)) / (n * p)
-    assert adaptive.overall_error(res) == pytest.approx(overall)
+    assert errors.overall_error(res) == pytest.approx(overall)
     sensor = [np.mean([abs(model[j, i] / measured[j, i] - 1) for j in range(p)]) for i in range(n)]
-    np.testing.assert_allclose(adaptive.per_sensor_error(res, n), sensor)
+    np.testing.assert_allclose(errors.per_sensor_error(res, n), sensor)
 
 
 def test_errors_broadcast_over_many_samples(rng):
     measured = rng.uniform(1.0, 2.0, (5, 2))
     models = measured * (1 + rng.normal(0, 0.1, (7, 5, 2)))
-    res = adaptive.relative_residuals(models, measured)
+    res = errors.relative_residuals(models, measured)
     assert res.shape == (7, 10)
-    np.testing.assert_allclose(adaptive.overall_error(res)[3], adaptive.overall_error(res[3]))
-    assert adaptive.per_sensor_error(res, 2).shape == (7, 2)
+    np.testing.assert_allclose(errors.overall_error(res)[3], errors.overall_error(res[3]))
+    assert errors.per_sensor_error(res, 2).shape == (7, 2)
 
 
 def test_distribution_is_fitted_on_the_best_z_samples(rng):
     X = rng.normal(size=(40, 3))
     errors = rng.uniform(size=40)
-    dist = adaptive.fit_distribution(X, errors, z=10)
+    dist = table2.fit_distribution(X, errors, z=10)
     best = X[np.argsort(errors)[:10]]
     np.testing.assert_allclose(dist.mean, best.mean(axis=0))
     np.testing.assert_allclose(dist.std, best.std(axis=0, ddof=1))
@@ -42,13 +43,13 @@ def test_distribution_is_fitted_on_the_best_z_samples(rng):
 
 def test_distribution_std_has_a_floor():
     X = np.tile([0.1, 0.2], (5, 1))
-    dist = adaptive.fit_distribution(X, np.arange(5.0), z=5, std_floor=1e-3)
+    dist = table2.fit_distribution(X, np.arange(5.0), z=5, std_floor=1e-3)
     np.testing.assert_allclose(dist.std, 1e-3)
 
 
 def test_candidates_never_leave_the_valid_domain(rng):
-    dist = adaptive.SamplingDistribution(mean=np.array([-0.98, 0.0, 0.95]), std=np.array([0.2, 0.1, 0.2]))
-    C = adaptive.draw_candidates(dist, 20000, np.full(3, -1.0), np.full(3, 1.0), rng)
+    dist = table2.SamplingDistribution(mean=np.array([-0.98, 0.0, 0.95]), std=np.array([0.2, 0.1, 0.2]))
+    C = table2.draw_candidates(dist, 20000, np.full(3, -1.0), np.full(3, 1.0), rng)
     assert C.shape == (20000, 3)
     assert np.all(C > -1.0) and np.all(C <= 1.0)
     # Away from the bounds the draws keep the distribution's moments.
@@ -57,21 +58,21 @@ def test_candidates_never_leave_the_valid_domain(rng):
 
 
 def test_uniform_samples_cover_the_box_and_exclude_minus_one(rng):
-    X = adaptive.uniform_samples(5000, np.full(6, -1.0), np.full(6, 1.0), rng)
+    X = table2.uniform_samples(5000, np.full(6, -1.0), np.full(6, 1.0), rng)
     assert np.all(X > -1.0) and np.all(X <= 1.0)
     np.testing.assert_allclose(X.mean(axis=0), 0.0, atol=0.05)
 
 
 def test_a_distribution_outside_the_box_is_reported(rng):
-    dist = adaptive.SamplingDistribution(mean=np.array([5.0]), std=np.array([1e-3]))
+    dist = table2.SamplingDistribution(mean=np.array([5.0]), std=np.array([1e-3]))
     with pytest.raises(ValueError, match="outside"):
-        adaptive.draw_candidates(dist, 10, np.array([-1.0]), np.array([1.0]), rng)
+        table2.draw_candidates(dist, 10, np.array([-1.0]), np.array([1.0]), rng)
 
 
 def test_selection_takes_best_scores_at_least_min_distance_apart(rng):
     C = rng.uniform(-1, 1, (2000, 2))
     scores = np.sum(C**2, axis=1)  # best near the origin, where candidates crowd
-    chosen = adaptive.select_diverse(C, scores, 10, 0.2)
+    chosen = table2.select_diverse(C, scores, 10, 0.2)
     assert len(chosen) == 10
     assert chosen[0] == np.argmin(scores)
     X = C[chosen]
@@ -86,16 +87,16 @@ def test_selection_skips_points_near_evaluated_samples_and_nan_scores(rng):
     scores = np.array([0.0, 0.1, np.nan, 0.3])
     evaluated = np.array([[0.0, 0.005]])
     # 0 and 1 lie within 0.1 of the evaluated sample and 2 has no score: only 3 qualifies.
-    assert list(adaptive.select_diverse(C, scores, 1, 0.1, exclude=evaluated)) == [3]
+    assert list(table2.select_diverse(C, scores, 1, 0.1, exclude=evaluated)) == [3]
     # Asking for two relaxes the distance until 1 (0.011 away) qualifies, never 0 (0.005 away) first.
-    assert list(adaptive.select_diverse(C, scores, 2, 0.1, exclude=evaluated)) == [1, 3]
-    chosen = adaptive.select_diverse(C, scores, 4, 0.1, exclude=evaluated)
+    assert list(table2.select_diverse(C, scores, 2, 0.1, exclude=evaluated)) == [1, 3]
+    chosen = table2.select_diverse(C, scores, 4, 0.1, exclude=evaluated)
     assert 2 not in chosen and len(chosen) == 3
 
 
 def test_selection_relaxes_the_distance_when_the_pool_is_too_tight():
     C = np.array([[0.0], [0.01], [0.02]])
-    chosen = adaptive.select_diverse(C, np.array([0.0, 1.0, 2.0]), 3, 1.0)
+    chosen = table2.select_diverse(C, np.array([0.0, 1.0, 2.0]), 3, 1.0)
     assert sorted(chosen) == [0, 1, 2]
 
 
@@ -109,14 +110,14 @@ def test_selection_relaxes_the_distance_when_the_pool_is_too_tight():
     ],
 )
 def test_stopping_rule(best, iteration, fe, stop, converged):
-    d = adaptive.stopping_rule(best, 0.01, iteration, 12, fe, 240, 20)
+    d = table2.stopping_rule(best, 0.01, iteration, 12, fe, 240, 20)
     assert (d.stop, d.converged) == (stop, converged)
 
 
 def test_default_min_distance_scales_with_the_spread():
-    wide = adaptive.SamplingDistribution(np.zeros(6), np.full(6, 0.2))
-    narrow = adaptive.SamplingDistribution(np.zeros(6), np.full(6, 0.02))
+    wide = table2.SamplingDistribution(np.zeros(6), np.full(6, 0.2))
+    narrow = table2.SamplingDistribution(np.zeros(6), np.full(6, 0.02))
     lo, hi = np.full(6, -1.0), np.full(6, 1.0)
-    assert adaptive.default_min_distance(wide, lo, hi) == pytest.approx(10 * adaptive.default_min_distance(narrow, lo, hi))
-    uniform = adaptive.default_min_distance(None, lo, hi)
+    assert table2.default_min_distance(wide, lo, hi) == pytest.approx(10 * table2.default_min_distance(narrow, lo, hi))
+    uniform = table2.default_min_distance(None, lo, hi)
     assert uniform == pytest.approx(0.1 * np.sqrt(6 * (2 / np.sqrt(12)) ** 2))

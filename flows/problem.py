@@ -1,0 +1,93 @@
+"""A run's problem, resolved once before any work: the model, the measured data, the search box.
+
+:func:`resolve` reads the measured file, hashes and reads the model file, matches the data to the model
+(channels, lines, residual), checks the inputs, the settings of a resumed run and the disk, and returns the
+:class:`tasks.problem.Problem` every stage of the run receives. Bad input raises
+:class:`flows.config.ConfigError` or :class:`tasks.io.measured.MeasuredDataError` naming the file and the
+key; nothing has been written into the run folder then.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from flows import preflight
+from flows.config import ConfigError, UpdateConfig
+from tasks import fe_backends
+from tasks.io.measured import MeasuredDataError, read_measured
+from tasks.problem import Problem, read_model_ref, search_box
+from tasks.update_data import UpdateData, update_data
+
+__all__ = ["resolve", "load_model", "prepare_data", "n_modes", "emulates_modes", "RESUMABLE_CHANGES"]
+
+#: Config keys that may change between a run and its resume.
+# (where FE runs execute does not change their results: fe_backend, dask_address).
+# (intervals, noise and posterior_fe change only the intervals stage, computed again when they changed.)
+RESUMABLE_CHANGES = {"n_jobs", "run_id", "runs_dir", "repeats", "min_free_mb", "fe_backend", "dask_address",
+                     "intervals", "noise", "posterior_fe"}
+
+
+def load_model(name: str):
+    """(model, :class:`tasks.problem.ModelRef`) of a run; a model file that cannot be used is a ConfigError
+    naming the file and key."""
+    from fe_core.io import ModelFileError
+
+    try:
+        return read_model_ref(name)
+    except ModelFileError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def prepare_data(config: UpdateConfig, measured, model) -> UpdateData:
+    """The measured channels matched to the model, with the config's line selection and residual."""
+    try:
+        return update_data(measured, model, lines=config.lines, line_windows=config.line_windows,
+                           resonance_widen=config.resonance_widen, min_coherence=config.min_coherence,
+                           residuals=config.residuals)
+    except MeasuredDataError:
+        raise
+    except ValueError as exc:
+        raise ConfigError(f"config: key 'residuals': {exc}") from None
+
+
+def emulates_modes(config: UpdateConfig) -> bool:
+    """The adaptive strategy's paper loop with ``emulate = "modes"`` (:mod:`mrgp_core.strategies.modal_emulation`)."""
+    return config.strategy == "adaptive" and config.emulate == "modes"
+
+
+def n_modes(model, freqs_hz) -> int:
+    """Modes the FE runs give for the modal emulator: the nominal model's below ``BAND_FACTOR`` times the
+    highest measured frequency, plus one (:func:`mrgp_core.modal_outputs.modes_to_emulate`)."""
+    from mrgp_core.modal_outputs import BAND_FACTOR, modes_to_emulate
+
+    highest = float(np.max(freqs_hz))
+    alpha, gamma = model.factors(np.zeros(model.n_parameters))
+    available = model.n_dofs - 1
+    k = min(8, available)
+    while True:  # past the band, so the gap after the last mode taken shows (a close pair is taken whole)
+        freqs = model.natural_frequencies(alpha, k, gamma)
+        if freqs[-1] >= 2 * BAND_FACTOR * highest or k == available:
+            return modes_to_emulate(freqs, highest, available)
+        k = min(2 * k, available)
+
+
+def resolve(config: UpdateConfig) -> Problem:
+    """The run's :class:`Problem`, after every check that needs no run folder: measured data, model, resume
+    settings, disk, the Dask cluster."""
+    measured = read_measured(config.resolve(config.measured))
+    model, ref = load_model(config.model)
+    data = prepare_data(config, measured, model)
+    preflight.check_inputs(config, data, model)
+    root = config.resolve(config.runs_dir) / config.run_id
+    preflight.check_resume(config, root, RESUMABLE_CHANGES, ref.checksum)
+    required = config.min_free_mb or 2 * preflight.expected_output_mb(
+        config, max(data.amplitude.size, data.n_values), model.n_parameters)
+    preflight.check_disk(config, root, required)
+    if config.fe_backend == "dask":  # an unreachable cluster is refused before any work, not in iteration 1
+        try:
+            fe_backends.check_dask(config.dask_address)
+        except fe_backends.FEBackendError as exc:
+            raise ConfigError(str(exc)) from None
+    lower, upper = search_box(model, config.lower, config.upper)
+    modes = n_modes(model, data.frequencies_hz) if emulates_modes(config) else 0
+    return Problem(model, ref, data, lower, upper, modes)

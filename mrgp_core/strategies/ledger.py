@@ -1,0 +1,107 @@
+"""Counting the FE runs of a strategy's rounds, and driving a phase written as a generator.
+
+A phase of a strategy (:mod:`.hybrid_phases`) is a generator: it yields a request ``(points, jacobian)``
+for one round and receives the round's results ``[(Z, dZ or None), ...]``. :func:`drive` runs such a phase
+to its end against the caller's ``evaluate``: every round is first admitted against the budget (else
+:class:`BudgetSpent` is thrown into the phase, which may end on it or let it through), then evaluated
+and recorded in the :class:`Ledger`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .base import Batch
+from .gauss_newton import Residual
+
+__all__ = ["BudgetSpent", "Ledger", "drive"]
+
+
+class BudgetSpent(Exception):
+    """The next round would exceed the budget."""
+
+
+@dataclass
+class Ledger:
+    """Counts every FE run, Jacobian and round of a search.
+
+    ``history`` holds ``(round, x, error, with_jacobian, phase)`` in evaluation order; ``responses`` the
+    ``(x, Z)`` of every successful FE run (the global phase's emulator learns from them).
+    """
+
+    residual: Residual
+    max_cost: float
+    jacobian_cost: float
+    evaluations: int = 0
+    jacobians: int = 0
+    rounds: int = 0
+    spent: float = 0.0
+    history: list = field(default_factory=list)
+    responses: list = field(default_factory=list)
+
+    @property
+    def cost(self) -> float:
+        """FE-run equivalents spent (as the runs reported them)."""
+        return self.spent
+
+    def round_cost(self, jacobian: Sequence[bool]) -> float:
+        return sum(self.jacobian_cost if j else 1.0 for j in jacobian)
+
+    def admit(self, jacobian: Sequence[bool]) -> None:
+        """Raise :class:`BudgetSpent` when a round of these runs would exceed the budget."""
+        if self.cost + self.round_cost(jacobian) > self.max_cost + 1e-9:
+            raise BudgetSpent
+
+    def record(self, points: Sequence, jacobian: Sequence[bool], results: Sequence,
+               phase: str) -> list[tuple[np.ndarray, np.ndarray | None]]:
+        """Count one evaluated round; returns ``[(Z, dZ or None), ...]``. A result is ``(Z, dZ[, cost])``:
+        ``cost`` in FE-run equivalents, by default 1 or ``jacobian_cost`` with a derivative."""
+        self.rounds += 1
+        out = []
+        for x, j, result in zip(points, jacobian, results):
+            Z, dZ = result[0], result[1]
+            Z = np.asarray(Z, complex).ravel()
+            cost = result[2] if len(result) > 2 else None
+            self.evaluations += 1
+            self.jacobians += int(j)
+            self.spent += float(cost) if cost is not None else (self.jacobian_cost if j else 1.0)
+            ok = bool(np.all(np.isfinite(Z)))
+            error = self.residual.error(Z) if ok else np.inf
+            self.history.append((self.rounds, np.asarray(x, float).copy(), error, j, phase))
+            if ok:
+                self.responses.append((np.asarray(x, float).copy(), Z))
+            out.append((Z, None if dZ is None else np.asarray(dZ, complex)))
+        return out
+
+    def best(self) -> tuple[np.ndarray, float]:
+        i = int(np.argmin([h[2] for h in self.history]))
+        return self.history[i][1], self.history[i][2]
+
+
+def drive(phase, ledger: Ledger, evaluate: Callable[[Batch], Sequence], label: str):
+    """Run the phase generator ``phase`` to its end; returns its value. ``evaluate(batch)`` runs one round.
+
+    A request with no points gets ``[]`` back at once (no round). A request over the budget gets
+    :class:`BudgetSpent` thrown in; if the phase lets it through, it propagates to the caller.
+    """
+    try:
+        request = next(phase)
+        while True:
+            points, jacobian = request
+            jacobian = [bool(j) for j in jacobian]
+            if not len(points):
+                request = phase.send([])
+                continue
+            try:
+                ledger.admit(jacobian)
+            except BudgetSpent as exc:
+                request = phase.throw(exc)
+                continue
+            points = [np.asarray(x, float).copy() for x in points]
+            results = evaluate(Batch(np.array(points), tuple(jacobian), label))
+            request = phase.send(ledger.record(points, jacobian, results, label))
+    except StopIteration as end:
+        return end.value

@@ -1,0 +1,368 @@
+"""FE runs of any stage: evaluated in parallel, stored one file each as they finish, replayed on resume.
+
+Every stage that runs the FE model (the paper loop's ``fe``, the polish, the hybrid's ``local`` and
+``global``) goes through :class:`FEStage`:
+
+* each run is written as soon as it finishes to ``iteration=<k>/stage=<name>/sample=<id>.parquet`` (the
+  complex receptance of the measured channels, frequency-major; with its derivative columns
+  ``dreal_<i>``/``dimag_<i>`` when asked, and the lowest modes ``omega2_<r>``/``participation_<r>`` when the
+  paper loop emulates them; the parameters travel with it) and logged to ``fe_evaluations.jsonl``;
+* a resumed stage asks for the same points in the same order (every strategy is deterministic), so a stored
+  run is read back instead of run again when it was made for (nearly) the same parameters; anything else
+  stored under that id is set aside as ``*.corrupt-<time>`` and logged ``discarded``;
+* the finished stage writes the run record's two tables (:mod:`tasks.record`): ``runs.parquet`` (one row
+  per FE run) and ``responses.parquet`` (the long complex table).
+
+The evaluation functions run in worker processes; they get a :class:`tasks.problem.ModelRef`, not the model.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+from joblib import delayed
+
+from mrgp_core.errors import overall_error
+from mrgp_core.strategies.base import Outcome
+from tasks.faults import kill_point
+from tasks.common import finish
+from tasks.fe_backends import run_unordered
+from tasks.record import RESPONSE_COLUMNS, RUN_COLUMNS, grid
+from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes
+
+__all__ = ["evaluate_sample", "evaluate_sample_jacobian", "FEStage", "JACOBIAN_COST", "FE_LOG", "append_log",
+           "read_fe_log", "FE_DELAY_ENV", "modal_columns"]
+
+#: Environment variable: seconds each FE run sleeps (only for interruption tests).
+FE_DELAY_ENV = "MRGP_FE_DELAY_SECONDS"
+FE_LOG = "fe_evaluations.jsonl"
+#: Columns of one FE result as the worker returns it (the parameters are added by the stage).
+RESULT_COLUMNS = ("sample_id", "sensor", "frequency_hz", "real", "imag", "status", "message", "seconds", "pid")
+#: Cost of an FE run with its exact Jacobian, in FE runs: the CPU time ratio of
+#: ``fe_core.solvers.sensitivity.frf_jacobian`` (Krylov) to ``model.frf`` on the benchmark, 2.3 measured (one
+#: thread, load 10), rounded up; ``python -m benchmarks.suite`` measures it again in every run (docs/suite.md).
+#: Data with several references cost this once per reference.
+JACOBIAN_COST = 2.5
+#: Stored results are reused for requested points this close (max-norm, fraction of the box width): far below
+#: any step of the strategies (a resumed least-squares step can differ from the stored one in the last bits).
+REPLAY_TOLERANCE = 1e-12
+
+
+# -- in worker processes -------------------------------------------------------------------------------
+def _frame(sample_id: int, freqs_hz, n: int, Z: np.ndarray, status: str, message: str, t0: float) -> pd.DataFrame:
+    p = len(freqs_hz)
+    return pd.DataFrame({
+        "sample_id": np.full(p * n, sample_id, dtype=np.int64),
+        "sensor": np.tile(np.arange(1, n + 1), p).astype(np.int64),
+        "frequency_hz": np.repeat(np.asarray(freqs_hz, float), n),
+        "real": Z.real.ravel(), "imag": Z.imag.ravel(), "status": status, "message": message,
+        "seconds": time.perf_counter() - t0, "pid": os.getpid(),
+    })
+
+
+def _delay() -> None:
+    delay = float(os.environ.get(FE_DELAY_ENV, "0") or 0)
+    if delay > 0:  # fault-injection tests need FE runs slow enough to be interrupted
+        time.sleep(delay)
+
+
+def evaluate_sample(ref, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray, channels=None,
+                    modes: int = 0) -> pd.DataFrame:
+    """One FE run: the complex FRF of the measured channels as a long table.
+
+    ``ref`` is the run's :class:`tasks.problem.ModelRef`; ``theta`` the parameter vector, shape (m,): the
+    stiffness factors and, when the model file updates masses, the mass factors. ``channels`` =
+    ``(responses, references)`` (0-based model sensor and excitation of each measured channel) gives those
+    channels through one solve with a load column per reference; None gives the model's sensors under its
+    default excitation. ``modes`` > 0 adds the lowest modes (:meth:`fe_core.model.ParametricModel.modal_terms`):
+    ``omega2_<r>`` (the same on every row) and ``participation_<r>`` (in the row's channel).
+
+    A failed evaluation (a singular system, say) does not raise: its rows hold NaN responses, ``status =
+    "failed"`` and the reason, so the run records it, excludes the sample and goes on.
+
+    Returns
+    -------
+    DataFrame
+        :data:`RESULT_COLUMNS` (and the modal columns); one row per (frequency, channel), frequency-major;
+        ``sensor`` is the channel number (1-based).
+    """
+    t0 = time.perf_counter()
+    model = ref.load()
+    n, p = (model.n_sensors if channels is None else len(channels[0])), len(freqs_hz)
+    _delay()
+    theta = np.asarray(theta, dtype=float)
+    try:
+        Z = model.parameter_frf(theta, freqs_hz, channels)
+        if not np.all(np.isfinite(Z)):
+            raise FloatingPointError("the FRF has non-finite values")
+        if modes:
+            omega2, participation = model.modal_terms(theta, modes, channels)
+            if not (np.all(np.isfinite(omega2)) and np.all(np.isfinite(participation))):
+                raise FloatingPointError("the modes have non-finite values")
+        status, message = "ok", ""
+    except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
+        Z = np.full((p, n), np.nan + 1j * np.nan)
+        omega2, participation = np.full(modes, np.nan), np.full((modes, n), np.nan)
+        status, message = "failed", f"{type(exc).__name__}: {exc}"
+    df = _frame(sample_id, freqs_hz, n, Z, status, message, t0)
+    for r in range(modes):
+        df[f"omega2_{r + 1}"] = np.full(p * n, omega2[r])
+        df[f"participation_{r + 1}"] = np.tile(participation[r], p)
+    return df
+
+
+def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray,
+                             channels=None) -> pd.DataFrame:
+    """One FE run with the exact derivative of the receptance (:func:`fe_core.solvers.sensitivity.frf_jacobian`).
+
+    Columns of :func:`evaluate_sample` plus ``dreal_<i>``, ``dimag_<i>`` (i = 1..m, the parameter vector's
+    order) and ``cost`` (FE-run equivalents: :data:`JACOBIAN_COST` per reference of the channels). A failed
+    run has NaN everywhere.
+    """
+    from fe_core.solvers.sensitivity import frf_jacobian
+
+    t0 = time.perf_counter()
+    model = ref.load()
+    theta = np.asarray(theta, float)
+    m, p = theta.size, len(freqs_hz)
+    n = model.n_sensors if channels is None else len(channels[0])
+    references = 1 if channels is None else np.unique(channels[1]).size
+    _delay()
+    try:  # one Krylov space for all the channels' references
+        Z, dZ = frf_jacobian(model, theta, freqs_hz, channels=channels)
+        if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(dZ))):
+            raise FloatingPointError("the FRF or its derivative has non-finite values")
+        status, message = "ok", ""
+    except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
+        Z, dZ = np.full((p, n), np.nan + 1j * np.nan), np.full((p, n, m), np.nan + 1j * np.nan)
+        status, message = "failed", f"{type(exc).__name__}: {exc}"
+    df = _frame(sample_id, freqs_hz, n, Z, status, message, t0)
+    df["cost"] = JACOBIAN_COST * references
+    for i in range(m):
+        df[f"dreal_{i + 1}"] = dZ[:, :, i].real.ravel()
+        df[f"dimag_{i + 1}"] = dZ[:, :, i].imag.ravel()
+    return df
+
+
+def modal_columns(modes: int) -> tuple[str, ...]:
+    """The FE result columns of ``modes`` emulated modes (:func:`evaluate_sample`)."""
+    return tuple(f"{name}_{r + 1}" for r in range(modes) for name in ("omega2", "participation"))
+
+
+# -- the log of FE runs --------------------------------------------------------------------------------
+def append_log(store: RunStore, entry: dict) -> None:
+    """Append one line to ``fe_evaluations.jsonl`` with a single write (a kill cannot split it)."""
+    path = store.root / FE_LOG
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        lead = b""
+        if os.fstat(fd).st_size:  # a line cut short by a crash of the filesystem: start a new line
+            with open(path, "rb") as fh:
+                fh.seek(-1, os.SEEK_END)
+                lead = b"" if fh.read(1) == b"\n" else b"\n"
+        os.write(fd, lead + (json.dumps(entry) + "\n").encode())
+    finally:
+        os.close(fd)
+
+
+def read_fe_log(root: Path | str) -> list[dict]:
+    """The entries of a run's ``fe_evaluations.jsonl`` (unparsable lines are skipped).
+
+    Each entry has ``iteration``, ``stage``, ``sample_id`` and ``event``: ``evaluated`` (an FE run whose
+    result was written), ``recovered`` (a result found on disk without its log line, written back on resume:
+    still one FE run) or ``discarded`` (a result file set aside; that point is evaluated again).
+    """
+    path = Path(root) / FE_LOG
+    out = []
+    if path.exists():
+        for line in path.read_text().splitlines():
+            try:
+                entry = json.loads(line)
+            except ValueError:
+                continue
+            entry.setdefault("event", "evaluated")
+            out.append(entry)
+    return out
+
+
+# -- one stage's FE runs ---------------------------------------------------------------------------------
+class FEStage:
+    """The FE runs of one stage: ``run(ids, points, jacobian)`` per round, ``write(info)`` at the end.
+
+    ``settings``: the run's config (``fe_backend``, ``n_jobs``, ``dask_address``); ``modes``: modes each run
+    gives (:func:`evaluate_sample`).
+    """
+
+    def __init__(self, store: RunStore, problem, settings, iteration: int, stage: str, logger, modes: int = 0):
+        self.store, self.problem, self.settings = store, problem, settings
+        self.iteration, self.stage, self.logger, self.modes = iteration, stage, logger, modes
+        self.p, self.n = problem.data.amplitude.shape
+        self.tol = REPLAY_TOLERANCE * float(np.max(problem.upper - problem.lower))
+        self.stored = {int(p.stem.split("=")[1]): p for p in sorted(store.stage_dir(iteration, stage).glob(
+            "sample=*.parquet"))}
+        self.logged = {e["sample_id"] for e in read_fe_log(store.root) if e.get("iteration") == iteration
+                       and e.get("stage") == stage and e["event"] != "discarded"}
+        self.borrowed: dict[int, Path] = {}
+        self.rows: list[dict] = []  # one per request: sample_id, round, jacobian, parameters
+        self.results: dict[int, pd.DataFrame] = {}
+        self.rounds = self.ran = 0
+
+    def _log(self, sid: int, event: str, **extra) -> None:
+        append_log(self.store, {"iteration": self.iteration, "stage": self.stage, "sample_id": sid, "event": event,
+                                **extra, "unix": time.time()})
+
+    def _set_aside(self, sid: int, path: Path, reason: str) -> None:
+        aside = path.with_name(f"{path.name}.corrupt-{int(time.time())}")
+        path.rename(aside)
+        self._log(sid, "discarded", file=str(path), reason=reason)
+        self.logger.warning("iteration %d, stage %s: FE result %s: %s; set aside as %s, that point runs again",
+                            self.iteration, self.stage, path, reason, aside.name)
+
+    def borrow(self, stage: str) -> None:
+        """Also read back the FE runs of another stage of this iteration (a rerun's original) where they fit
+        the request; they are left where they are when they do not."""
+        folder = self.store.stage_dir(self.iteration, stage)
+        self.borrowed = {int(p.stem.split("=")[1]): p for p in sorted(folder.glob("sample=*.parquet"))}
+
+    def _replay(self, sid: int, x: np.ndarray, jac: bool) -> pd.DataFrame | None:
+        """The stored result of request ``sid`` when it is valid for ``x`` (else set aside, None)."""
+        path = self.stored.pop(sid, None)
+        borrowed = path is None and sid in self.borrowed
+        if borrowed:
+            path = self.borrowed.pop(sid)
+        if path is None:
+            return None
+        try:
+            df = pq.read_table(path, page_checksum_verification=True).to_pandas()
+            needed = [*RESULT_COLUMNS, *self.problem.names, *modal_columns(self.modes),
+                      *((f"dreal_{self.problem.m}",) if jac else ())]
+            missing = [c for c in needed if c not in df.columns]
+            problem = None
+            if missing:
+                problem = f"wrong schema: columns {missing} missing"
+            elif len(df) != self.p * self.n:
+                problem = f"{len(df)} rows, expected {self.p * self.n}"
+            elif not (df["sample_id"] == sid).all():
+                problem = f"holds sample ids {sorted(set(df['sample_id']))}, not {sid}"
+            else:
+                xs = df[self.problem.names].to_numpy()[0].astype(float)
+                if np.max(np.abs(xs - x)) > self.tol:
+                    problem = f"computed for other parameters ({xs.tolist()}) than requested"
+        except Exception as exc:  # noqa: BLE001 - pyarrow raises several types for damaged files
+            problem = f"unreadable ({type(exc).__name__}: {exc})"
+        if problem and borrowed:
+            return None
+        if problem:
+            self._set_aside(sid, path, problem)
+            return None
+        if sid not in self.logged and not borrowed:  # killed between writing the result and logging it: one FE run
+            self._log(sid, "recovered", status=df["status"].iloc[0], pid=int(df["pid"].iloc[0]))
+        return df
+
+    def run(self, ids, points, jacobian) -> list[pd.DataFrame]:
+        """One round: the stored or fresh result of each request, in order."""
+        self.rounds += 1
+        todo = []
+        for sid, x, jac in zip(ids, points, jacobian):
+            sid, x = int(sid), np.asarray(x, float)
+            self.rows.append({"sample_id": sid, "round": self.rounds, "jacobian": bool(jac),
+                              **dict(zip(self.problem.names, map(float, x)))})
+            df = self._replay(sid, x, bool(jac))
+            if df is not None:  # the record keeps the parameters the run was made at (equal within the tolerance)
+                self.rows[-1].update(zip(self.problem.names, map(float, df[self.problem.names].to_numpy()[0])))
+                self.results[sid] = df
+            else:
+                todo.append((sid, x, bool(jac)))
+        if len(todo) < len(ids):
+            self.logger.info("iteration %d, stage %s: %d of %d FE results found on disk", self.iteration,
+                             self.stage, len(ids) - len(todo), len(ids))
+        for sid, x, _ in todo:  # the model refuses these (recorded as failed); a strategy should never ask
+            if np.any(~np.isfinite(x)) or np.any(x <= -1.0):
+                self.logger.warning("iteration %d: sample %d is outside the valid domain (factors > -1): %s",
+                                    self.iteration, sid, x)
+        if todo:
+            self._evaluate(todo, len(ids))
+        return [self.results[int(sid)] for sid in ids]
+
+    def _evaluate(self, todo: list, total: int) -> None:
+        p = self.problem
+        jobs = {sid: (delayed(evaluate_sample_jacobian)(p.ref, sid, x, p.freqs_hz, p.channels) if jac else
+                      delayed(evaluate_sample)(p.ref, sid, x, p.freqs_hz, p.channels, self.modes))
+                for sid, x, jac in todo}
+        params = {sid: x for sid, x, _ in todo}
+        done = total - len(todo)
+        s = self.settings
+        for result in run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=s.fe_backend,
+                                    n_jobs=s.n_jobs, dask_address=s.dask_address,
+                                    label=f"iteration {self.iteration}, stage {self.stage}", logger=self.logger):
+            sid = int(result["sample_id"].iloc[0])
+            for j, c in enumerate(p.names):  # the parameters travel with the result, so it cannot be mismatched
+                result[c] = params[sid][j]
+            path = self.store.stage_dir(self.iteration, self.stage) / f"sample={sid:06d}.parquet"
+            atomic_write_bytes(path, _parquet_bytes(result))
+            kill_point(f"{self.stage}-result-written/iteration={self.iteration}/sample={sid}")
+            self._log(sid, "evaluated", status=result["status"].iloc[0], pid=int(result["pid"].iloc[0]))
+            kill_point(f"{self.stage}-logged/iteration={self.iteration}/sample={sid}")
+            self.results[sid] = result
+            self.ran += 1
+            done += 1
+            self.logger.info("iteration %d, stage %s: %d/%d FE runs done", self.iteration, self.stage, done, total)
+
+    def cost(self, df: pd.DataFrame, jac: bool) -> float:
+        return float(df["cost"].iloc[0]) if jac and "cost" in df.columns else (JACOBIAN_COST if jac else 1.0)
+
+    def outcomes(self, frames: list[pd.DataFrame], jacobian) -> list[Outcome]:
+        """The results at the run's kept values (``data.cells``): Z (k,), dZ (k, m) or None, cost."""
+        line, channel = self.problem.data.cells
+        out = []
+        for df, jac in zip(frames, jacobian):
+            Z, dZ = grid(df, self.p, self.n, self.problem.m)
+            out.append(Outcome(Z[line, channel], dZ[line, channel] if jac and dZ is not None else None,
+                               self.cost(df, jac)))
+        return out
+
+    def write(self, info: dict, order: tuple[str, ...] = ()) -> dict:
+        """Write ``runs`` and ``responses`` (:mod:`tasks.record`) and finish the stage with ``info``; when the
+        stage replaced a different earlier result, the stages after it in ``order`` are stale."""
+        for sid, path in self.stored.items():  # results the stage never asked for (not expected)
+            self._set_aside(sid, path, "not requested by the resumed stage")
+        data = self.problem.data
+        runs = pd.DataFrame(self.rows, columns=["sample_id", "round", "jacobian", *self.problem.names])
+        extra = {c: [] for c in ("cost", "seconds", "status", "message", "overall_error")}
+        channel_errors = []
+        for sid, jac in zip(runs["sample_id"], runs["jacobian"]):
+            df = self.results[int(sid)]
+            Z, _ = grid(df, self.p, self.n, self.problem.m)
+            ok = bool(np.all(np.isfinite(Z))) and df["status"].iloc[0] == "ok"
+            r = data.residuals(Z) if ok else None
+            extra["cost"].append(self.cost(df, bool(jac)))
+            extra["seconds"].append(float(df["seconds"].iloc[0]))  # the run's own time (the worker's)
+            extra["status"].append("ok" if ok else "failed")
+            extra["message"].append(str(df["message"].iloc[0]) if not ok else "")
+            extra["overall_error"].append(float(overall_error(r)) if ok else np.nan)
+            channel_errors.append(data.channel_errors(r) if ok else np.full(self.n, np.nan))
+        for key, values in extra.items():
+            runs[key] = values
+        for j in range(self.n):
+            runs[f"error_sensor_{j + 1}"] = [float(e[j]) for e in channel_errors] if channel_errors else []
+        runs = runs.astype({"sample_id": np.int64, "round": np.int64, "jacobian": bool})
+        keep = [*RESPONSE_COLUMNS, *modal_columns(self.modes)]
+        parts = [self.results[int(sid)][keep] for sid in runs["sample_id"]]
+        responses = (pd.concat(parts, ignore_index=True) if parts else
+                     pd.DataFrame({c: pd.Series(dtype=float if c in ("frequency_hz", "real", "imag") else np.int64)
+                                   for c in keep}))
+        info = {"evaluations": int(len(runs)), "jacobians": int(runs["jacobian"].sum()), "rounds": self.rounds,
+                "cost": float(runs["cost"].sum()), "ran_now": self.ran, **info}
+        self.store.write_table(self.iteration, self.stage, "runs", runs[[c for c in RUN_COLUMNS if c in runs]
+                                                                          + self.problem.names
+                                                                          + [c for c in runs if
+                                                                             c.startswith("error_sensor_")]])
+        self.store.write_table(self.iteration, self.stage, "responses", responses)
+        finish(self.store, self.iteration, self.stage, ["runs", "responses"], info, order)
+        return self.store.stage_info(self.iteration, self.stage)
