@@ -101,7 +101,7 @@ def test_noise_key_is_validated_and_reaches_the_config(tmp_path):
 def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(tmp_path, rng):
     from types import SimpleNamespace
 
-    from fe_core.inference.intervals import laplace_intervals
+    from fe_core.inference.laplace import laplace_intervals
     from tasks.report.sections import intervals_section
 
     X = rng.normal(size=(40, 3))
