@@ -14,7 +14,8 @@ sub-folder per step with Parquet tables written atomically and a
     closure/closure.json, closure/residuals.png
 
 A finished step is read back, not recomputed; a killed check stage keeps the
-candidates already fitted. Each task wraps plain calls of :mod:`fe_core.closure.fits`.
+candidates already fitted. Each task wraps plain calls of :mod:`fe_core.closure.fits`,
+:mod:`fe_core.closure.screening` and :mod:`fe_core.closure.decisions`.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from joblib import Parallel, delayed
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from fe_core.closure import fits as core
+from fe_core.closure import decisions, fits, screening
 from fe_core.closure.effects import Applied, build_library, extended_frf, registered_effects
 from fe_core.closure.selection import IDENTIFIED, forward_select, spread_mm
 from fe_core.inference.residual import analyse_residual, log_residual, overall_error, per_sensor_error
@@ -79,7 +80,7 @@ class ClosureSettings(dict):
     """
 
     DEFAULTS = dict(noise=None, significance=0.01, per_type=1, max_moves=6, restarts=8, seed=0, effects=None,
-                    alpha_bounds=list(core.ALPHA_BOUNDS), n_jobs=1, check_noise=False,
+                    alpha_bounds=list(fits.ALPHA_BOUNDS), n_jobs=1, check_noise=False,
                     max_effects=3)
 
     @classmethod
@@ -166,11 +167,11 @@ def residual_table(freqs: np.ndarray, sensors: np.ndarray, relative: np.ndarray,
 
 
 def _fit_from_parameters(model, library, freqs, u, alpha, effect, location, values, evaluations=0,
-                         seconds=0.0, message="") -> core.Fit:
+                         seconds=0.0, message="") -> fits.Fit:
     """Rebuild a fit from stored parameters with one FRF evaluation."""
     applied = [] if effect is None else [Applied(library[effect], location, np.asarray(values, float))]
     amp = np.abs(extended_frf(model, alpha, freqs, applied))
-    return core.Fit(alpha=np.asarray(alpha, float), effect=effect, location=location,
+    return fits.Fit(alpha=np.asarray(alpha, float), effect=effect, location=location,
                     values=np.asarray(values, float), model_amplitude=amp, residual=log_residual(amp, u),
                     evaluations=int(evaluations), seconds=float(seconds), message=message,
                     added=applied[0] if applied else None)
@@ -196,7 +197,7 @@ def _cached_library(model, effects) -> dict:
     return cache[key]
 
 
-def _param_table(fit: core.Fit, library: dict) -> pd.DataFrame:
+def _param_table(fit: fits.Fit, library: dict) -> pd.DataFrame:
     names = [f"alpha_{i + 1}" for i in range(fit.alpha.size)]
     values = list(map(float, fit.alpha))
     if fit.effect is not None:
@@ -212,7 +213,7 @@ def baseline_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndar
     store = ClosureStore(root)
     if not _done(store, "baseline"):
         model = load_model(settings["model"])
-        fit, analysis = core.baseline(model, freqs, u, settings["alpha_start"], settings["noise"],
+        fit, analysis = fits.baseline(model, freqs, u, settings["alpha_start"], settings["noise"],
                                       settings["significance"], settings["restarts"], settings["seed"],
                                       tuple(settings["alpha_bounds"]))
         store.write_table("baseline", "baseline", _param_table(fit, {}))
@@ -225,7 +226,7 @@ def baseline_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndar
     return store.info("baseline")
 
 
-def _baseline_fit(store, model, freqs, u) -> core.Fit:
+def _baseline_fit(store, model, freqs, u) -> fits.Fit:
     df = store.read_table("baseline")
     info = store.info("baseline")
     alpha = df.loc[df["name"].str.startswith("alpha_"), "value"].to_numpy()
@@ -242,7 +243,7 @@ def screen_task(root: str, settings: dict, freqs: np.ndarray, u: np.ndarray) -> 
         model = load_model(settings["model"])
         library = _library(model, settings)
         base = _baseline_fit(store, model, freqs, u)
-        screened = core.screen(model, freqs, base, list(library.values()))
+        screened = screening.screen(model, freqs, base, list(library.values()))
         df = pd.DataFrame({
             "effect": [c.effect for c in screened],
             "location": [c.location for c in screened],
@@ -259,9 +260,9 @@ def screen_task(root: str, settings: dict, freqs: np.ndarray, u: np.ndarray) -> 
     return store.info("screen")
 
 
-def _screened(store) -> list[core.Candidate]:
+def _screened(store) -> list[screening.Candidate]:
     df = store.read_table("screen")
-    return [core.Candidate(effect=r.effect, location=r.location, n_locations=int(r.n_locations),
+    return [screening.Candidate(effect=r.effect, location=r.location, n_locations=int(r.n_locations),
                            linear_values=np.array(json.loads(r.linear_values)), linear_rss=float(r.linear_rss),
                            linear_explained=float(r.linear_explained), linear_delta_bic=float(r.linear_delta_bic),
                            linear_delta_ebic=float(r.linear_delta_ebic))
@@ -273,13 +274,13 @@ def check_candidate(model_name: str, effects, kind: str, location: str, linear_v
     """One full FE check (runs in a worker process); returns a flat record."""
     model = load_model(model_name)
     library = _cached_library(model, effects)
-    cand = core.Candidate(effect=kind, location=location, n_locations=len(library[kind].locations()),
+    cand = screening.Candidate(effect=kind, location=location, n_locations=len(library[kind].locations()),
                           linear_values=np.asarray(linear_values, float), linear_rss=0.0, linear_explained=0.0)
-    base = core.Fit(alpha=np.asarray(base_alpha, float), effect=None, location=None, values=np.zeros(0),
+    base = fits.Fit(alpha=np.asarray(base_alpha, float), effect=None, location=None, values=np.zeros(0),
                     model_amplitude=None, residual=np.full(np.shape(u), np.inf), evaluations=0)
     # The base residual is only compared against (a fit worse than it restarts from zero):
     base.residual = log_residual(np.abs(extended_frf(model, base.alpha, freqs)), u)
-    core.check(model, freqs, u, base, library[kind], cand, max_moves, tuple(alpha_bounds))
+    screening.check(model, freqs, u, base, library[kind], cand, max_moves, tuple(alpha_bounds))
     f = cand.fit
     return {"effect": kind, "screened_location": location, "location": f.location,
             "moved_from": json.dumps(cand.moved_from), "values": json.dumps(list(map(float, f.values))),
@@ -295,7 +296,7 @@ def check_task(root: str, settings: dict, freqs: np.ndarray, u: np.ndarray) -> d
     if not _done(store, "check"):
         analysis = store.info("baseline")["analysis"]
         screened = _screened(store)
-        picked = core.pick_for_check(screened, settings["per_type"])
+        picked = screening.pick_for_check(screened, settings["per_type"])
         if not (analysis["structured"] or settings.get("check_noise")):
             logger.info("closure: the residual is noise (chi-square p = %.3g); no candidate is checked",
                         analysis["p_chi2"])
@@ -349,19 +350,19 @@ def decide_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndarra
     checked = []
     for r in store.read_table("check", "checks").itertuples(index=False):
         c = screened.get((r.effect, r.screened_location))
-        c = core.Candidate(effect=r.effect, location=r.location, n_locations=c.n_locations,
+        c = screening.Candidate(effect=r.effect, location=r.location, n_locations=c.n_locations,
                            linear_values=c.linear_values, linear_rss=c.linear_rss,
                            linear_explained=c.linear_explained, linear_delta_bic=c.linear_delta_bic,
                            linear_delta_ebic=c.linear_delta_ebic, moved_from=json.loads(r.moved_from))
         c.fit = _fit_from_parameters(model, library, freqs, u, json.loads(r.alpha), r.effect, r.location,
                                      json.loads(r.values), r.evaluations, r.seconds, r.message)
         checked.append(c)
-    checked = core.dedupe(checked)
-    chosen = core.decide(base, before, checked)
+    checked = decisions.dedupe(checked)
+    chosen = decisions.decide(base, before, checked)
     final = chosen.fit if chosen is not None else base
     after = analyse_residual(final.residual, freqs, final.n_parameters, before.sigma, settings["significance"],
                              final.relative(u))
-    ranked = core.rank(core.merge(checked, list(screened.values())))
+    ranked = decisions.rank(decisions.merge(checked, list(screened.values())))
     steps, implausible = ([chosen] if chosen is not None else []), [c for c in checked if c.implausible]
     sel = None
     if chosen is not None:
@@ -374,7 +375,7 @@ def decide_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndarra
         steps = sel.steps
         implausible += [c for c in sel.implausible if all(c is not d for d in implausible)]
         final, after = sel.final, sel.after
-    verdict = core.verdict(before, after, len(steps), True if sel is None else sel.identified)
+    verdict = decisions.verdict(before, after, len(steps), True if sel is None else sel.identified)
     cand_df = _candidates_frame(ranked, library)
     if not store.is_finished("decide"):
         store.write_table("decide", "candidates", cand_df)
@@ -410,7 +411,7 @@ def decide_task(root: str, settings: dict, freqs: np.ndarray, sensors: np.ndarra
     return json.loads((store.root / "closure.json").read_text())  # as a resumed closure returns it
 
 
-def _candidates_frame(ranked: list[core.Candidate], library: dict) -> pd.DataFrame:
+def _candidates_frame(ranked: list[screening.Candidate], library: dict) -> pd.DataFrame:
     rows = []
     for k, c in enumerate(ranked, start=1):
         fit = c.fit
@@ -430,7 +431,7 @@ def _candidates_frame(ranked: list[core.Candidate], library: dict) -> pd.DataFra
     return pd.DataFrame(rows)
 
 
-def _effect_entry(c: core.Candidate, library: dict, values=None) -> dict:
+def _effect_entry(c: screening.Candidate, library: dict, values=None) -> dict:
     eff = library[c.effect]
     v = c.fit.values if values is None else values
     return {"type": c.effect, "location": c.location,
@@ -438,7 +439,7 @@ def _effect_entry(c: core.Candidate, library: dict, values=None) -> dict:
             "parameter": eff.parameters[0], "unit": _unit(eff, c.location), "details": eff.describe(c.location)}
 
 
-def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, final: core.Fit, sel=None) -> dict:
+def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, final: fits.Fit, sel=None) -> dict:
     """``verdict``, ``effects`` (in the order added, values of the final joint fit, each with the share of
     the residual it explained when added, its kind's share of the evidence among the kinds checked in
     its place and the rivals holding at least 1 % of it), ``implausible`` (fits that ended on a

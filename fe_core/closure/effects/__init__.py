@@ -44,7 +44,7 @@ structure's mass, the sensor masses together at most 20 %, a grounded spring
 at most 1e8 N/m, a sensor gain within +-50 %, factors above -1 (kept off by a
 margin), a band's or patch's stiffness at most doubled (+1), a segment's mass
 factor at most 10. A fit that ends on such a bound is not a finding
-(:func:`fe_core.closure.at_bound`).
+(:func:`fe_core.closure.decisions.at_bound`).
 
 Every extension keeps K symmetric positive definite and M positive definite
 within the parameter bounds (springs and masses are non-negative, factors
