@@ -53,7 +53,7 @@ from prefect import flow  # noqa: E402
 from fe_core.closure.fits import ALPHA_BOUNDS  # noqa: E402
 from fe_core.closure.effects import registered_effects  # noqa: E402
 from flows.config import REPO  # noqa: E402
-from tasks import closure as ct  # noqa: E402
+from tasks.closure import steps as ct  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
 
 __all__ = ["diagnose_flow", "diagnose", "run_folder", "main", "print_closure", "print_closure_intervals"]

@@ -1,6 +1,6 @@
 """95 % intervals and the covariance of a finished closure's extended model (alpha and each effect's value).
 
-Called by :func:`tasks.closure.decide_task` on the final fit of the closure
+Called by :func:`tasks.closure.steps.decide_task` on the final fit of the closure
 (:func:`fe_core.closure.intervals.extended_intervals`: Gauss-Newton steps to the
 least-squares optimum of the log residual and the Laplace covariance there,
 every Jacobian column exact: alpha, each effect parameter, a sensor gain's
