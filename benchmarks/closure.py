@@ -102,7 +102,8 @@ def speed(repeats: int = 21) -> list[dict]:
             times.append(time.process_time() - c0)
         return float(np.median(times))
     from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ as F
-    from fe_core.closure.fits import Fit, screen
+    from fe_core.closure.fits import Fit
+    from fe_core.closure.screening import screen
     from fe_core.closure.effects import Applied, build_library, extended_frf
     from fe_core.inference.residual import log_residual
 

@@ -19,7 +19,7 @@ For each noise level (0.5 % and 1 % by default) and each data set k:
   question is the interval, not the search, which the update answers), with
   the exact Jacobian (Krylov, :mod:`fe_core.solvers.frf_derivatives`; scipy's trust region reflective); a fit whose
   cost is above the truth's is counted as a failed search and reported;
-* the 95 % Laplace intervals (:func:`fe_core.inference.intervals.laplace_intervals`)
+* the 95 % Laplace intervals (:func:`fe_core.inference.laplace.laplace_intervals`)
   with the noise estimated from the residual (Student t, ``N - m`` dof: what a
   run without ``--noise`` reports) and with the true noise given (normal).
 
@@ -63,7 +63,8 @@ def _model():
 def one_dataset(k: int, sigma: float, seed: int) -> list[dict]:
     """Fit data set ``k`` at noise ``sigma``; one row per estimator and parameter."""
     from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ as freqs
-    from fe_core.inference.intervals import fit_log_amplitudes, laplace_intervals
+    from fe_core.inference.intervals import fit_log_amplitudes
+    from fe_core.inference.laplace import laplace_intervals
 
     from fe_core.solvers.sensitivity import log_amplitude_jacobian
 

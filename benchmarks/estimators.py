@@ -93,7 +93,8 @@ def lowest_overall_error(model, freqs, u, start, std, max_iterations: int = 60):
 def one_synthetic(k: int, sigma: float, seed: int) -> dict:
     from benchmarks.coverage import START_OFFSET, TRUTH_RANGE, _model
     from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ as freqs
-    from fe_core.inference.intervals import fit_log_amplitudes, laplace_intervals
+    from fe_core.inference.intervals import fit_log_amplitudes
+    from fe_core.inference.laplace import laplace_intervals
 
     model = _model()
     rng = np.random.default_rng([seed, k, int(round(sigma * 1e6))])  # as benchmarks.coverage
@@ -154,7 +155,8 @@ def _cases():
 
 def one_run(measured: str, truth, sigma: float, seed: int, polish: bool, runs_dir: Path) -> dict:
     from fe_core.benchmark import three_plate
-    from fe_core.inference.intervals import fit_log_amplitudes, laplace_intervals
+    from fe_core.inference.intervals import fit_log_amplitudes
+    from fe_core.inference.laplace import laplace_intervals
     from tasks.io.measured import read_measured
 
     run_id = f"{Path(measured).stem}-seed{seed}-{'polish' if polish else 'nopolish'}"

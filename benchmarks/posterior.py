@@ -53,7 +53,8 @@ def _truth(name: str) -> np.ndarray:
 def one_dataset(name: str, k: int, sigma: float, seed: int, budget: int) -> list[dict]:
     from benchmarks.coverage import _model
     from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ as freqs
-    from fe_core.inference.intervals import fit_log_amplitudes, laplace_intervals
+    from fe_core.inference.intervals import fit_log_amplitudes
+    from fe_core.inference.laplace import laplace_intervals
     from tasks.intervals import _check_and_sample
 
     model = _model()

@@ -4,7 +4,8 @@ Plain numpy/scipy. Its rooms:
 
 * ``elements/`` (hex8 with incompatible modes, tet4, tet10), ``mesh.py``, ``tet_mesh.py``, ``surface.py``,
   ``material.py``, ``assembly.py``: discretisation;
-* ``model.py``: :class:`ParametricModel`, ``K = sum_i K_i (1 + alpha_i)`` with sensors and excitations;
+* ``model.py``: :class:`ParametricModel`, ``K = sum_i K_i (1 + alpha_i)`` with sensors and excitations, and
+  ``model_responses.py``: its FRFs and modes;
 * ``io/``: model files (``model.toml`` with a mesh or exported matrices) and the VTU writer;
 * ``solvers/``: FRFs, their exact derivatives, Jacobians, modes;
 * ``inference/``: residual statistics, parameter intervals, the sampled posterior;

@@ -48,7 +48,7 @@ from prefect.cache_policies import NO_CACHE  # noqa: E402
 from flows.config import REPO, ConfigError  # noqa: E402
 from flows.problem import load_model  # noqa: E402
 from tasks import correlation as corr  # noqa: E402
-from tasks.report import figures  # noqa: E402
+from tasks.report.figures import correlation as figures  # noqa: E402
 from tasks.report.data import ReportError, load_run  # noqa: E402
 from tasks.report.html import Section, write_page  # noqa: E402
 from tasks.runstore import _parquet_bytes, atomic_write_bytes, atomic_write_json  # noqa: E402

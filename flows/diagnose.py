@@ -52,8 +52,10 @@ from prefect import flow  # noqa: E402
 
 from fe_core.closure.fits import ALPHA_BOUNDS  # noqa: E402
 from fe_core.closure.effects import registered_effects  # noqa: E402
-from flows.config import REPO  # noqa: E402
-from tasks import closure as ct  # noqa: E402
+from flows.config import REPO, ConfigError  # noqa: E402
+from flows.problem import load_model  # noqa: E402
+from tasks.problem import Problem  # noqa: E402
+from tasks.closure import steps as ct  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
 
 __all__ = ["diagnose_flow", "diagnose", "run_folder", "main", "print_closure", "print_closure_intervals"]
@@ -87,7 +89,7 @@ def run_folder(run_id: str, runs_dir: str | Path = "data/runs") -> tuple[Path, d
     return root, summary, manifest
 
 
-def closure_measurements(path: Path, model_name: str, selection: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def closure_measurements(path: Path, model, selection: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(frequencies (p,), sensors (n,), amplitudes (p, n)) the closure fits (see the module docstring).
 
     ``selection``: the run's ``lines``, ``line_windows``, ``resonance_widen``,
@@ -97,10 +99,8 @@ def closure_measurements(path: Path, model_name: str, selection: dict) -> tuple[
     measured = read_measured(path)
     if measured.legacy:
         return measured.frequencies_hz, np.asarray(measured.sensors), measured.amplitude
-    from tasks.closure import load_model
     from tasks.update_data import update_data
 
-    model = load_model(model_name)
     data = update_data(measured, model, residuals="amplitude", **{k: selection[k] for k in selection if k in (
         "lines", "line_windows", "resonance_widen", "min_coherence")})
     if data.channels is not None:
@@ -123,15 +123,16 @@ MASS_FACTORS_REFUSED = ("the run updates mass factors ({names}); the closure ref
 
 
 @flow(name="diagnose", flow_run_name="diagnose-{run_id}", log_prints=True)
-def diagnose_flow(run_id: str, closure_root: str, settings: dict, run_info: dict) -> dict:
-    """The closure of one run as four tasks; returns the content of ``closure.json``."""
-    freqs, sensors, u = closure_measurements(Path(settings["measured"]), settings["model"],
-                                             run_info.get("selection", {}))
+def diagnose_flow(run_id: str, closure_root: str, settings: dict, run_info: dict, problem, measurements) -> dict:
+    """The closure of one run as four tasks; returns the content of ``closure.json``. ``problem``: the run's model
+    (resolved once, :class:`tasks.problem.Problem`); ``measurements``: (frequencies, sensors, amplitudes) of
+    :func:`closure_measurements`."""
+    freqs, sensors, u = measurements
     t0 = time.perf_counter()
-    ct.baseline_task(closure_root, settings, freqs, sensors, u)
-    ct.screen_task(closure_root, settings, freqs, u)
-    ct.check_task(closure_root, settings, freqs, u)
-    summary = ct.decide_task(closure_root, settings, freqs, sensors, u, run_info)
+    ct.baseline_task(closure_root, problem, settings, freqs, sensors, u)
+    ct.screen_task(closure_root, problem, settings, freqs, u)
+    ct.check_task(closure_root, problem, settings, freqs, u)
+    summary = ct.decide_task(closure_root, problem, settings, freqs, sensors, u, run_info)
     summary["wall_seconds"] = round(time.perf_counter() - t0, 3)
     return summary
 
@@ -144,7 +145,12 @@ def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closu
     measured_path = Path(measured or cfg.get("measured", "data/benchmark/measured.csv"))
     measured_path = measured_path if measured_path.is_absolute() else REPO / measured_path
     selection = {k: cfg[k] for k in _SELECTION_KEYS if k in cfg}
-    closure_measurements(measured_path, cfg.get("model", "three_plate"), selection)  # refuse bad data first
+    model_name = cfg.get("model", "three_plate")
+    try:
+        model, ref = load_model(model_name)  # read once for the whole closure
+    except ConfigError as exc:
+        raise DiagnoseError(str(exc)) from None
+    measurements = closure_measurements(measured_path, model, selection)  # refuse bad data first
     gammas = [k for k in summary["parameters"] if k.startswith("gamma_")]
     if gammas:
         raise DiagnoseError(f"{root / 'summary.json'}: {MASS_FACTORS_REFUSED.format(names=', '.join(gammas))}")
@@ -161,10 +167,9 @@ def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closu
         if unknown:
             raise DiagnoseError(f"unknown effect(s) {', '.join(unknown)}; registered: "
                                 f"{', '.join(registered_effects())}")
-    model_name = cfg.get("model", "three_plate")
     if effects is not None:  # an effect that cannot apply to this model is refused before any work
         try:
-            ct.effect_library(model_name, effects)
+            ct.effect_library(model, effects)
         except ValueError as exc:
             raise DiagnoseError(f"--effects: {exc}") from None
     settings = ct.ClosureSettings.make(model=model_name, measured=str(measured_path),
@@ -177,7 +182,8 @@ def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closu
     closure_root = root / name
     ct.ClosureStore(closure_root).write_settings(dict(settings))
     run_info = {"run_id": run_id, "run_folder": str(root), "parameters": summary["parameters"], "selection": selection}
-    return diagnose_flow(run_id, str(closure_root), dict(settings), run_info)
+    problem = Problem(model, ref, None, np.full(len(alpha), lower), np.full(len(alpha), upper))
+    return diagnose_flow(run_id, str(closure_root), dict(settings), run_info, problem, measurements)
 
 
 def print_closure(summary: dict, file=sys.stdout) -> None:

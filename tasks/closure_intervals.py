@@ -1,7 +1,7 @@
 """95 % intervals and the covariance of a finished closure's extended model (alpha and each effect's value).
 
-Called by :func:`tasks.closure.decide_task` on the final fit of the closure
-(:func:`fe_core.inference.intervals.extended_intervals`: Gauss-Newton steps to the
+Called by :func:`tasks.closure.steps.decide_task` on the final fit of the closure
+(:func:`fe_core.closure.intervals.extended_intervals`: Gauss-Newton steps to the
 least-squares optimum of the log residual and the Laplace covariance there,
 every Jacobian column exact: alpha, each effect parameter, a sensor gain's
 analytically). The fields join ``closure.json`` with the names of
@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from fe_core.inference.intervals import extended_intervals
+from fe_core.closure.intervals import extended_intervals
 
 __all__ = ["closure_interval_fields", "COLUMNS"]
 

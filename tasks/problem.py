@@ -111,8 +111,9 @@ class Problem:
     model : fe_core.model.ParametricModel
     ref : ModelRef
         For FE runs in worker processes.
-    data : tasks.update_data.UpdateData
-        The measured channels matched to the model, the selected lines, the residual.
+    data : tasks.update_data.UpdateData or None
+        The measured channels matched to the model, the selected lines, the residual (None for the closure,
+        which fits amplitudes of its own selection).
     lower, upper : ndarray, shape (m,)
         The search box.
     names : list of str
@@ -130,7 +131,8 @@ class Problem:
         self.modes = int(modes)
 
     def __repr__(self) -> str:
-        return f"Problem(model={self.ref.name!r}, parameters={self.m}, values={self.data.n_values})"
+        values = "" if self.data is None else f", values={self.data.n_values}"
+        return f"Problem(model={self.ref.name!r}, parameters={self.m}{values})"
 
     @property
     def m(self) -> int:

@@ -1,6 +1,6 @@
 """The closure in one call: baseline fit, residual analysis, forward selection of effects.
 
-:func:`close_loop` chains the pieces of :mod:`.fits` (fits, screening, checks, decisions) and
+:func:`close_loop` chains the pieces of :mod:`.fits`, :mod:`.screening`, :mod:`.decisions` and
 :mod:`.selection` (forward selection with moves and swaps) for an in-memory closure; the flow
 (``flows.diagnose``) runs the same pieces as stages with their results stored.
 """
@@ -15,7 +15,8 @@ import numpy as np
 
 from ..model import ParametricModel
 from .effects import Effect, build_library
-from .fits import ALPHA_BOUNDS, ClosureResult, baseline, verdict
+from .decisions import ClosureResult, verdict
+from .fits import ALPHA_BOUNDS, baseline
 from .selection import forward_select
 
 __all__ = ["close_loop"]

@@ -37,23 +37,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .fits import (
-    ALPHA_BOUNDS,
-    Candidate,
-    Fit,
-    _relocation_fits,
-    _relocation_target,
-    _start_value,
-    check,
-    decide,
-    dedupe,
-    fit_update,
-    merge,
-    pick_for_check,
-    rank,
-    score,
-    screen,
-)
+from .decisions import decide, dedupe, merge, rank, score
+from .fits import ALPHA_BOUNDS, Fit, fit_update
+from .screening import Candidate, _relocation_fits, _relocation_target, _start_value, check, pick_for_check, screen
 from .effects import Effect
 from ..inference.residual import ResidualAnalysis, analyse_residual
 

@@ -1,6 +1,6 @@
 """Where the Laplace intervals' linearisation is poor: a check, and a sampled posterior on the FE model.
 
-The Laplace intervals (:mod:`fe_core.inference.intervals`) treat the model as linear
+The Laplace intervals (:mod:`fe_core.inference.laplace`) treat the model as linear
 within the intervals and ignore the search box. Two things break that:
 an interval that crosses a bound of the box (the posterior is cut there),
 and a curved or skewed valley (a wide, poorly determined parameter).

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from tasks.report.figures import _grid, _save
+from tasks.report.figures._style import _grid, _save
 from tasks.report.html import Section
 
 __all__ = ["lines_section", "plot_line_selection", "channels_of_run", "MAX_PANELS"]

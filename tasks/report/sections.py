@@ -13,7 +13,12 @@ import numpy as np
 import pandas as pd
 
 from tasks.intervals import cost_against_update
-from tasks.report import figures
+from tasks.report.figures.closure import plot_candidates, plot_closure_frf
+from tasks.report.figures.errors import plot_error_overall, plot_error_per_sensor, plot_training_time
+from tasks.report.figures.frf import plot_frf_overview, plot_frf_zoom, plot_residual_maps
+from tasks.report.figures.intervals import plot_intervals
+from tasks.report.figures.parameters import plot_distributions, plot_parameters, plot_samples
+from tasks.report.figures.repeats import plot_error_trends, plot_repeats_error, plot_repeats_parameters
 from tasks.report.data import RepeatsData, RunData, best_so_far, residual_frame
 from tasks.report.frf import dense_frequencies, dense_frf, zoom_windows
 from tasks.report.html import Section
@@ -78,8 +83,8 @@ def frf_section(data: RunData, out: Path, label: str = "") -> Section:
     info = data.manifest.get("measured_data") or {}
     labels = None if info.get("form", "legacy").startswith("legacy") else {
         j + 1: f"{c['label']} ({c['sensor']} / {c['excitation']})" for j, c in enumerate(info["channels"])}
-    fig1 = figures.plot_frf_overview(dense, data.measured, out / "frf_overview.png", windows, labels=labels)
-    fig2 = figures.plot_frf_zoom(dense, data.measured, out / "frf_zoom.png", windows, labels=labels)
+    fig1 = plot_frf_overview(dense, data.measured, out / "frf_overview.png", windows, labels=labels)
+    fig2 = plot_frf_zoom(dense, data.measured, out / "frf_zoom.png", windows, labels=labels)
     # Residuals of both models at the measured points (the dense grid holds them exactly).
     maps, rows = {}, []
     for name in ("initial", "updated"):
@@ -92,8 +97,8 @@ def frf_section(data: RunData, out: Path, label: str = "") -> Section:
         per_sensor = merged.assign(a=merged["residual"].abs()).groupby("sensor")["a"].mean()
         rows.append({"model": name, "overall error (Eq. 6b)": f"{merged['residual'].abs().mean():.3%}",
                      **{f"sensor {s}": f"{v:.2%}" for s, v in per_sensor.items()}})
-    fig3 = figures.plot_residual_maps(maps, out / "residual_map.png",
-                                      "Relative residual (|Z| - u) / u at the measured points, percent")
+    fig3 = plot_residual_maps(maps, out / "residual_map.png",
+                              "Relative residual (|Z| - u) / u at the measured points, percent")
     truth = data.true_parameters
     params = pd.DataFrame({"parameter": names, "initial": initial, "updated": updated})
     if truth is not None and len(truth) == len(names):
@@ -125,8 +130,8 @@ def _run_channels(data: RunData):
 def errors_section(data: RunData, out: Path) -> Section:
     best = best_so_far(data)
     threshold = data.config.get("threshold")
-    fig1 = figures.plot_error_overall(data.errors, best, out / "error_overall.png", threshold, data.polish)
-    fig2 = figures.plot_error_per_sensor(best, out / "error_per_sensor.png")
+    fig1 = plot_error_overall(data.errors, best, out / "error_overall.png", threshold, data.polish)
+    fig2 = plot_error_per_sensor(best, out / "error_per_sensor.png")
     table = best[["iteration", "fe_evaluations", "sample_id", "overall_error"]].copy()
     table["overall_error"] = table["overall_error"].map(lambda v: f"{v:.3%}")
     notes = []
@@ -156,14 +161,14 @@ def parameters_section(data: RunData, out: Path) -> Section:
     best = best_so_far(data)
     _, reported, reported_error = data.best()
     later = reported_error < best["overall_error"].iloc[-1] and not np.allclose(reported, best[names].iloc[-1])
-    figs = [(figures.plot_samples(data.samples, names, out / "samples.png", truth, data.polish, bounds),
+    figs = [(plot_samples(data.samples, names, out / "samples.png", truth, data.polish, bounds),
              "Sampled parameters per iteration (Figure 6)"),
-            (figures.plot_parameters(best, data.distributions, names, out / "parameters.png", truth, bounds,
-                                     final=reported if later else None,
-                                     final_label="polish" if data.polish is not None else "last stage"),
+            (plot_parameters(best, data.distributions, names, out / "parameters.png", truth, bounds,
+                             final=reported if later else None,
+                             final_label="polish" if data.polish is not None else "last stage"),
              "Parameter trajectories (Figure 7)")]
     if len(data.distributions):
-        figs.append((figures.plot_distributions(data.distributions, names, out / "distributions.png", truth, bounds),
+        figs.append((plot_distributions(data.distributions, names, out / "distributions.png", truth, bounds),
                      "Sampling distributions (Figure 8)"))
     tables = []
     if len(data.distributions):
@@ -201,8 +206,8 @@ def intervals_section(data: RunData, out: Path) -> Section | None:
         post = pd.read_parquet(path)
         samples, weights = post[names].to_numpy(), post["weight"].to_numpy()
         laplace_std = arr(d["laplace"]["std"][n] for n in names) if "laplace" in d else None
-    fig = figures.plot_intervals(names, est, std, low, high, corr, out / "intervals.png", truth, _bounds(data),
-                                 samples=samples, weights=weights, laplace_std=laplace_std)
+    fig = plot_intervals(names, est, std, low, high, corr, out / "intervals.png", truth, _bounds(data),
+                         samples=samples, weights=weights, laplace_std=laplace_std)
     table = pd.DataFrame({"parameter": names, "estimate": est, "low (95 %)": low, "high (95 %)": high, "std": std})
     if truth is not None:
         table["true"] = truth
@@ -237,7 +242,7 @@ def training_section(data: RunData, out: Path) -> Section | None:
     if data.training.empty:
         return None
     t = _training_series(data.training)
-    fig = figures.plot_training_time(t, out / "training_time.png", "trainer")
+    fig = plot_training_time(t, out / "training_time.png", "trainer")
     total = t.groupby("trainer")["seconds"].sum().map(lambda v: f"{v:.2f}")
     return Section(title="MRGP training time (Figure 9)",
                    tables=[("Total training time (s)", total.reset_index())],
@@ -347,16 +352,16 @@ def closure_section(data: RunData, out: Path) -> Section | None:
                 maps[when] = df
                 break
     if maps:
-        figs.append((figures.plot_residual_maps(maps, out / "closure_residuals.png",
-                                                "Residual before and after adding the effect, percent (one scale)",
-                                                shared_scale=True),
+        figs.append((plot_residual_maps(maps, out / "closure_residuals.png",
+                                        "Residual before and after adding the effect, percent (one scale)",
+                                        shared_scale=True),
                      "Residual map before and after"))
     else:
         notes.append("closure.json names no residual table this report can read.")
     frf_path = folder / (c.get("frf_table") or "frf_closure.parquet")
     if frf_path.is_file():
-        figs.append((figures.plot_closure_frf(pd.read_parquet(frf_path), out / "closure_frf.png",
-                                              f"FRF: alpha only and with the added effects ({c.get('verdict', '')})"),
+        figs.append((plot_closure_frf(pd.read_parquet(frf_path), out / "closure_frf.png",
+                                      f"FRF: alpha only and with the added effects ({c.get('verdict', '')})"),
                      "FRF of the final extended model beside the alpha-only one"))
     if c.get("verdict"):
         paragraphs.append(f"Verdict: {c['verdict']}. " + "; ".join(
@@ -372,7 +377,7 @@ def closure_section(data: RunData, out: Path) -> Section | None:
     if ranked is not None:
         df, score = ranked
         chosen = _effect_label(effect) if isinstance(effect, dict) else None
-        figs.append((figures.plot_candidates(df, out / "closure_candidates.png", score, chosen),
+        figs.append((plot_candidates(df, out / "closure_candidates.png", score, chosen),
                      f"Candidate effects ranked (bars: {score})"))
         shown = df.drop(columns=[k for k in ("label", "_light", "explained (light: linearised only)")
                                  if k in df.columns]).head(15)
@@ -408,11 +413,11 @@ def repeats_section(rep: RepeatsData, out: Path) -> list[Section]:
     truth = first.true_parameters
     bounds = _bounds(first)
     what = "conventional approach" if conventional else "adaptive MRGP"
-    f1 = figures.plot_repeats_error(table, out / "repeats_error.png", threshold,
-                                    f"Final overall error of each run, {what} (Figure {fig_err})")
-    f2 = figures.plot_repeats_parameters(table, names, out / "repeats_parameters.png", truth,
-                                         f"Identified parameters of each run, {what} (Figure {fig_par})", bounds)
-    f3 = figures.plot_error_trends(trends, out / "repeats_error_trend.png", threshold)
+    f1 = plot_repeats_error(table, out / "repeats_error.png", threshold,
+                            f"Final overall error of each run, {what} (Figure {fig_err})")
+    f2 = plot_repeats_parameters(table, names, out / "repeats_parameters.png", truth,
+                                 f"Identified parameters of each run, {what} (Figure {fig_par})", bounds)
+    f3 = plot_error_trends(trends, out / "repeats_error_trend.png", threshold)
     figs = [(f1, f"Overall error per run (Figure {fig_err})"), (f2, f"Identified parameters (Figure {fig_par})"),
             (f3, "Best error so far against FE runs, per run")]
     training = [r.training.assign(run=f"seed {r.config.get('seed', i)}") for i, r in sorted(runs.items())
@@ -420,7 +425,7 @@ def repeats_section(rep: RepeatsData, out: Path) -> list[Section]:
     if training:
         t = pd.concat(training, ignore_index=True)
         t = t[t["stage"] == "train"]
-        figs.append((figures.plot_training_time(t, out / "training_time.png", "run"),
+        figs.append((plot_training_time(t, out / "training_time.png", "run"),
                      "MRGP training time per iteration and run (Figure 9)"))
     shown = table.copy()
     shown["overall_error"] = shown["overall_error"].map(lambda v: f"{v:.3%}")

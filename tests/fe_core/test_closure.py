@@ -90,7 +90,7 @@ def test_clean_data_gets_no_effect(benchmark_model, library, name):
 
 # -- issue 18: plausibility, verdicts, joint refits -----------------------------------------------------
 def test_a_fit_on_a_plausibility_bound_is_flagged_but_not_one_at_the_effects_absence(benchmark_model):
-    from fe_core.closure.fits import at_bound
+    from fe_core.closure.decisions import at_bound
     from fe_core.closure.effects import ElementBand, PointMass
 
     pm = PointMass(benchmark_model)
@@ -104,7 +104,7 @@ def test_a_fit_on_a_plausibility_bound_is_flagged_but_not_one_at_the_effects_abs
 
 
 def test_verdicts_name_noise_explained_and_partly_explained():
-    from fe_core.closure.fits import verdict
+    from fe_core.closure.decisions import verdict
 
     class A:  # only .structured is read
         def __init__(self, structured):

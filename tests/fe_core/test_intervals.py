@@ -7,7 +7,8 @@ import pytest
 from scipy import stats
 
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ
-from fe_core.inference.intervals import fit_log_amplitudes, laplace_intervals, parameter_intervals
+from fe_core.inference.intervals import fit_log_amplitudes, parameter_intervals
+from fe_core.inference.laplace import laplace_intervals
 from fe_core.solvers.sensitivity import log_amplitude_jacobian
 
 
@@ -149,7 +150,7 @@ def _effects(model):
 def test_extended_jacobian_columns_match_central_differences_of_the_extended_frf(benchmark_model):
     """Every column: alpha (with the band's alpha-dependence), mass, spring, band, damping, gain."""
     from fe_core.closure.effects import Applied, extended_frf
-    from fe_core.solvers.sensitivity import extended_log_jacobian
+    from fe_core.closure.jacobian import extended_log_jacobian
 
     freqs = MEASUREMENT_FREQUENCIES_HZ[[0, 3, 6, 9]]
     alpha = ALPHA_ACTUAL
@@ -180,7 +181,7 @@ def test_extended_jacobian_columns_match_central_differences_of_the_extended_frf
 @pytest.mark.slow
 def test_extended_intervals_step_to_the_truth_of_noise_free_data_and_flag_an_absent_effect(benchmark_model):
     from fe_core.closure.effects import Applied, RayleighDamping, extended_frf
-    from fe_core.inference.intervals import extended_intervals
+    from fe_core.closure.intervals import extended_intervals
 
     freqs = MEASUREMENT_FREQUENCIES_HZ
     truth = _effects(benchmark_model)[:2]  # point mass and spring
@@ -206,7 +207,7 @@ def test_extended_intervals_of_a_model_with_mass_factors_are_those_of_its_stiffn
     import dataclasses
 
     from fe_core.closure.effects import extended_frf
-    from fe_core.inference.intervals import extended_intervals
+    from fe_core.closure.intervals import extended_intervals
 
     freqs = MEASUREMENT_FREQUENCIES_HZ[[0, 3, 6, 9]]
     truth = _effects(benchmark_model)[:1]  # the point mass

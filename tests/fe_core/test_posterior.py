@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from fe_core.inference.intervals import laplace_intervals
+from fe_core.inference.laplace import laplace_intervals
 from fe_core.inference.posterior import importance_posterior, linearity_check
 
 

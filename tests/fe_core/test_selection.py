@@ -12,8 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fe_core.closure.fits import Candidate, Fit, fit_update, verdict
+from fe_core.closure.decisions import verdict
+from fe_core.closure.fits import Fit, fit_update
 from fe_core.closure.loop import close_loop
+from fe_core.closure.screening import Candidate
 from fe_core.closure.effects import Applied, GroundedSpring, PointMass, build_library, extended_frf
 from fe_core.closure.selection import IDENTIFIED, evidence, refine
 from tasks.io.measured import read_measured

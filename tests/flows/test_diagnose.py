@@ -121,7 +121,7 @@ def test_closure_intervals_cover_every_effect_of_a_forward_selection(benchmark_m
     from fe_core.benchmark import ALPHA_ACTUAL
     from fe_core.closure.fits import fit_update
     from fe_core.closure.effects import Applied, build_library, extended_frf
-    from tasks.closure import _params
+    from tasks.closure.summary import _params
     from tasks.closure_intervals import closure_interval_fields
 
     library = {e.kind: e for e in build_library(benchmark_model, ["point_mass", "grounded_spring"])}
@@ -202,7 +202,7 @@ def test_a_model_given_as_matrices_is_diagnosed_and_effects_needing_a_mesh_are_r
                                                                                       prefect_harness, capsys):
     """Issue 15: the closure on a model file without a mesh (scikit-fem's cantilever as matrices, its own
     FRF with 0.5 % noise): nodal effects from the DOF table, no patch, and the verdict noise."""
-    from fe_core.closure.fits import VERDICTS
+    from fe_core.closure.decisions import VERDICTS
 
     example = REPO / "data" / "examples" / "cantilever_matrices"
     config = reduced_config.replace(run_id="cantilever", model=str(example / "model.toml"),

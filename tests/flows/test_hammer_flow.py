@@ -69,12 +69,12 @@ def test_accelerance_mobility_and_receptance_give_the_same_parameters(kinds, red
 
 def test_the_closure_takes_the_hammer_test_only_as_the_models_default_excitation(tmp_path):
     with pytest.raises(DiagnoseError, match="excitation = \"hammer\""):
-        closure_measurements(HAMMER, "three_plate", {"lines": "windows", "line_windows": WINDOWS})
+        closure_measurements(HAMMER, load_model("three_plate"), {"lines": "windows", "line_windows": WINDOWS})
     for name in ("model.toml", "three_plate.inp"):
         shutil.copy(REPO / "data" / "benchmark" / name, tmp_path / name)
     toml = tmp_path / "model.toml"
     toml.write_text(toml.read_text().replace('excitation = "combined"', 'excitation = "hammer"'))
-    freqs, sensors, u = closure_measurements(HAMMER, str(toml), {"lines": "windows", "line_windows": WINDOWS,
+    freqs, sensors, u = closure_measurements(HAMMER, load_model(str(toml)), {"lines": "windows", "line_windows": WINDOWS,
                                                                  "min_coherence": 0.9})
     measured = read_measured(HAMMER)
     rows = np.flatnonzero((measured.frequencies_hz >= 100.0) & (measured.frequencies_hz <= 125.0))

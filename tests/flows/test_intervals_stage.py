@@ -12,7 +12,7 @@ from scipy import stats
 
 from fe_core.benchmark import ALPHA_ACTUAL
 from flows import update
-from flows.summary import report_least_squares_optimum
+from flows.summary import LEAST_SQUARES_SOURCE, report_least_squares_optimum
 from flows.config import ConfigError, UpdateConfig, load_config
 from tasks.intervals import INTERVALS_STAGE
 from tasks.runstore import RunStore
@@ -102,7 +102,7 @@ def test_noise_key_is_validated_and_reaches_the_config(tmp_path):
 def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(tmp_path, rng):
     from types import SimpleNamespace
 
-    from fe_core.inference.intervals import laplace_intervals
+    from fe_core.inference.laplace import laplace_intervals
     from tasks.report.sections import intervals_section
 
     X = rng.normal(size=(40, 3))
@@ -154,7 +154,7 @@ def test_the_least_squares_optimum_is_reported_and_the_lowest_error_run_kept_bes
                "estimate_errors": {"overall_error": 0.0072, "per_sensor_error": [0.0065, 0.0079], "at_optimum": True}}
     out = report_least_squares_optimum(summary, [1, 3], truth=[0.12, -0.21])
     assert out["parameters"] == {"alpha_1": 0.11, "alpha_2": -0.19}
-    assert out["parameters_source"] == update.LEAST_SQUARES_SOURCE and "estimate_errors" not in out
+    assert out["parameters_source"] == LEAST_SQUARES_SOURCE and "estimate_errors" not in out
     assert out["overall_error"] == 0.0072 and out["per_sensor_error"] == {"sensor_1": 0.0065, "sensor_3": 0.0079}
     assert out["parameter_errors"] == pytest.approx({"alpha_1": 0.01, "alpha_2": 0.02})
     low = out["lowest_error"]

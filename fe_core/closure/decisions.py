@@ -1,0 +1,141 @@
+"""Decisions on checked candidates: plausibility (:func:`at_bound`), scores against the model without the
+candidate (:func:`score`), the chosen effect (:func:`decide`), the closure's verdict (:func:`verdict`,
+:data:`VERDICTS`), the ranking (:func:`rank`, :func:`dedupe`, :func:`merge`) and everything a closure
+found (:class:`ClosureResult`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .effects import Effect
+from .fits import Fit
+from .screening import Candidate, scores
+from ..inference.residual import ResidualAnalysis
+
+__all__ = [
+    "ClosureResult",
+    "decide",
+    "score",
+    "rank",
+    "dedupe",
+    "merge",
+    "at_bound",
+    "verdict",
+    "VERDICTS",
+]
+
+
+#: The three verdicts of a closure.
+VERDICTS = ("noise", "explained", "ambiguous", "partly explained")
+
+
+@dataclass
+class ClosureResult:
+    """Everything :func:`close_loop` found.
+
+    ``steps`` are the added effects in order (``chosen`` is the first, kept for
+    one-effect readers); ``candidates`` is the ranking of the first round and
+    ``rounds`` that of every round (the last one lists what remains);
+    ``implausible`` the checked candidates of every round whose fit ended on a
+    plausibility bound.
+    """
+
+    baseline: Fit
+    before: ResidualAnalysis
+    candidates: list[Candidate]
+    chosen: Candidate | None
+    final: Fit
+    after: ResidualAnalysis
+    seconds: dict
+    steps: list[Candidate] = field(default_factory=list)
+    verdict: str = "noise"
+    implausible: list[Candidate] = field(default_factory=list)
+    rounds: list[list[Candidate]] = field(default_factory=list)
+    #: Per added effect: its kind's share of the evidence among the kinds checked in its place, and
+    #: the rivals (:class:`fe_core.closure.selection.Rival`) holding at least 1 % of it.
+    weights: list[float] = field(default_factory=list)
+    rivals: list[list] = field(default_factory=list)
+    #: Swaps made by the swap passes and moves of earlier effects (joint relocation), as text.
+    swaps: list[str] = field(default_factory=list)
+    moves: list[str] = field(default_factory=list)
+    #: Per added effect: the locations of its kind holding 95 % of the linearised evidence, with weights,
+    #: and whether they lie close together (:func:`fe_core.closure.selection.located`).
+    spreads: list[list[tuple[str, float]]] = field(default_factory=list)
+    located: list[bool] = field(default_factory=list)
+
+
+def at_bound(effect: Effect, location: str, values, rtol: float = 1e-2) -> bool:
+    """True if a fitted value ends on a plausibility bound of ``effect`` (within ``rtol`` of its scale).
+
+    A bound at zero (the effect's absence: no mass, no spring) does not count:
+    an effect fitted to nothing is not added anyway.
+    """
+    lo, hi = effect.bounds_at(location)
+    tol = rtol * effect.scale_at(location)
+    v = np.atleast_1d(np.asarray(values, float))
+    with np.errstate(invalid="ignore"):  # infinite bounds compare False
+        hit_lo = np.isfinite(lo) & (lo != 0) & (v <= lo + np.maximum(tol, 1e-3 * np.abs(lo)))
+        hit_hi = np.isfinite(hi) & (hi != 0) & (v >= hi - np.maximum(tol, 1e-3 * np.abs(hi)))
+    return bool(np.any(hit_lo | hit_hi))
+
+
+def score(base: Fit, checked: Sequence[Candidate]) -> None:
+    """Set ``bic``, ``ebic``, their differences to ``base`` (the model without the candidate), the
+    explained share and ``implausible`` (the fit ends on a plausibility bound of any of its effects)."""
+    n = base.residual.size
+    bic0, _ = scores(base.rss, n, base.n_parameters)
+    for c in checked:
+        c.bic, c.ebic = scores(c.fit.rss, n, c.fit.n_parameters, c.n_locations)
+        c.delta_bic, c.delta_ebic = c.bic - bic0, c.ebic - bic0
+        c.explained = 1.0 - c.fit.rss / base.rss if base.rss > 0 else 0.0
+        c.implausible = any(at_bound(a.effect, a.location, a.values) for a in c.fit.applied)
+
+
+def decide(base: Fit, before: ResidualAnalysis, checked: Sequence[Candidate]) -> Candidate | None:
+    """Score the checked candidates against the model without the new effect; the chosen one, or None.
+
+    Sets the scores of :func:`score` on each candidate; an implausible one is never chosen.
+    """
+    score(base, checked)
+    plausible = [c for c in checked if not c.implausible]
+    if not plausible or not before.structured:
+        return None
+    best = min(plausible, key=lambda c: c.ebic)
+    return best if best.delta_ebic < 0 else None
+
+
+def verdict(before: ResidualAnalysis, after: ResidualAnalysis, n_added: int, identified: bool = True) -> str:
+    """``noise`` (nothing to explain), ``explained`` (effects added, noise after, each effect singled out
+    by the data), ``ambiguous`` (noise after, but a rival explanation fits about as well) or
+    ``partly explained`` (structure remains)."""
+    if not before.structured:
+        return "noise"
+    if n_added > 0 and not after.structured:
+        return "explained" if identified else "ambiguous"
+    return "partly explained"
+
+
+def rank(candidates: Sequence[Candidate]) -> list[Candidate]:
+    """Checked candidates by extended BIC, then the rest by their linearised extended BIC."""
+    checked = sorted((c for c in candidates if c.fit is not None), key=lambda c: c.ebic)
+    rest = sorted((c for c in candidates if c.fit is None), key=lambda c: c.linear_delta_ebic)
+    return checked + rest
+
+
+def dedupe(checked: Sequence[Candidate]) -> list[Candidate]:
+    """Checked candidates that ended at the same (effect, location): keep the best fit."""
+    best: dict[tuple[str, str], Candidate] = {}
+    for c in checked:
+        key = (c.effect, c.location)
+        if key not in best or c.fit.rss < best[key].fit.rss:
+            best[key] = c
+    return list(best.values())
+
+
+def merge(checked: Sequence[Candidate], screened: Sequence[Candidate]) -> list[Candidate]:
+    """Checked candidates plus the screened ones not checked (one entry per effect and location)."""
+    keys = {(c.effect, c.location) for c in checked}
+    return list(checked) + [c for c in screened if c.fit is None and (c.effect, c.location) not in keys]

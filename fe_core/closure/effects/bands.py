@@ -1,0 +1,253 @@
+"""Stiffness bands: the stiffness factor of a set of cells (:class:`ElementBand`), the sets it is used on
+(plate joints, patches of cells around nodes, named cell sets) and the factories that build them for a
+model.
+
+Cell effects need a mesh and its element matrices (:func:`has_cell_stiffness`); their factories return
+None for any other model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ...assembly import SegmentedMatrix, cell_dofs
+from ...elements.hex8 import element_stiffness
+from ...model import ParametricModel, check_parameters
+from .base import Effect, Terms, _free_position, candidate_nodes
+
+__all__ = ["ElementBand", "has_cell_stiffness", "joint_bands", "patch_bands", "patch_centres"]
+
+
+def _segment_cells(model: ParametricModel) -> list[np.ndarray]:
+    if model.cell_segment is not None:
+        return [np.flatnonzero(model.cell_segment == i) for i in range(len(model.segment_names))]
+    try:
+        return [model.mesh.cell_sets[name] for name in model.segment_names]
+    except KeyError as exc:
+        raise ValueError(f"segment {exc.args[0]!r} is not a cell set of the mesh; element bands need "
+                         f"the segments' cells") from exc
+
+
+def has_cell_stiffness(model: ParametricModel) -> bool:
+    """True if the model can give its cells' element stiffness (a mesh with known elements and materials)."""
+    return model.mesh is not None and (model.cell_stiffness is not None
+                                       or (model.material is not None and model.formulation is not None))
+
+
+def _cells_stiffness(model: ParametricModel, cells: np.ndarray) -> np.ndarray:
+    """Element stiffness matrices of ``cells`` at alpha = 0, shape (c, d, d), N/m.
+
+    From the model's own ``cell_stiffness`` (a model file: any element family and
+    material per cell), else hex8 with the model's material; the benchmark's 544
+    cells are computed once and cached on the model.
+    """
+    if not has_cell_stiffness(model):
+        where = f" ({model.source})" if model.source else ""
+        raise ValueError(f"effects on a set of cells need the element matrices of a mesh; this model{where} "
+                         + ("has no mesh (it is given as matrices)" if model.mesh is None else
+                            "does not give them (several materials without cell_stiffness)"))
+    if model.cell_stiffness is not None:
+        return model.cell_stiffness(cells)
+    Ke = getattr(model, "_cell_stiffness_cache", None)
+    if Ke is None:
+        Ke = model._cell_stiffness_cache = element_stiffness(model.mesh.cell_coords, model.material.D,
+                                                             model.formulation)
+    return Ke[cells]
+
+
+def _band_matrix(model: ParametricModel, cells: np.ndarray, owner: np.ndarray) -> SegmentedMatrix:
+    """The stiffness of ``cells`` on the free DOFs, split by the segment owning each cell (cells
+    in no segment are the fixed part, not scaled by alpha).
+
+    Assembled directly on the free DOFs from the cached element matrices (entries on a
+    constrained DOF dropped): a few milliseconds per band, so hundreds of patches cost
+    well under a second.
+    """
+    Ke = _cells_stiffness(model, cells)  # (c, d, d)
+    dofs = _free_position(model)[cell_dofs(model.mesh.cells[cells])]  # (c, d), -1 = constrained
+    d = dofs.shape[1]
+    rows = np.repeat(dofs, d, axis=1).ravel()
+    cols = np.tile(dofs, (1, d)).ravel()
+    m = model.n_segments
+    seg = np.repeat(np.where(owner[cells] >= 0, owner[cells], m), d * d)  # row m: cells in no segment
+    keep = (rows >= 0) & (cols >= 0)
+    rows, cols, seg, vals = rows[keep], cols[keep], seg[keep], Ke.ravel()[keep]
+    n = model.n_dofs
+    keys, slot = np.unique(rows.astype(np.int64) * n + cols, return_inverse=True)
+    data = np.bincount(seg * keys.size + slot, weights=vals, minlength=(m + 1) * keys.size).reshape(m + 1, -1)
+    counts = np.bincount(keys // n, minlength=n)
+    pattern = sp.csr_matrix((data.sum(axis=0), (keys % n).astype(np.int32),
+                             np.concatenate([[0], np.cumsum(counts)])), shape=(n, n))
+    fixed = data[m] if np.any(owner[cells] < 0) else None
+    return SegmentedMatrix(pattern=pattern, data=data[:m], fixed=fixed)
+
+
+class ElementBand(Effect):
+    """Stiffness factor of a band of elements: their K_e (1 + alpha_s) -> K_e (1 + alpha_s)(1 + beta).
+
+    ``beta > -1`` keeps K positive definite. ``bands`` maps a location label
+    to the cells of that band; the plate joints of the benchmark are one use
+    (:func:`joint_bands`), any set of cells is another.
+    """
+
+    kind = "element_band"
+    parameters = ("beta",)
+    units = ("-",)
+    lower = (-1.0,)
+    #: A band more than twice as stiff as the plate it is part of needs material the model lacks (a
+    #: stiffener), not damage or a joint's flexibility: implausible by default (``set_limits`` widens it).
+    upper = (1.0,)
+    scale = (0.1,)
+    margin = (1e-3,)
+
+    def __init__(self, model: ParametricModel, bands: dict[str, np.ndarray], kind: str | None = None):
+        super().__init__(model)
+        if kind:
+            self.kind = kind
+        _cells_stiffness(model, np.zeros(0, dtype=int))  # refuses a model without element matrices
+        self.bands = {label: np.asarray(cells, dtype=int) for label, cells in bands.items()}
+        seg_cells = _segment_cells(model)
+        owner = np.full(model.mesh.n_cells, -1)
+        for s, cells in enumerate(seg_cells):
+            owner[cells] = s
+        self._matrices: dict[str, SegmentedMatrix] = {}
+        for label, cells in self.bands.items():
+            if cells.size == 0:
+                raise ValueError(f"element band {label!r} has no cells")
+            self._matrices[label] = _band_matrix(model, cells, owner)
+
+    def locations(self) -> list[str]:
+        return list(self.bands)
+
+    def band_stiffness(self, alpha, location) -> sp.csr_matrix:
+        """The band's share of ``K(alpha)``, N/m."""
+        alpha = check_parameters(alpha, self.model.n_segments, "alpha")
+        return self._matrices[location].combine(1.0 + alpha)
+
+    def terms(self, alpha, location, values) -> Terms:
+        return Terms(stiffness=float(values[0]) * self.band_stiffness(alpha, location))
+
+    def alpha_derivative(self, alpha, location, values, index) -> Terms:
+        return Terms(stiffness=float(values[0]) * self._matrices[location].segment(index))
+
+    def position(self, location) -> np.ndarray:
+        return self.model.mesh.centroids[self.bands[location]].mean(axis=0)
+
+    def describe(self, location) -> dict:
+        cells = self.bands[location]
+        c = self.model.mesh.centroids[cells]
+        return {"cells": int(cells.size), "x_min_m": float(c[:, 0].min()), "x_max_m": float(c[:, 0].max())}
+
+
+def patch_bands(model: ParametricModel, centres: Sequence[int], rings: Sequence[int] = (1, 2)) -> dict[str, np.ndarray]:
+    """Cells within ``r`` rings of each centre node (ring 1: the cells touching it), labelled
+    ``node <n> r<r>``: patches for damage localisation anywhere."""
+    cells = model.mesh.cells
+    bands = {}
+    for n in centres:
+        nodes = np.array([n])
+        for r in range(1, max(rings) + 1):
+            inside = np.flatnonzero(np.any(np.isin(cells, nodes), axis=1))
+            if r in rings:
+                bands[f"node {int(n)} r{r}"] = inside
+            nodes = np.unique(cells[inside])
+    return bands
+
+
+def patch_centres(model: ParametricModel, n_target: int = 160) -> np.ndarray:
+    """About ``n_target`` patch centres spread over any mesh: the node nearest the mean of the free
+    nodes in each box of a grid, refined until that many boxes hold nodes."""
+    nodes = candidate_nodes(model, node_set="")
+    xyz = model.mesh.nodes[nodes]
+    lo = xyz.min(axis=0)
+    h = float(np.ptp(xyz, axis=0).max())
+    while True:
+        boxes, which = np.unique(np.floor((xyz - lo) / h).astype(np.int64), axis=0, return_inverse=True)
+        if boxes.shape[0] >= min(n_target, nodes.size) or h <= 0:
+            break
+        h /= 1.25
+    which = which.ravel()
+    mean = np.zeros((boxes.shape[0], 3))
+    np.add.at(mean, which, xyz)
+    mean /= np.bincount(which)[:, None]
+    dist = np.linalg.norm(xyz - mean[which], axis=1)
+    order = np.lexsort((dist, which))  # per box, nearest first
+    first = order[np.r_[True, np.diff(which[order]) != 0]]
+    return np.sort(nodes[first])
+
+
+def _patch_factory(model: ParametricModel, stride: int = 2) -> Effect | None:
+    """Patches of 1 and 2 rings of cells around centre nodes: on a model with a ``top`` node set (the
+    benchmark) every ``stride``-th top node in x and y (a 2 x 2 subgrid of the top surface: neighbouring
+    patches overlap, so no damage falls between them); on any other mesh :func:`patch_centres`.
+    None for a model without element matrices (matrices only)."""
+    if not has_cell_stiffness(model):
+        return None
+    if "top" in model.mesh.node_sets:
+        top = candidate_nodes(model, "top")
+        xy = np.round(model.mesh.nodes[top, :2], 9)
+        xs, ys = np.unique(xy[:, 0]), np.unique(xy[:, 1])
+        keep = np.isin(xy[:, 0], xs[::stride]) & np.isin(xy[:, 1], ys[::stride])
+        centres = top[keep]
+    else:
+        centres = patch_centres(model)
+    return ElementBand(model, patch_bands(model, centres), kind="patch")
+
+
+def _cell_set_factory(model: ParametricModel) -> Effect | None:
+    """The stiffness factor of every named cell set of the mesh (``set <name>``), except sets made of
+    whole segments (their factor is a combination of the alphas); None if there is none."""
+    if not has_cell_stiffness(model):
+        return None
+    segments = _segment_cells(model)
+    owner = np.full(model.mesh.n_cells, -1)
+    for s, cells in enumerate(segments):
+        owner[cells] = s
+    bands = {}
+    for name, cells in model.mesh.cell_sets.items():
+        cells = np.asarray(cells, dtype=int)
+        touched = np.unique(owner[cells])
+        whole = touched.min() >= 0 and sum(segments[t].size for t in touched) == np.unique(cells).size
+        if cells.size and not whole:
+            bands[f"set {name}"] = cells
+    return ElementBand(model, bands, kind="cell_set") if bands else None
+
+
+def joint_bands(model: ParametricModel, joints_x: Sequence[float], atol: float = 1e-9) -> dict[str, np.ndarray]:
+    """Cells touching each joint plane ``x = x_j``: one band per joint, labelled ``joint x=<mm> mm``."""
+    nodes_x = model.mesh.nodes[:, 0]
+    bands = {}
+    for xj in joints_x:
+        on_plane = np.abs(nodes_x - xj) <= atol
+        cells = np.flatnonzero(np.any(on_plane[model.mesh.cells], axis=1))
+        if cells.size == 0:
+            raise ValueError(f"no cells touch the plane x = {xj} m")
+        bands[f"joint x={1e3 * xj:g} mm"] = cells
+    return bands
+
+
+def _block_joints(model: ParametricModel) -> list[float]:
+    """x of the planes where consecutive ``plate<k>`` cell sets meet (the benchmark's joints)."""
+    names = sorted((n for n in model.mesh.cell_sets if n.startswith("plate") and n[5:].isdigit()),
+                   key=lambda n: int(n[5:]))
+    joints = []
+    for left, right in zip(names, names[1:]):
+        a = np.unique(model.mesh.cells[model.mesh.cell_sets[left]])
+        b = np.unique(model.mesh.cells[model.mesh.cell_sets[right]])
+        shared = np.intersect1d(a, b)
+        xs = np.unique(np.round(model.mesh.nodes[shared, 0], 9))
+        if xs.size == 1:
+            joints.append(float(xs[0]))
+    return joints
+
+
+def _joint_factory(model: ParametricModel) -> Effect | None:
+    if not has_cell_stiffness(model):
+        return None
+    joints = _block_joints(model)
+    if not joints:
+        return None
+    return ElementBand(model, joint_bands(model, joints), kind="joint_band")

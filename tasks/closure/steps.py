@@ -1,0 +1,275 @@
+"""The closure's Prefect tasks, one per step: :func:`baseline_task`, :func:`screen_task`, :func:`check_task`
+(full FE checks in parallel worker processes, :func:`check_candidate`) and :func:`decide_task` (the
+decision, the forward selection and ``closure.json``); with their settings (:class:`ClosureSettings`)
+and the effect library (:func:`effect_library`). A finished step is read back from the
+:class:`~tasks.closure.store.ClosureStore`, not recomputed."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pandas as pd
+from joblib import Parallel, delayed
+from prefect import task
+from prefect.cache_policies import NO_CACHE
+
+from fe_core.closure import decisions, fits, screening
+from fe_core.closure.effects import build_library, extended_frf, registered_effects
+from fe_core.closure.selection import forward_select
+from fe_core.inference.residual import analyse_residual, log_residual
+from tasks.closure.store import (
+    ClosureStore,
+    _baseline_fit,
+    _done,
+    _fit_from_parameters,
+    _logger,
+    _param_table,
+    _parquet_bytes,
+    _screened,
+    residual_table,
+)
+from tasks.closure.summary import _candidates_frame, _closure_json, _verdict_json
+from tasks.runstore import atomic_write_bytes, atomic_write_json
+
+__all__ = [
+    "ClosureSettings",
+    "effect_library",
+    "baseline_task",
+    "screen_task",
+    "check_candidate",
+    "check_task",
+    "decide_task",
+]
+
+
+# -- settings -------------------------------------------------------------------------------------------
+class ClosureSettings(dict):
+    """Settings of one closure (a plain dict, stored in ``settings.json``).
+
+    Keys: ``model``, ``measured``, ``alpha_start`` (list), ``noise`` (float or
+    None = estimated), ``significance``, ``per_type``, ``max_moves``,
+    ``restarts``, ``seed``, ``effects`` (list of registered names or None),
+    ``alpha_bounds`` (pair), ``n_jobs``, ``max_effects`` (forward selection).
+    """
+
+    DEFAULTS = dict(noise=None, significance=0.01, per_type=1, max_moves=6, restarts=8, seed=0, effects=None,
+                    alpha_bounds=list(fits.ALPHA_BOUNDS), n_jobs=1, check_noise=False,
+                    max_effects=3)
+
+    @classmethod
+    def make(cls, **kwargs) -> "ClosureSettings":
+        out = cls(cls.DEFAULTS)
+        out.update({k: v for k, v in kwargs.items() if v is not None or k not in cls.DEFAULTS})
+        return out
+
+
+def _library(model, settings) -> dict:
+    return _cached_library(model, settings.get("effects"))
+
+
+def effect_library(model, effects=None) -> dict:
+    """The effect library of a model (``ValueError`` for an effect that does not apply to it), built once per
+    process."""
+    return _cached_library(model, effects)
+
+
+def _cached_library(model, effects) -> dict:
+    """The effect library by kind, built once per model and effect list in a process (the screen,
+    every check and the decision of a closure use the same; 320 patches take a second to build)."""
+    cache = model.__dict__.setdefault("_closure_libraries", {})
+    key = (tuple(registered_effects()), None if effects is None else tuple(effects))
+    if key not in cache:
+        cache[key] = {e.kind: e for e in build_library(model, effects)}
+    return cache[key]
+
+
+# -- tasks ---------------------------------------------------------------------------------------------
+@task(name="closure-baseline", cache_policy=NO_CACHE)
+def baseline_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: np.ndarray, u: np.ndarray) -> dict:
+    """Alpha-only least squares from the run's parameters; residual and its analysis. ``problem``: the run's
+    :class:`tasks.problem.Problem` (its model)."""
+    store = ClosureStore(root)
+    if not _done(store, "baseline"):
+        model = problem.model
+        fit, analysis = fits.baseline(model, freqs, u, settings["alpha_start"], settings["noise"],
+                                      settings["significance"], settings["restarts"], settings["seed"],
+                                      tuple(settings["alpha_bounds"]))
+        store.write_table("baseline", "baseline", _param_table(fit, {}))
+        store.write_table("baseline", "residual_before",
+                          residual_table(freqs, sensors, fit.relative(u), fit.residual))
+        store.finish("baseline", ["baseline", "residual_before"],
+                     {"analysis": analysis.to_dict(), "evaluations": fit.evaluations, "seconds": fit.seconds,
+                      "message": fit.message})
+        _logger().info("closure baseline: %s", analysis.summary())
+    return store.info("baseline")
+
+
+@task(name="closure-screen", cache_policy=NO_CACHE)
+def screen_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndarray) -> dict:
+    """Linearised explained share of every candidate effect at the baseline."""
+    store = ClosureStore(root)
+    if not _done(store, "screen"):
+        t0 = time.perf_counter()
+        model = problem.model
+        library = _library(model, settings)
+        base = _baseline_fit(store, model, freqs, u)
+        screened = screening.screen(model, freqs, base, list(library.values()))
+        df = pd.DataFrame({
+            "effect": [c.effect for c in screened],
+            "location": [c.location for c in screened],
+            "n_locations": [c.n_locations for c in screened],
+            "linear_value": [float(c.linear_values[0]) for c in screened],
+            "linear_values": [json.dumps(list(map(float, c.linear_values))) for c in screened],
+            "linear_rss": [c.linear_rss for c in screened],
+            "linear_explained": [c.linear_explained for c in screened],
+            "linear_delta_bic": [c.linear_delta_bic for c in screened],
+            "linear_delta_ebic": [c.linear_delta_ebic for c in screened],
+        })
+        store.write_table("screen", "screen", df)
+        store.finish("screen", ["screen"], {"candidates": len(df), "seconds": time.perf_counter() - t0})
+    return store.info("screen")
+
+
+def check_candidate(ref, effects, kind: str, location: str, linear_values, base_alpha, freqs, u,
+                    max_moves: int, alpha_bounds) -> dict:
+    """One full FE check (runs in a worker process; ``ref``: the model's :class:`tasks.problem.ModelRef`);
+    returns a flat record."""
+    model = ref.load()
+    library = _cached_library(model, effects)
+    cand = screening.Candidate(effect=kind, location=location, n_locations=len(library[kind].locations()),
+                               linear_values=np.asarray(linear_values, float), linear_rss=0.0, linear_explained=0.0)
+    base = fits.Fit(alpha=np.asarray(base_alpha, float), effect=None, location=None, values=np.zeros(0),
+                    model_amplitude=None, residual=np.full(np.shape(u), np.inf), evaluations=0)
+    # The base residual is only compared against (a fit worse than it restarts from zero):
+    base.residual = log_residual(np.abs(extended_frf(model, base.alpha, freqs)), u)
+    screening.check(model, freqs, u, base, library[kind], cand, max_moves, tuple(alpha_bounds))
+    f = cand.fit
+    return {"effect": kind, "screened_location": location, "location": f.location,
+            "moved_from": json.dumps(cand.moved_from), "values": json.dumps(list(map(float, f.values))),
+            "alpha": json.dumps(list(map(float, f.alpha))), "rss": f.rss, "evaluations": f.evaluations,
+            "seconds": f.seconds, "message": f.message}
+
+
+@task(name="closure-check", cache_policy=NO_CACHE)
+def check_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndarray) -> dict:
+    """Full FE least squares of the best-screened candidates, in parallel, each stored as it finishes."""
+    store = ClosureStore(root)
+    logger = _logger()
+    if not _done(store, "check"):
+        analysis = store.info("baseline")["analysis"]
+        screened = _screened(store)
+        picked = screening.pick_for_check(screened, settings["per_type"])
+        if not (analysis["structured"] or settings.get("check_noise")):
+            logger.info("closure: the residual is noise (chi-square p = %.3g); no candidate is checked",
+                        analysis["p_chi2"])
+            picked = []
+        model = problem.model
+        base = _baseline_fit(store, model, freqs, u)
+        todo = [(k, c) for k, c in enumerate(picked) if not store.path("check", f"check={k:03d}").exists()]
+        if len(todo) < len(picked):
+            logger.info("closure: %d of %d checks found on disk", len(picked) - len(todo), len(picked))
+        jobs = (delayed(_indexed)(k, problem.ref, settings.get("effects"), c.effect, c.location,
+                                  c.linear_values, base.alpha, freqs, u, settings["max_moves"],
+                                  settings["alpha_bounds"]) for k, c in todo)
+        if todo:
+            parallel = Parallel(n_jobs=settings.get("n_jobs", 1), backend="loky", return_as="generator_unordered")
+            for k, record in parallel(jobs):
+                store.write_table("check", f"check={k:03d}", pd.DataFrame([record]))
+                logger.info("closure check %d/%d: %s at %s, rss %.3g (%d FE solves)", k + 1, len(picked),
+                            record["effect"], record["location"], record["rss"], record["evaluations"])
+        parts = [pd.read_parquet(store.path("check", f"check={k:03d}")) for k in range(len(picked))]
+        checks = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(
+            columns=["effect", "screened_location", "location", "moved_from", "values", "alpha", "rss",
+                     "evaluations", "seconds", "message"])
+        store.write_table("check", "checks", checks)
+        store.finish("check", ["checks"], {"n": len(checks)})
+    return store.info("check")
+
+
+def _indexed(k, *args):
+    return k, check_candidate(*args)
+
+
+@task(name="closure-decide", cache_policy=NO_CACHE)
+def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: np.ndarray, u: np.ndarray,
+                run_info: dict) -> dict:
+    """Scores, the decision, the updated model, residual tables and ``closure.json``.
+
+    Returns ``closure.json`` as written; a finished decision (its stage and the file) is read back, not
+    decided again (the forward selection and the intervals are the closure's costliest step after the checks).
+    """
+    store = ClosureStore(root)
+    if store.is_finished("decide") and (store.root / "closure.json").is_file():
+        _logger().info("closure: decision finished earlier, read back")
+        return json.loads((store.root / "closure.json").read_text())
+    model = problem.model
+    library = _library(model, settings)
+    base = _baseline_fit(store, model, freqs, u)
+    before_info = store.info("baseline")["analysis"]
+    before = analyse_residual(base.residual, freqs, base.n_parameters, settings["noise"], settings["significance"],
+                              base.relative(u))
+    screened = {(c.effect, c.location): c for c in _screened(store)}
+    checked = []
+    for r in store.read_table("check", "checks").itertuples(index=False):
+        c = screened.get((r.effect, r.screened_location))
+        c = screening.Candidate(effect=r.effect, location=r.location, n_locations=c.n_locations,
+                                linear_values=c.linear_values, linear_rss=c.linear_rss,
+                                linear_explained=c.linear_explained, linear_delta_bic=c.linear_delta_bic,
+                                linear_delta_ebic=c.linear_delta_ebic, moved_from=json.loads(r.moved_from))
+        c.fit = _fit_from_parameters(model, library, freqs, u, json.loads(r.alpha), r.effect, r.location,
+                                     json.loads(r.values), r.evaluations, r.seconds, r.message)
+        checked.append(c)
+    checked = decisions.dedupe(checked)
+    chosen = decisions.decide(base, before, checked)
+    final = chosen.fit if chosen is not None else base
+    after = analyse_residual(final.residual, freqs, final.n_parameters, before.sigma, settings["significance"],
+                             final.relative(u))
+    ranked = decisions.rank(decisions.merge(checked, list(screened.values())))
+    steps, implausible = ([chosen] if chosen is not None else []), [c for c in checked if c.implausible]
+    sel = None
+    if chosen is not None:
+        # Forward selection beyond the first effect (all effects refitted at each step, swaps), in one call;
+        # with the first round's checks as the rivals of the first effect.
+        sel = forward_select(model, freqs, u, final, after, list(library.values()),
+                             significance=settings["significance"], per_type=settings["per_type"],
+                             max_moves=settings["max_moves"], alpha_bounds=tuple(settings["alpha_bounds"]),
+                             max_effects=settings.get("max_effects", 3), steps=[chosen], rounds=[ranked])
+        steps = sel.steps
+        implausible += [c for c in sel.implausible if all(c is not d for d in implausible)]
+        final, after = sel.final, sel.after
+    verdict = decisions.verdict(before, after, len(steps), True if sel is None else sel.identified)
+    cand_df = _candidates_frame(ranked, library)
+    if not store.is_finished("decide"):
+        store.write_table("decide", "candidates", cand_df)
+        store.write_table("decide", "residual_after", residual_table(freqs, sensors, final.relative(u),
+                                                                     final.residual))
+        store.finish("decide", ["candidates", "residual_after"], {"chosen": None if chosen is None else
+                                                                 [chosen.effect, chosen.location],
+                                                                 "verdict": verdict})
+    # The report-facing copies: (frequency_hz, sensor, residual) at the closure folder's top.
+    for name, step in (("residual_before", "baseline"), ("residual_after", "decide")):
+        atomic_write_bytes(store.root / f"{name}.parquet", store.path(step, name).read_bytes())
+    summary = _closure_json(store, settings, run_info, base, final, chosen, before, after, ranked, library, u,
+                            sensors, freqs, before_info)
+    summary.update(_verdict_json(verdict, steps, implausible, library, final, sel))
+    # Issue 19: 95 % intervals and the covariance of alpha and every added effect's value (the effects of the
+    # forward selection, in the order added, as in parameters_after).
+    from tasks.closure_intervals import closure_interval_fields
+
+    summary.update(closure_interval_fields(model, freqs, u, final, list(summary["parameters_after"]),
+                                           settings["noise"], settings["alpha_bounds"]))
+    atomic_write_bytes(store.root / "frf_closure.parquet", _parquet_bytes(pd.DataFrame({
+        "frequency_hz": np.repeat(freqs, len(sensors)), "sensor": np.tile(np.asarray(sensors, np.int64), len(freqs)),
+        "measured": u.ravel(), "alpha_only": base.model_amplitude.ravel(), "extended": final.model_amplitude.ravel()})))
+    summary["frf_table"] = "frf_closure.parquet"
+    atomic_write_json(store.root / "closure.json", summary)
+    try:
+        from tasks.closure_plot import plot_residuals
+
+        summary["plot"] = str(plot_residuals(store.root))
+        atomic_write_json(store.root / "closure.json", summary)
+    except Exception as exc:  # the figure is a convenience; the tables and JSON are the result
+        _logger().warning("closure: residual plot not written: %s", exc)
+    return json.loads((store.root / "closure.json").read_text())  # as a resumed closure returns it
