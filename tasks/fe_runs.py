@@ -334,7 +334,7 @@ class FEStage:
             self._set_aside(sid, path, "not requested by the resumed stage")
         data = self.problem.data
         runs = pd.DataFrame(self.rows, columns=["sample_id", "round", "jacobian", *self.problem.names])
-        extra = {c: [] for c in ("cost", "seconds", "status", "message", "overall_error")}
+        extra = {c: [] for c in ("cost", "seconds", "pid", "status", "message", "overall_error")}
         channel_errors = []
         for sid, jac in zip(runs["sample_id"], runs["jacobian"]):
             df = self.results[int(sid)]
@@ -343,6 +343,7 @@ class FEStage:
             r = data.residuals(Z) if ok else None
             extra["cost"].append(self.cost(df, bool(jac)))
             extra["seconds"].append(float(df["seconds"].iloc[0]))  # the run's own time (the worker's)
+            extra["pid"].append(int(df["pid"].iloc[0]))
             extra["status"].append("ok" if ok else "failed")
             extra["message"].append(str(df["message"].iloc[0]) if not ok else "")
             extra["overall_error"].append(float(overall_error(r)) if ok else np.nan)

@@ -4,7 +4,8 @@ Every stage that runs the FE model (:class:`tasks.fe_runs.FEStage`: the paper lo
 the hybrid's ``local`` and ``global``) writes
 
 * ``runs.parquet``, one row per FE run in request order: ``sample_id``, ``round`` (within the stage),
-  ``jacobian``, ``cost`` (FE-run equivalents), ``seconds`` (the run's own time), ``status``, ``message``,
+  ``jacobian``, ``cost`` (FE-run equivalents), ``seconds`` (the run's own time), ``pid`` (of the process that
+  made it), ``status``, ``message``,
   ``overall_error`` (Eq. 6b of the run's residual, NaN for a failed run), the parameters and
   ``error_sensor_<j>`` (per channel, Eq. 15);
 * ``responses.parquet``, the long complex table: ``sample_id``, ``sensor`` (channel, 1-based),
@@ -25,7 +26,7 @@ from tasks.runstore import RunStore
 __all__ = ["RUN_COLUMNS", "RESPONSE_COLUMNS", "FE_STAGE_ORDER", "fe_stages", "fe_runs", "responses", "spent",
            "next_sample_id", "grid", "parameter_columns", "best_run"]
 
-RUN_COLUMNS = ("sample_id", "round", "jacobian", "cost", "seconds", "status", "message", "overall_error")
+RUN_COLUMNS = ("sample_id", "round", "jacobian", "cost", "seconds", "pid", "status", "message", "overall_error")
 RESPONSE_COLUMNS = ("sample_id", "sensor", "frequency_hz", "real", "imag")
 #: FE stages in the order they run within an iteration (a cycle of the hybrid).
 FE_STAGE_ORDER = ("fe", "local", "global", "polish")

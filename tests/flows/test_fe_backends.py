@@ -140,7 +140,7 @@ def test_dask_cluster_gives_the_loky_summary_and_runs_every_fe_run_on_its_worker
     store = RunStore(run)
     pids = set()
     for k in range(1, summary["iterations"] + 1):
-        pids |= set(store.read_table(k, "fe")["pid"])
+        pids |= set(store.read_table(k, "fe", "runs")["pid"])
     assert len(workers) == 2 and pids <= workers, f"FE runs made by {pids}, the cluster's workers are {workers}"
     assert proc.pid not in pids
     assert store.read_manifest()["config"]["fe_backend"] == "dask"

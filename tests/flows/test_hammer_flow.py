@@ -115,9 +115,10 @@ def test_two_references_at_once_run_through_the_flow(reduced_settings, prefect_h
     assert [c["sensor"] for c in info["channels"]] == ["s2", "s4", "s6", "s1", "s3", "s5"]
     assert "2 references" in summary["intervals_skipped"] and "intervals" not in summary
     assert len(summary["per_sensor_error"]) == 6
-    fe = pd.read_parquet(tmp_path / "runs" / "mimo" / "iteration=1" / "stage=fe" / "fe.parquet")
+    stage = tmp_path / "runs" / "mimo" / "iteration=1" / "stage=fe"
+    fe, runs = pd.read_parquet(stage / "responses.parquet"), pd.read_parquet(stage / "runs.parquet")
     first = fe[fe["sample_id"] == fe["sample_id"].min()].sort_values(["frequency_hz", "sensor"])
-    alpha = first[[f"alpha_{i}" for i in range(1, 7)]].to_numpy()[0]
+    alpha = runs.loc[runs["sample_id"] == fe["sample_id"].min(), [f"alpha_{i}" for i in range(1, 7)]].to_numpy()[0]
     expected = model.frf_channels(alpha, freqs, responses, references, method="direct")
     got = (first["real"].to_numpy() + 1j * first["imag"].to_numpy()).reshape(expected.shape)
     assert np.max(np.abs(got - expected) / np.abs(expected)) <= 1e-9  # the FE core's Krylov-vs-direct promise

@@ -12,6 +12,7 @@ import pandas as pd
 import pytest
 
 from flows import report, update
+from fe_core.io import read_model
 from flows.config import REPO
 from tasks.model_vtu import VTU_NAME, factors_from_parameters, write_model_vtu
 from tasks.report.mesh import FACTORS_PNG, SEGMENTS_PNG
@@ -139,7 +140,7 @@ def test_the_factors_of_a_summary(box_model_file):
 def test_the_vtu_is_renamed_into_place_and_gamma_is_written(box_model_file, tmp_path):
     root = tmp_path / "run"
     root.mkdir()
-    path = write_model_vtu(root, str(_with_masses(box_model_file)), {"alpha_1": 0.1, "alpha_2": 0.2,
+    path = write_model_vtu(root, read_model(_with_masses(box_model_file)), {"alpha_1": 0.1, "alpha_2": 0.2,
                                                                       "gamma_1": -0.1, "gamma_2": 0.05}, n_modes=2)
     assert path == root / VTU_NAME and sorted(p.name for p in root.iterdir()) == [VTU_NAME]
     back = meshio.read(path)
@@ -162,7 +163,7 @@ def test_an_interrupted_write_leaves_no_model_vtu_and_its_temporary_file_is_clea
 
     monkeypatch.setattr("tasks.runstore.kill_point", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        write_model_vtu(root, str(box_model_file), {"alpha_1": 0.1, "alpha_2": 0.2}, n_modes=1)
+        write_model_vtu(root, read_model(box_model_file), {"alpha_1": 0.1, "alpha_2": 0.2}, n_modes=1)
     assert sorted(p.name for p in root.iterdir()) == ["left-by-a-kill.tmp"]  # no model.vtu, no temporary
     # A SIGKILL leaves the temporary file; the next run's start removes it (RunStore convention).
     (root / "left-by-a-kill.tmp").rename(root / f".{VTU_NAME}.abc123.tmp")

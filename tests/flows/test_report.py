@@ -222,10 +222,10 @@ def test_closure_results_and_unknown_stages_are_reported_and_the_frf_cache_is_re
     assert data.polish is not None
     assert "future-stage" in " ".join(data.notes) and "polish" not in " ".join(data.notes)
 
-    def no_fe(name):
+    def no_fe(*args, **kwargs):
         raise AssertionError("the FE model was called although the cached curves are valid")
 
-    monkeypatch.setattr("tasks.stages.load_model", no_fe)
+    monkeypatch.setattr("fe_core.model_responses.ModelResponses.parameter_frf", no_fe)
     page = Path(report.report_flow(str(root)))
     text = check_report(page, SINGLE_FIGURES | {"closure_residuals.png", "closure_candidates.png", "closure_frf.png"})
     assert "Verdict: explained" in text

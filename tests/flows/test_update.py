@@ -34,7 +34,7 @@ def test_whole_flow_under_the_test_harness(reduced_config, prefect_harness):
     on_disk = json.loads((store.root / "summary.json").read_text())
     assert on_disk == summary
     # q = 8, then s = 4 per iteration, 3 iterations: 16 FE runs for the loop, then at most 7 for the polish.
-    polish = store.read_table(3, "polish")
+    polish = store.read_table(3, "polish", "runs")
     assert summary["iterations"] == 3
     assert summary["fe_evaluations"] == 16 + len(polish) == 16 + summary["polish"]["n"] <= 23
     assert summary["polish"]["error_after"] <= summary["polish"]["error_before"]
