@@ -33,7 +33,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from benchmarks import make_bracket_example as mb  # noqa: E402
+from benchmarks.make import bracket_example as mb  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
@@ -67,7 +67,7 @@ CANDIDATES = (
     ("foot x end", [0.12, 0.04, 0.005], '"x"'),
     ("foot y side", [0.08, 0.0, 0.005], '"y"'),
 )
-#: The example's layout before this study (benchmarks.make_bracket_example's sensors at the time).
+#: The example's layout before this study (benchmarks.make.bracket_example's sensors at the time).
 ORIGINAL = tuple(range(6))
 
 

@@ -286,10 +286,10 @@ def timing(name: str = "two_effects.csv") -> int:
 
 
 def seeds(n: int, names: list[str] | None = None) -> int:
-    """The cases of ``benchmarks.make_effects2`` with ``n`` other noise seeds each (1000 + case seed * 10 + k):
+    """The cases of ``benchmarks.make.effects2`` with ``n`` other noise seeds each (1000 + case seed * 10 + k):
     how often each verdict comes out, and whether the first effect found is the true kind within 20 mm."""
-    from benchmarks.make_effects import noisy
-    from benchmarks.make_effects2 import CASES, place
+    from benchmarks.make.effects import noisy
+    from benchmarks.make.effects2 import CASES, place
     from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ as F
     from fe_core.closure.effects import Applied, build_library, extended_frf
 

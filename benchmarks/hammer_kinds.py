@@ -3,7 +3,7 @@
     python -m benchmarks.hammer_kinds              # three updates of data/benchmark/hammer.uff, ~1-2 min each
     python -m benchmarks.hammer_kinds --intervals  # with the 95 % intervals (minutes more per run)
 
-``data/benchmark/hammer.uff`` (accelerance, :mod:`benchmarks.make_hammer`) is
+``data/benchmark/hammer.uff`` (accelerance, :mod:`benchmarks.make.hammer`) is
 read and written again as receptance and as mobility (UFF58, 12 significant
 digits, the same channels, lines and coherence; :func:`tasks.io.measured.write_measured`);
 each file is updated with the default settings and seed 0 (``python -m flows.update

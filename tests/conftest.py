@@ -21,7 +21,8 @@ from threadpoolctl import threadpool_limits  # noqa: E402
 threadpool_limits(1)
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = REPO.parent / "shared"
+#: The benchmark's independent reference values, kept in the repository (data/benchmark/EXPECTED.md says whence).
+EXPECTED = REPO / "data" / "benchmark" / "expected.json"
 
 
 @pytest.fixture
@@ -38,10 +39,7 @@ def benchmark_model():
 
 @pytest.fixture(scope="session")
 def expected() -> dict:
-    path = SHARED / "benchmark" / "expected.json"
-    if not path.exists():
-        pytest.fail(f"{path} is missing: the tests need shared/ beside the repository")
-    return json.loads(path.read_text())
+    return json.loads(EXPECTED.read_text())
 
 
 # -- a small tet model file (mesh pictures, model.vtu) ------------------------------------------------

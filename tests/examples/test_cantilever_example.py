@@ -1,7 +1,7 @@
 """Example (b) with an undeclared effect: the closure finds the point mass scikit-fem's measurement carries.
 
 ``data/examples/cantilever_matrices/measured_point_mass.csv`` is scikit-fem's own FRF (its matrices, its
-condensation, scipy's direct solve; ``python -m benchmarks.make_matrix_example``) of the cantilever with a
+condensation, scipy's direct solve; ``python -m benchmarks.make.matrix_example``) of the cantilever with a
 0.6 kg point mass at node 208 that ``model.toml`` does not declare, 0.5 % noise. The README shows the same
 through ``python -m flows.update ... --close-loop``; here the closure's core runs from the nominal model
 (alpha = 0, as ``benchmarks.closure`` does), without an MRGP run first.

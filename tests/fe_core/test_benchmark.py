@@ -1,4 +1,5 @@
-"""The three-plate model against the independent reference in shared/benchmark/expected.json."""
+"""The three-plate model against the independent reference in data/benchmark/expected.json (a copy of the
+benchmark specification's, data/benchmark/EXPECTED.md)."""
 
 from __future__ import annotations
 

@@ -33,11 +33,11 @@ def test_the_benchmark_model_file_gives_three_plates_frf():
 
 
 def test_the_benchmark_model_file_against_expected_json():
-    """The file's sensor points and FRF against shared/benchmark/expected.json (an independent implementation)."""
+    """The file's sensor points and FRF against data/benchmark/expected.json (an independent implementation)."""
     import json
     import tomllib
 
-    expected = json.loads((REPO.parent / "shared" / "benchmark" / "expected.json").read_text())
+    expected = json.loads((REPO / "data" / "benchmark" / "expected.json").read_text())
     spec = tomllib.loads((REPO / "data" / "benchmark" / "model.toml").read_text())
     xyz = np.array(expected["frf"]["sensor_xyz_m"])
     # Decimal literals in two text files, parsed to the nearest double on any CPU: equal to round-off.
@@ -245,7 +245,7 @@ def test_several_excitations_need_a_choice(tmp_path):
 # -- matrices exported by scikit-fem ------------------------------------------------------------
 def test_imported_scikit_fem_matrices_give_scikit_fems_frf(tmp_path):
     """A coarser mesh of example (b): our FRF from the files against scikit-fem + scipy's direct solve."""
-    from benchmarks.make_matrix_example import DAMPING, skfem_model, write_files
+    from benchmarks.make.matrix_example import DAMPING, skfem_model, write_files
     from skfem import condense
 
     fem = skfem_model(n_x=10, n_y=1, n_z=1)
@@ -286,7 +286,7 @@ def test_segment_mass_factors_are_updated_where_asked_and_recovered_from_scikit_
     """``update = ["stiffness", "mass"]`` on seg2 and seg3: the parameter vector is [alpha_1..4, gamma_2, gamma_3];
     scikit-fem's own FRF with those segments' mass matrices scaled (an independent path) is the model's, and
     least squares from the nominal model (exact Jacobian with the gamma columns) recovers every factor."""
-    from benchmarks.make_matrix_example import skfem_frf, skfem_model, write_files
+    from benchmarks.make.matrix_example import skfem_frf, skfem_model, write_files
     from fe_core.inference.intervals import fit_log_amplitudes
 
     fem = skfem_model(n_x=10, n_y=1, n_z=1)
@@ -310,7 +310,7 @@ def test_segment_mass_factors_are_updated_where_asked_and_recovered_from_scikit_
 
 
 def test_npz_matrices_read_as_the_mtx_ones(tmp_path):
-    from benchmarks.make_matrix_example import skfem_model, write_files
+    from benchmarks.make.matrix_example import skfem_model, write_files
 
     write_files(skfem_model(n_x=6, n_y=1, n_z=1), tmp_path)
     text = (tmp_path / "model.toml").read_text()

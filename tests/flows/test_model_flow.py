@@ -59,7 +59,7 @@ def test_a_segment_mass_factor_is_updated_through_the_flow(reduced_config, tmp_p
 
     import pandas as pd
 
-    from benchmarks.make_matrix_example import ALPHA_TRUE, skfem_frf, skfem_model
+    from benchmarks.make.matrix_example import ALPHA_TRUE, skfem_frf, skfem_model
 
     folder = tmp_path / "model"
     shutil.copytree(EXAMPLE, folder)

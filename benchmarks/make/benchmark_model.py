@@ -1,6 +1,6 @@
 """Write the benchmark as a model file: ``data/benchmark/model.toml`` and its mesh ``three_plate.inp``.
 
-    python -m benchmarks.make_benchmark_model
+    python -m benchmarks.make.benchmark_model
 
 The mesh is :func:`fe_core.benchmark.three_plate`'s hex8 mesh, written with meshio as
 Abaqus input (17 significant digits) with the element sets ``plate1..3`` and
@@ -22,7 +22,7 @@ import meshio
 
 from fe_core import benchmark as b
 
-OUT = Path(__file__).resolve().parents[1] / "data" / "benchmark"
+OUT = Path(__file__).resolve().parents[2] / "data" / "benchmark"
 #: The sensor whose point and direction (u_z) the hammer hits: s5 has the largest driving-point
 #: response of the second mode (291 Hz) and a strong first mode.
 HAMMER_SENSOR = 5
@@ -33,7 +33,7 @@ def model_toml(mesh_name: str) -> str:
     points = [[float(f"{v:.12g}") for v in p] for p in b.sensor_positions()]
     lines = [
         "# The three-plate benchmark (shared/benchmark/SPEC.md) as a model file.",
-        "# Written by python -m benchmarks.make_benchmark_model; the name three_plate is a shortcut to it.",
+        "# Written by python -m benchmarks.make.benchmark_model; the name three_plate is a shortcut to it.",
         'units = "SI"',
         f'mesh = "{mesh_name}"',
         "point_tolerance = 1e-6  # m: the sensors sit on nodes",

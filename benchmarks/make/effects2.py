@@ -1,8 +1,8 @@
 """Harder closure data (issue 18): several effects, transducer masses, damage, sensor faults, far alpha.
 
-    python -m benchmarks.make_effects2           # data/effects2/*.csv, truth.json
+    python -m benchmarks.make.effects2           # data/effects2/*.csv, truth.json
 
-As :mod:`benchmarks.make_effects`: the benchmark FE model with effects, solved with the direct
+As :mod:`benchmarks.make.effects`: the benchmark FE model with effects, solved with the direct
 solver (not the Krylov FRF the closure uses), 0.5 % multiplicative noise on the amplitude from a
 fixed seed per file. ``truth.json`` is for tests and benchmarks only. The case ``outside_library``
 has an effect no library kind represents: a spring *between* two nodes of different plates (a
@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.make_effects import NOISE, noisy
+from benchmarks.make.effects import NOISE, noisy
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ, three_plate
 from fe_core.closure.effects import DOFS_PER_NODE, Applied, Effect, Terms, _free_position, build_library, extended_frf
 from tasks.io.measured import MeasuredFRF, write_measured
 
-OUT = Path(__file__).resolve().parents[1] / "data" / "effects2"
+OUT = Path(__file__).resolve().parents[2] / "data" / "effects2"
 #: Stiffness factors far from the nominal model (and from ALPHA_ACTUAL).
 ALPHA_FAR = np.array([-0.45, 0.55, 0.4, -0.35, 0.5, -0.4])
 

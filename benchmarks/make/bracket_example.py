@@ -1,6 +1,6 @@
 """Example (a): the tet10 L-bracket, measured on an independent finer mesh.
 
-    python -m benchmarks.make_bracket_example     # data/examples/bracket/{model,model_coarse}.toml,
+    python -m benchmarks.make.bracket_example     # data/examples/bracket/{model,model_coarse}.toml,
                                                   # measured.csv, truth.json
 
 The bracket (``data/examples/bracket/README.md``: foot with two bolt holes, web, two
@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-OUT = Path(__file__).resolve().parents[1] / "data" / "examples" / "bracket"
+OUT = Path(__file__).resolve().parents[2] / "data" / "examples" / "bracket"
 E, NU, RHO = 2.06e11, 0.3, 7850.0
 #: Rayleigh a [1/s], b [s]: damping ratios 1.4-1.6 % at the first five modes (300-3200 Hz).
 DAMPING = (50.0, 1.5e-6)
@@ -73,7 +73,7 @@ def model_text(mesh: str, tolerance: float, title: str) -> str:
     """The model file of the bracket on ``mesh`` (a path relative to the model file or absolute)."""
     lines = [
         f"# {title}",
-        "# Written by python -m benchmarks.make_bracket_example (README.md here).",
+        "# Written by python -m benchmarks.make.bracket_example (README.md here).",
         'units = "SI"',
         f'mesh = "{mesh}"',
         f"point_tolerance = {tolerance!r}   # m; each point's distance to its node is printed",

@@ -1,6 +1,6 @@
 """Write the benchmark measurement: the FE model at the SPEC's actual alpha, noise-free.
 
-    python -m benchmarks.make_measured            # data/benchmark/measured.{csv,parquet,uff}
+    python -m benchmarks.make.measured            # data/benchmark/measured.{csv,parquet,uff}
 
 The FRF uses the direct solver (the reference), and the file keeps the complex
 values as well as the amplitude.
@@ -14,7 +14,7 @@ from pathlib import Path
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ, three_plate
 from tasks.io.measured import MeasuredFRF, write_measured
 
-OUT = Path(__file__).resolve().parents[1] / "data" / "benchmark"
+OUT = Path(__file__).resolve().parents[2] / "data" / "benchmark"
 
 
 def main() -> int:

@@ -1,6 +1,6 @@
 """Example (b): a model given as matrices exported from another FE program (scikit-fem).
 
-    python -m benchmarks.make_matrix_example       # data/examples/cantilever_matrices/
+    python -m benchmarks.make.matrix_example       # data/examples/cantilever_matrices/
 
 A steel cantilever, 1.0 x 0.08 x 0.05 m, clamped at x = 0, meshed and assembled by
 scikit-fem (trilinear hexahedra, ``ElementVector(ElementHex1)``, 25 x 2 x 2 cells: 5 per segment).
@@ -31,7 +31,7 @@ import scipy.io
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-OUT = Path(__file__).resolve().parents[1] / "data" / "examples" / "cantilever_matrices"
+OUT = Path(__file__).resolve().parents[2] / "data" / "examples" / "cantilever_matrices"
 E, NU, RHO = 2.1e11, 0.3, 7850.0
 DAMPING = (10.0, 1e-5)         # Rayleigh a [1/s], b [s]: damping ratios 1.2-3.9 % at the measured modes
 LENGTH, WIDTH, HEIGHT = 1.0, 0.08, 0.05
@@ -135,7 +135,7 @@ def write_files(fem: dict, out: Path) -> None:
         scipy.io.mmwrite(str(out / f"M_{name}.mtx"), M, symmetry="symmetric", precision=17)
     clamped = sorted(set(int(n) for n in table[fem["fixed"], 0]))
     lines = [
-        "# A steel cantilever exported by scikit-fem as matrices (python -m benchmarks.make_matrix_example).",
+        "# A steel cantilever exported by scikit-fem as matrices (python -m benchmarks.make.matrix_example).",
         'units = "SI"',
         "",
         "[matrices]",

@@ -1,6 +1,6 @@
 """The benchmark measured as a modal test would: ``data/benchmark/hammer.uff``.
 
-    python -m benchmarks.make_hammer            # about a minute (1,600 direct solves)
+    python -m benchmarks.make.hammer            # about a minute (1,600 direct solves)
 
 An impact hammer hits sensor s5's point along z (the model file's excitation
 ``hammer``, test node 5); accelerometers at the six sensors measure u_z
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 OUT = REPO / "data" / "benchmark" / "hammer.uff"
 MODEL = REPO / "data" / "benchmark" / "model.toml"
 SEED = 16
@@ -101,13 +101,13 @@ def write_uff(path: Path, f_hz: np.ndarray, H1: np.ndarray, coherence: np.ndarra
         record6 = dict(load_case_id=0, rsp_node=j + 1, rsp_dir=3, ref_node=HAMMER_NODE, ref_dir=3)
         sets.append(pyuff.prepare_58(
             binary=0, id1=f"H1 accelerance {j + 1}:+Z/{HAMMER_NODE}:+Z", id2=f"impact test, {N_AVERAGES} averages",
-            id3="simulated by benchmarks.make_hammer", id4="NONE", id5="NONE", func_type=4, **record6,
+            id3="simulated by benchmarks.make.hammer", id4="NONE", id5="NONE", func_type=4, **record6,
             abscissa_spacing=1, abscissa_spec_data_type=18, abscissa_axis_units_lab="Hz",
             ordinate_spec_data_type=12, ordinate_axis_units_lab="m/s^2", orddenom_spec_data_type=13,
             orddenom_axis_units_lab="N", data=H1[:, j].copy(), x=f_hz.copy()))
         sets.append(pyuff.prepare_58(
             binary=0, id1=f"coherence {j + 1}:+Z/{HAMMER_NODE}:+Z", id2=f"impact test, {N_AVERAGES} averages",
-            id3="simulated by benchmarks.make_hammer", id4="NONE", id5="NONE", func_type=6, **record6,
+            id3="simulated by benchmarks.make.hammer", id4="NONE", id5="NONE", func_type=6, **record6,
             abscissa_spacing=1, abscissa_spec_data_type=18, abscissa_axis_units_lab="Hz",
             ordinate_spec_data_type=0, orddenom_spec_data_type=0, data=coherence[:, j].copy(), x=f_hz.copy()))
     tmp = path.with_name(path.name + ".tmp")
