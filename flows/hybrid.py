@@ -53,13 +53,17 @@ def run_hybrid(problem, config, store: RunStore) -> tuple[int, dict]:
     return iteration, {**last, "stop_reason": reason, "converged": bool(verdict["at_floor"]), "candidates": None}
 
 
-def run_history(store: RunStore, iterations: int | None = None) -> list[dict]:
+def run_history(store, iterations: int | None = None) -> list[dict]:
     """Every FE run of a run in evaluation order: ``round`` (counted over the whole run), ``x``, ``error``
-    (overall error, inf for a failed run), ``jacobian``, ``cost`` (FE-run equivalents)."""
+    (overall error, inf for a failed run), ``jacobian``, ``cost`` (FE-run equivalents). ``store``: a
+    :class:`RunStore` or the run folder; any strategy's run (the paper loop's iterations are one round each)."""
+    store = store if isinstance(store, RunStore) else RunStore(store)
     runs = record.fe_runs(store, iterations)
     names = record.parameter_columns(runs)
     out, offset = [], 0
-    for (k, stage), g in runs.groupby(["iteration", "stage"], sort=True):
+    order = {s: i for i, s in enumerate(record.FE_STAGE_ORDER)}
+    for (k, _, stage), g in runs.assign(rank=runs["stage"].map(order)).groupby(["iteration", "rank", "stage"],
+                                                                              sort=True):
         for row in g.sort_values("sample_id").itertuples(index=False):
             d = row._asdict()
             out.append({"round": offset + int(d["round"]), "x": np.array([d[n] for n in names], float),

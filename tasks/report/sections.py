@@ -50,8 +50,10 @@ def run_intro(data: RunData) -> list[str]:
         f"Run folder {data.root} ({done}).",
         f"Strategy {cfg.get('strategy', '?')}, trainer {cfg.get('trainer', '?')}, seed {cfg.get('seed', '?')}, "
         f"model {cfg.get('model', '?')}, measured data {cfg.get('measured', '?')}.",
-        f"{int(data.errors['iteration'].max())} iterations and "
+        f"{int(data.errors['iteration'].max())} {'cycles' if cfg.get('strategy') == 'hybrid' else 'iterations'} and "
         f"{(data.summary or {}).get('fe_evaluations', len(data.samples))} FE runs"
+        + (f" ({data.summary['jacobians']} with their exact Jacobian, {data.summary['fe_equivalents']:g} FE-run "
+           f"equivalents, {data.summary['rounds']} rounds)" if (data.summary or {}).get("jacobians") else "")
         + (f" ({len(data.polish)} of them in the polish stage)" if data.polish is not None else "") + "; "
         f"reported overall error {err:.3%}" + (f" (sample {sid})" if sid >= 0 else "") + ".",
     ]

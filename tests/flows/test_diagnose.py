@@ -224,3 +224,24 @@ def test_a_model_given_as_matrices_is_diagnosed_and_effects_needing_a_mesh_are_r
     table = np.loadtxt(example / "dofs.csv", delimiter=",", skiprows=1, dtype=str)
     nodes = {int(n) for n in table[:, 0]}
     assert all(int(c["location"].split()[1]) in nodes for c in summary["candidates"] if c["type"] == "point_mass")
+
+
+@pytest.mark.slow
+def test_a_closure_run_is_reported_and_its_stages_rerun(diagnosed, capsys):
+    """The tools around a run know a run with a closure: the report draws the closure beside the update, and a
+    stage of the update reruns from its stored inputs into a folder of its own."""
+    from flows import report
+    from tasks.runstore import RunStore
+
+    root, summary, _ = diagnosed
+    assert report.main(["--run-id", root.name, "--runs-dir", str(root.parent)]) == 0
+    page = Path(capsys.readouterr().out.strip().splitlines()[-1])
+    text = page.read_text()
+    assert "Close the loop" in text and f"Verdict: {summary['verdict']}" in text
+    for png in ("closure_residuals.png", "closure_candidates.png", "closure_frf.png", "frf_overview.png"):
+        assert (page.parent / png).stat().st_size > 5000
+    store = RunStore(root)
+    original = store.read_table(1, "train", "hyperparameters")
+    out = update.rerun_stage(root, 1, "train", trainer="sao")
+    assert store.stage_info(1, out.name.split("=", 1)[1])["trainer"] == "sao"
+    pd.testing.assert_frame_equal(store.read_table(1, "train", "hyperparameters"), original)

@@ -167,3 +167,43 @@ def test_the_intervals_cost_is_measured_in_fe_runs_of_the_hybrid_update(hybrid_r
     assert cost["fe_run_seconds"] == pytest.approx(fe_run, abs=5e-5)  # stored rounded to 4 decimals
     assert cost["fe_run_equivalents"] == pytest.approx(2.0, abs=0.01)
     assert cost["share_of_update_fe_runs"] == pytest.approx(2.0 / summary["fe_equivalents"], rel=1e-2)
+
+
+def test_the_strategy_in_memory_makes_the_flows_fe_runs(hybrid_run, measured_file):
+    """One strategy, two drivers: :class:`mrgp_core.strategies.hybrid.Hybrid` through ``run_loop`` with FE runs
+    made here asks for the same points, in the same rounds, as the flow's stages did."""
+    from flows.hybrid import run_history
+    from flows.rerun import run_problem
+    from fe_core.solvers.sensitivity import frf_jacobian
+    from mrgp_core.strategies.base import Outcome, run_loop
+    from mrgp_core.strategies.hybrid import Hybrid
+    from tasks.common import fitted
+    from tasks.hybrid import hybrid_options
+
+    summary, store = hybrid_run
+    config = UpdateConfig(run_id="hybrid", runs_dir=str(store.root.parent), measured=str(measured_file), **SETTINGS)
+    problem = run_problem(config)
+    line, channel = problem.data.cells
+
+    def evaluate(batch):
+        out = []
+        for x, jac in zip(batch.points, batch.jacobian):
+            if jac:
+                Z, dZ = frf_jacobian(problem.model, x, problem.freqs_hz, channels=problem.channels)
+                out.append(Outcome(Z[line, channel], dZ[line, channel], JACOBIAN_COST))
+            else:
+                Z = problem.model.parameter_frf(x, problem.freqs_hz, problem.channels)
+                out.append(Outcome(Z[line, channel]))
+        return out
+
+    residual, layout = fitted(problem.data)
+    strategy = Hybrid(problem.nominal, residual, layout, *problem.solver_box, hybrid_options(config))
+    decision = run_loop(strategy, evaluate)
+    flow = run_history(store)
+    memory = strategy.result().history  # (round, x, error, with_jacobian, phase)
+    assert decision.stop and decision.converged == summary["converged"]
+    assert len(memory) == len(flow) == summary["fe_evaluations"]
+    for (rnd, x, error, jac, _), h in zip(memory, flow):
+        assert rnd == h["round"] and jac == h["jacobian"]
+        np.testing.assert_allclose(x, h["x"], rtol=0, atol=1e-12)
+        assert error == pytest.approx(h["error"], rel=1e-9)

@@ -59,6 +59,9 @@ def runs(tmp_path_factory, harness) -> Path:
     update.update_flow(UpdateConfig(run_id="repeats", **{**base, "repeats": 2}))
     update.update_flow(UpdateConfig(run_id="conventional", **{**base, "repeats": 2, "strategy": "conventional",
                                                                 "conventional_samples": 12}))
+    # The default strategy (hybrid) on the benchmark, with its intervals: 18 FE runs with Jacobians.
+    update.update_flow(UpdateConfig(run_id="hybrid", **{**base, "strategy": "hybrid", "intervals": True,
+                                                          "max_fe_evaluations": 240}))
     return runs_dir
 
 
@@ -232,6 +235,52 @@ def test_closure_results_and_unknown_stages_are_reported_and_the_frf_cache_is_re
     assert "Close the loop" in text and "point_mass @ node 412" in text and "Polish-stage points" in text
     assert "<td>5%</td>" in text and "<td>0.6%</td>" in text  # overall errors before and after
     assert "future-stage" in text
+
+
+#: What the report draws for a run of the default strategy: no sampling distributions or MRGP training times
+#: (the hybrid's emulator is fitted inside its global stage, and this run needed none).
+HYBRID_FIGURES = {"frf_overview.png", "frf_zoom.png", "residual_map.png", "error_overall.png", "error_per_sensor.png",
+                  "samples.png", "parameters.png", "intervals.png", "mesh_segments.png", "mesh_factors.png"}
+
+
+def test_report_of_a_default_strategy_run_draws_its_fe_runs_and_intervals(runs, capsys):
+    assert report.main(["--run-id", "hybrid", "--runs-dir", str(runs)]) == 0
+    page = Path(capsys.readouterr().out.strip().splitlines()[-1])
+    text = check_report(page, HYBRID_FIGURES)
+    data = load_run(runs / "hybrid")
+    summary = json.loads((runs / "hybrid" / "summary.json").read_text())
+    assert len(data.samples) == summary["fe_evaluations"] == 18 and data.polish is None
+    assert set(data.stages["stage"]) == {"local", "check", "intervals"} and data.stages["known"].all()
+    assert data.best()[2] == pytest.approx(summary["overall_error"])
+    assert "Strategy hybrid" in text and "1 cycles and 18 FE runs (18 with their exact Jacobian" in text
+
+
+def test_rerun_of_each_stage_of_a_default_strategy_run(runs, capsys):
+    """From the stored inputs: the check and the intervals with another noise level, the local stage read back
+    from its stored FE runs (none made again); the original stages are untouched."""
+    from flows import update
+    from tasks.fe_runs import read_fe_log
+    from tasks.runstore import RunStore
+
+    store = RunStore(runs / "hybrid")
+    log_before = len(read_fe_log(store.root))
+    check = store.stage_info(1, "check")
+    assert check["at_floor"] and check["sigma_source"] == "none"  # the target was reached: no test made
+    out = update.rerun_stage(store.root, 1, "check", noise=0.2)
+    assert out.name.startswith("stage=check.rerun-noise0.2-") and store.stage_info(1, "check") == check
+    out = update.rerun_stage(store.root, 1, "intervals", noise=0.01)
+    iv, original = store.stage_info(1, out.name.split("=", 1)[1]), store.stage_info(1, "intervals")
+    assert iv["noise_sigma"] == 0.01 and iv["interval_details"]["noise_source"] == "given"
+    assert original["noise_sigma"] < 1e-6  # noise-free data: the estimated noise is round-off
+    assert iv["intervals"]["alpha_1"][1] - iv["intervals"]["alpha_1"][0] > 1e3 * (
+        original["intervals"]["alpha_1"][1] - original["intervals"]["alpha_1"][0])
+    assert update.main(["rerun", "--run-id", "hybrid", "--runs-dir", str(runs), "--stage", "local"]) == 0
+    folder = Path(capsys.readouterr().out.split("rerun written to ")[1].strip())
+    again = pd.read_parquet(folder / "runs.parquet")
+    pd.testing.assert_frame_equal(again, store.read_table(1, "local", "runs"))
+    assert len(read_fe_log(store.root)) == log_before  # every FE run read back, none made again
+    with pytest.raises(update.ConfigError, match="choose one of local, global, check, intervals"):
+        update.rerun_stage(store.root, 1, "train")
 
 
 def test_report_cli_refuses_a_missing_run_and_a_folder_without_manifest(tmp_path, capsys):
