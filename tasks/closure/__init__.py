@@ -3,7 +3,9 @@
 * :mod:`.store`: the closure's folder (steps of checksummed Parquet tables) and the conversions of its
   tables to fits and candidates;
 * :mod:`.steps`: the settings, the effect library and the four tasks (baseline, screen, check, decide);
-* :mod:`.summary`: ``closure.json`` and the candidates' table.
+* :mod:`.summary`: ``closure.json`` and the candidates' table;
+* :mod:`.intervals`: the 95 % intervals of the extended model for ``closure.json``;
+* :mod:`.plot`: the residual maps before and after (``residuals.png``).
 
 Everything goes under ``<run folder>/closure/`` (or another name), one
 sub-folder per step with Parquet tables written atomically and a

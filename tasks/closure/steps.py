@@ -256,7 +256,7 @@ def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: 
     summary.update(_verdict_json(verdict, steps, implausible, library, final, sel))
     # Issue 19: 95 % intervals and the covariance of alpha and every added effect's value (the effects of the
     # forward selection, in the order added, as in parameters_after).
-    from tasks.closure_intervals import closure_interval_fields
+    from tasks.closure.intervals import closure_interval_fields
 
     summary.update(closure_interval_fields(model, freqs, u, final, list(summary["parameters_after"]),
                                            settings["noise"], settings["alpha_bounds"]))
@@ -266,7 +266,7 @@ def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: 
     summary["frf_table"] = "frf_closure.parquet"
     atomic_write_json(store.root / "closure.json", summary)
     try:
-        from tasks.closure_plot import plot_residuals
+        from tasks.closure.plot import plot_residuals
 
         summary["plot"] = str(plot_residuals(store.root))
         atomic_write_json(store.root / "closure.json", summary)

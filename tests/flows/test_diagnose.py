@@ -122,7 +122,7 @@ def test_closure_intervals_cover_every_effect_of_a_forward_selection(benchmark_m
     from fe_core.closure.fits import fit_update
     from fe_core.closure.effects import Applied, build_library, extended_frf
     from tasks.closure.summary import _params
-    from tasks.closure_intervals import closure_interval_fields
+    from tasks.closure.intervals import closure_interval_fields
 
     library = {e.kind: e for e in build_library(benchmark_model, ["point_mass", "grounded_spring"])}
     pm, gs = library["point_mass"], library["grounded_spring"]
