@@ -205,3 +205,24 @@ def test_the_prefect_ui_shows_the_run_its_iterations_their_tasks_and_logs(server
     time.sleep(1.5)
     shot = _screenshot(browser, tmp_path, "prefect-ui-iteration.png")
     assert shot.exists()
+
+
+@pytest.mark.slow
+def test_the_prefect_ui_shows_a_run_of_the_default_strategy_its_cycles_and_their_stages(server, browser, tmp_path):
+    """The default (hybrid) strategy in the UI: its cycle subflows, each with its FE stage and check, and the
+    FE stage's log lines (the cantilever example: a local cycle, then its check)."""
+    base, env = server
+    proc = subprocess.run([sys.executable, "-m", "flows.update", "--model", "data/examples/cantilever_matrices/"
+                           "model.toml", "--measured", "data/examples/cantilever_matrices/measured.csv",
+                           "--run-id", "ui-hybrid", "--runs-dir", str(tmp_path / "runs"),
+                           "--n-jobs", "1", "--no-intervals"],
+                          cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    parent, = _api(base, "/flow_runs/filter", {"flow_runs": {"name": {"any_": ["update-ui-hybrid"]}}})
+    cycles = _api(base, "/flow_runs/filter", {"flow_runs": {"parent_flow_run_id": {"any_": [parent["id"]]}}})
+    assert parent["state_type"] == "COMPLETED" and [c["name"] for c in cycles] == ["cycle-1"]
+    tasks = _api(base, "/task_runs/filter", {"flow_runs": {"id": {"any_": [cycles[0]["id"]]}}})
+    assert sorted(t["name"] for t in tasks) == ["iteration-1-check", "iteration-1-local"]
+    browser.get(f"{base}/runs/flow-run/{cycles[0]['id']}")
+    _wait_for_text(browser, ["cycle-1", "update-ui-hybrid", "2 Task runs", "iteration 1, stage local: 1/1 FE runs done",
+                             "iteration 1, stage check:"])
