@@ -186,7 +186,8 @@ def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closu
     return diagnose_flow(run_id, str(closure_root), dict(settings), run_info, problem, measurements)
 
 
-def print_closure(summary: dict, file=sys.stdout) -> None:
+def print_closure(summary: dict, file=None) -> None:
+    file = file or sys.stdout
     print(file=file)
     print(f"closure: {summary['decision']}", file=file)
     rb, ra = summary["residual_before"], summary["residual_after"]
@@ -251,7 +252,8 @@ def print_closure(summary: dict, file=sys.stdout) -> None:
         print(f"{summary['fe_solves']} FE solves, {summary['wall_seconds']:.1f} s", file=file)
 
 
-def print_closure_intervals(summary: dict, file=sys.stdout) -> None:
+def print_closure_intervals(summary: dict, file=None) -> None:
+    file = file or sys.stdout
     """The 95 % intervals of the extended model's parameters (issue 19), if closure.json has them."""
     iv = summary.get("intervals")
     if not iv:

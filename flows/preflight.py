@@ -127,39 +127,54 @@ def check_band(config: UpdateConfig, measured, model) -> None:
         )
 
 
-def check_resume(config: UpdateConfig, root: Path, resumable: set[str], model_checksum: str | None = None) -> None:
-    """An existing run folder may be resumed only with the settings and the model it was started with
-    (``model_checksum``: of the model file and its mesh/matrices now)."""
-    manifest = root / "manifest.json"
-    if not manifest.exists():
-        return
-    try:
-        record = json.loads(manifest.read_text())
-        old = stored_settings(record["config"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ConfigError(f"{manifest}: unreadable run manifest ({exc}); choose a new --run-id") from None
-    if record.get("record_version") != RECORD_VERSION:
-        raise ConfigError(f"{manifest}: run {root.name!r} was made by an earlier version of this tool (another layout "
-                          "of its run folder); finish it with that version or choose a new --run-id")
-    check_model_unchanged(config, manifest, record, model_checksum)
-    cfg = config.to_dict()
-    changed = sorted(k for k in cfg if k not in resumable and old.get(k, cfg[k]) != cfg[k])
-    if changed:
-        raise ConfigError(
-            f"{manifest}: run {root.name!r} was started with other settings ({', '.join(changed)}); "
-            "resume with the same settings or choose a new --run-id"
-        )
+def check_resume(config: UpdateConfig, root: Path, resumable: set[str], inputs: dict | None = None) -> None:
+    """An existing run folder may be resumed only with the inputs and settings it was started with.
+
+    ``inputs``: the checksums of what the run reads now (:func:`flows.problem.input_checksums`: the model file
+    with its mesh/matrices, the measured file). Every difference is named in one message (exit 2), with how to
+    start a new run instead; a run folder is never read back against other data.
+    """
+    manifests = [root / "manifest.json"] if (root / "manifest.json").exists() else sorted(
+        root.glob("repeat=*/manifest.json"))
+    for manifest in manifests[:1]:  # the repeats of one run share its inputs and settings
+        try:
+            record = json.loads(manifest.read_text())
+            old = stored_settings(record["config"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ConfigError(f"{manifest}: unreadable run manifest ({exc}); choose a new --run-id") from None
+        if record.get("record_version") != RECORD_VERSION:
+            raise ConfigError(f"{manifest}: run {root.name!r} was made by an earlier version of this tool (another "
+                              "layout of its run folder); finish it with that version or choose a new --run-id")
+        problems = changed_inputs(record, inputs or {}, config)
+        cfg = {**config.to_dict(), "repeats": old.get("repeats", config.repeats)}
+        problems += [f"setting {k} ({old.get(k)!r} then, {cfg[k]!r} now)" for k in sorted(cfg)
+                     if k not in resumable and old.get(k, cfg[k]) != cfg[k]]
+        if problems:
+            hint = ""
+            if any(p.startswith("setting noise") for p in problems):
+                hint = ("; to see the check or the intervals with another noise level, rerun those stages: "
+                        f"python -m flows.update rerun --run-id {root.name} --stage check --noise <sigma>")
+            raise ConfigError(f"{manifest}: run {root.name!r} was started with other inputs: "
+                              f"{'; '.join(problems)}. Its stored results belong to those; resume with the same "
+                              f"inputs, or start a new run with another --run-id (e.g. {root.name}-2){hint}")
 
 
-def check_model_unchanged(config: UpdateConfig, manifest: Path, record: dict, checksum: str | None) -> None:
-    """A run on a model file resumes only if the file and its mesh/matrices are unchanged (SHA-256)."""
-    stored = record.get("model_checksum")
-    if stored is None or checksum is None or record.get("config", {}).get("model") != config.model:
-        return
-    if checksum != stored:
-        raise ConfigError(f"{manifest}: run {manifest.parent.name!r} was started with another version of the model "
-                          f"file {config.model} or its mesh/matrices (checksum differs); restore them or choose a "
-                          "new --run-id")
+#: The files a run reads, as named in its manifest's checksums, and the config key that names each.
+INPUT_FILES = {"model_checksum": ("model", "the model file and the files it refers to"),
+               "measured_checksum": ("measured", "the measured file")}
+
+
+def changed_inputs(record: dict, inputs: dict, config: UpdateConfig) -> list[str]:
+    """What of a run's input files changed since its manifest was written (same name, other content)."""
+    out = []
+    for key, (setting, what) in INPUT_FILES.items():
+        stored, now = record.get(key), inputs.get(key)
+        if stored is None or now is None or record.get("config", {}).get(setting) != getattr(config, setting):
+            continue  # a name that changed is reported as a setting; a run made before the checksum existed
+        if stored != now:
+            out.append(f"{what} {getattr(config, setting)} (its content changed since the run was started: "
+                       "SHA-256 differs)")
+    return out
 
 
 def expected_output_mb(config: UpdateConfig, n_values: int, m: int) -> float:

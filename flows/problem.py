@@ -9,6 +9,8 @@ key; nothing has been written into the run folder then.
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 from flows import preflight
@@ -18,13 +20,15 @@ from tasks.io.measured import MeasuredDataError, read_measured
 from tasks.problem import Problem, read_model_ref, search_box
 from tasks.update_data import UpdateData, update_data
 
-__all__ = ["resolve", "load_model", "prepare_data", "n_modes", "emulates_modes", "RESUMABLE_CHANGES"]
+__all__ = ["resolve", "load_model", "prepare_data", "n_modes", "emulates_modes", "input_checksums",
+           "RESUMABLE_CHANGES"]
 
 #: Config keys that may change between a run and its resume.
 # (where FE runs execute does not change their results: fe_backend, dask_address).
-# (intervals, noise and posterior_fe change only the intervals stage, computed again when they changed.)
+# (intervals and posterior_fe change only the intervals stage, computed again when they changed; noise shapes the
+# hybrid's stored checks too, so a resume must keep it: `rerun --stage check --noise` shows another.)
 RESUMABLE_CHANGES = {"n_jobs", "run_id", "runs_dir", "repeats", "min_free_mb", "fe_backend", "dask_address",
-                     "intervals", "noise", "posterior_fe"}
+                     "intervals", "posterior_fe"}
 
 
 def load_model(name: str):
@@ -71,6 +75,12 @@ def n_modes(model, freqs_hz) -> int:
         k = min(2 * k, available)
 
 
+def input_checksums(config: UpdateConfig, ref) -> dict:
+    """SHA-256 of what a run reads: the model file with its mesh/matrices (``ref``), the measured file."""
+    digest = hashlib.sha256(config.resolve(config.measured).read_bytes()).hexdigest()
+    return {"model_checksum": ref.checksum, "measured_checksum": digest}
+
+
 def resolve(config: UpdateConfig) -> Problem:
     """The run's :class:`Problem`, after every check that needs no run folder: measured data, model, resume
     settings, disk, the Dask cluster."""
@@ -79,7 +89,8 @@ def resolve(config: UpdateConfig) -> Problem:
     data = prepare_data(config, measured, model)
     preflight.check_inputs(config, data, model)
     root = config.resolve(config.runs_dir) / config.run_id
-    preflight.check_resume(config, root, RESUMABLE_CHANGES, ref.checksum)
+    inputs = input_checksums(config, ref)
+    preflight.check_resume(config, root, RESUMABLE_CHANGES, inputs)
     required = config.min_free_mb or 2 * preflight.expected_output_mb(
         config, max(data.amplitude.size, data.n_values), model.n_parameters)
     preflight.check_disk(config, root, required)
@@ -90,4 +101,4 @@ def resolve(config: UpdateConfig) -> Problem:
             raise ConfigError(str(exc)) from None
     lower, upper = search_box(model, config.lower, config.upper)
     modes = n_modes(model, data.frequencies_hz) if emulates_modes(config) else 0
-    return Problem(model, ref, data, lower, upper, modes)
+    return Problem(model, ref, data, lower, upper, modes, inputs)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flows import preflight
 from flows import problem as problems
 from flows.config import ConfigError, UpdateConfig, stored_settings
 from tasks import hybrid as hybrid_tasks
@@ -37,13 +38,20 @@ def rerunnable(strategy: str) -> tuple[str, ...]:
     return (*own, INTERVALS_STAGE)
 
 
-def run_problem(config: UpdateConfig) -> Problem:
-    """The problem of a stored run (its model, measured data and box, from its config)."""
+def run_problem(config: UpdateConfig, manifest: dict | None = None, where: Path | None = None) -> Problem:
+    """The problem of a stored run (its model, measured data and box, from its config). With the run's
+    ``manifest`` (at ``where``), a model or measured file whose content changed since is refused (ConfigError)."""
     model, ref = problems.load_model(config.model)
+    inputs = problems.input_checksums(config, ref)
+    if manifest is not None:
+        changed = preflight.changed_inputs(manifest, inputs, config)
+        if changed:
+            raise ConfigError(f"{where}: {'; '.join(changed)}: the run's stored results belong to the files as they "
+                              "were; restore them, or start a new run with another --run-id")
     data = problems.prepare_data(config, read_measured(config.resolve(config.measured)), model)
     lower, upper = search_box(model, config.lower, config.upper)
     modes = problems.n_modes(model, data.frequencies_hz) if problems.emulates_modes(config) else 0
-    return Problem(model, ref, data, lower, upper, modes)
+    return Problem(model, ref, data, lower, upper, modes, inputs)
 
 
 def rerun_stage(run_root: Path, iteration: int, stage: str, trainer: str | None = None, noise: float | None = None,
@@ -67,7 +75,7 @@ def rerun_stage(run_root: Path, iteration: int, stage: str, trainer: str | None 
                                                  ("posterior_fe", posterior_fe)) if v is not None})
     label = trainer or (f"noise{noise:g}" if noise is not None else config.trainer)
     name = f"{stage}.rerun-{label}-{dt.datetime.now(dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')}"
-    problem = run_problem(config)
+    problem = run_problem(config, manifest, store.manifest_path)
     root = str(store.root)
     if stage == "train":
         paper_tasks.train_task.fn(root, problem, config, iteration, trainer=config.trainer, output_stage=name)

@@ -117,8 +117,7 @@ def write_manifest(store: RunStore, config: UpdateConfig, problem=None) -> None:
         "versions": {"python": sys.version.split()[0], **package_versions()},
         "git_commit": git_commit(),
         "stages": list(HYBRID_STAGES if config.strategy == "hybrid" else PAPER_STAGES),
-        **({"model_checksum": problem.ref.checksum, "measured_data": problem.data.manifest_entry()}
-           if problem is not None else {}),
+        **({**problem.inputs, "measured_data": problem.data.manifest_entry()} if problem is not None else {}),
     })
 
 

@@ -188,7 +188,8 @@ def _stats(x: np.ndarray) -> dict:
             "min": float(np.min(x)), "max": float(np.max(x))}
 
 
-def print_summary(summary: dict, file=sys.stdout) -> None:
+def print_summary(summary: dict, file=None) -> None:
+    file = file or sys.stdout
     print(file=file)
     print(f"run folder: {summary.get('run_folder', '')}", file=file)
     extra = (f" ({summary['jacobians']} with Jacobian, {summary['fe_equivalents']:g} FE-run equivalents; "

@@ -120,15 +120,19 @@ class Problem:
         The parameters, the columns of the run's tables (``alpha_i``, then ``gamma_j``).
     modes : int
         Modes each FE run gives for the paper loop's modal emulation (0: none).
+    inputs : dict
+        SHA-256 of the files the run reads (``model_checksum``, ``measured_checksum``), for its manifest.
     """
 
-    __slots__ = ("model", "ref", "data", "lower", "upper", "names", "modes")
+    __slots__ = ("model", "ref", "data", "lower", "upper", "names", "modes", "inputs")
 
-    def __init__(self, model, ref: ModelRef, data, lower: np.ndarray, upper: np.ndarray, modes: int = 0):
+    def __init__(self, model, ref: ModelRef, data, lower: np.ndarray, upper: np.ndarray, modes: int = 0,
+                 inputs: dict | None = None):
         self.model, self.ref, self.data = model, ref, data
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
         self.names = list(model.parameter_names)
         self.modes = int(modes)
+        self.inputs = dict(inputs or {"model_checksum": ref.checksum})
 
     def __repr__(self) -> str:
         values = "" if self.data is None else f", values={self.data.n_values}"
@@ -160,4 +164,4 @@ class Problem:
         return self.data.channels
 
     def with_modes(self, modes: int) -> "Problem":
-        return Problem(self.model, self.ref, self.data, self.lower, self.upper, modes)
+        return Problem(self.model, self.ref, self.data, self.lower, self.upper, modes, self.inputs)

@@ -128,5 +128,6 @@ def test_resuming_after_the_model_file_changed_is_refused(tmp_path, capsys):
     before = (runs / "r" / "manifest.json").read_bytes()
     code = update.main(["--model", str(tmp_path / "model.toml"), "--runs-dir", str(runs), "--run-id", "r"])
     err = capsys.readouterr().err
-    assert code == 2 and "another version of the model file" in err and "manifest.json" in err
+    assert code == 2 and f"the model file and the files it refers to {tmp_path / 'model.toml'} (its content changed" in err
+    assert "manifest.json" in err and "--run-id" in err
     assert (runs / "r" / "manifest.json").read_bytes() == before
