@@ -15,7 +15,7 @@ from tasks import hybrid as tasks
 from tasks import record
 from tasks.runstore import RunStore
 
-__all__ = ["cycle_flow", "run_hybrid", "run_history"]
+__all__ = ["cycle_flow", "run_hybrid", "run_history", "stop_reason"]
 
 
 @flow(name="cycle", flow_run_name="cycle-{iteration}", log_prints=True)
@@ -47,10 +47,25 @@ def run_hybrid(problem, config, store: RunStore) -> tuple[int, dict]:
             break
         if used["cost"] + config.s + tasks.JACOBIAN_COST >= config.max_fe_evaluations:
             break
-    verdict = last["check"]
-    reason = (f"cycle {iteration} ({'local' if iteration == 1 else 'global'}): {last['phase']['status']}; "
-              f"check: {verdict['reason']}")
-    return iteration, {**last, "stop_reason": reason, "converged": bool(verdict["at_floor"]), "candidates": None}
+    reported = record.best_run(record.fe_runs(store, iteration))
+    at_best = None
+    if last["check"].get("sample_id") != int(reported["sample_id"]):
+        # The reported point is not where the last check looked (a later cycle found no better point, or none):
+        # check the reported point itself, so that the stop reason and the convergence speak of it.
+        at_best = tasks.check_point(store, problem, config, reported)
+    reason, converged = stop_reason(iteration, last, reported, at_best)
+    return iteration, {**last, "stop_reason": reason, "converged": converged, "candidates": None}
+
+
+def stop_reason(iteration: int, last: dict, reported, at_best=None) -> tuple[str, bool]:
+    """(why the run stopped, whether it converged): the last cycle's stage and check, or, when the reported
+    point (``reported``: the best FE run, a row of the run record) is not the one the last check looked at, the
+    check at the reported point (``at_best``: a :class:`mrgp_core.strategies.hybrid.Check`)."""
+    where = f"cycle {iteration} ({'local' if iteration == 1 else 'global'}): {last['phase']['status']}"
+    if at_best is None:
+        return f"{where}; check: {last['check']['reason']}", bool(last["check"]["at_floor"])
+    return (f"{where}; the reported point, sample {int(reported['sample_id'])} of cycle {int(reported['iteration'])} "
+            f"(overall error {reported['overall_error']:.4%}): {at_best.reason}", bool(at_best.at_floor))
 
 
 def run_history(store, iterations: int | None = None) -> list[dict]:

@@ -30,7 +30,7 @@ from tasks.fe_runs import JACOBIAN_COST, FEStage
 from tasks.runstore import RunStore
 
 __all__ = ["HYBRID_STAGES", "LOCAL_STAGE", "GLOBAL_STAGE", "CHECK_STAGE", "hybrid_options", "local_task",
-           "global_task", "check_task", "JACOBIAN_COST", "RERUNNABLE"]
+           "global_task", "check_task", "check_point", "JACOBIAN_COST", "RERUNNABLE"]
 
 LOCAL_STAGE, GLOBAL_STAGE, CHECK_STAGE = "local", "global", "check"
 HYBRID_STAGES = (LOCAL_STAGE, GLOBAL_STAGE, CHECK_STAGE)
@@ -128,6 +128,16 @@ def global_task(root: str, problem, config, iteration: int, minima, output_stage
                      output_stage)
 
 
+def check_point(store: RunStore, problem, config, run):
+    """The check (:func:`mrgp_core.strategies.hybrid.check`) at one stored FE run (a row of the run record)."""
+    data = problem.data
+    p, n = data.amplitude.shape
+    Z, _ = record.grid(record.responses(store, int(run["iteration"]), [int(run["sample_id"])]), p, n, problem.m)
+    residual, layout = fitted(data)
+    line, channel = data.cells
+    return check(Z[line, channel], residual, layout, problem.m, hybrid_options(config))
+
+
 @task(name="check", task_run_name="iteration-{iteration}-check", cache_policy=NO_CACHE)
 def check_task(root: str, problem, config, iteration: int, output_stage: str = CHECK_STAGE) -> dict:
     """Noise or structure at the best minimum of this cycle's stage (:func:`mrgp_core.strategies.hybrid.check`)."""
@@ -151,7 +161,8 @@ def check_task(root: str, problem, config, iteration: int, output_stage: str = C
         residual, layout = fitted(data)
         line, channel = data.cells
         verdict = check(Z[line, channel], residual, layout, problem.m, hybrid_options(config))
-        out.update({"at_floor": bool(verdict.at_floor or best["status"] == "target"), "reason": verdict.reason,
+        out.update({"sample_id": sid, "at_floor": bool(verdict.at_floor or best["status"] == "target"),
+                    "reason": verdict.reason,
                     "rms": verdict.rms, "sigma": verdict.sigma if np.isfinite(verdict.sigma) else None,
                     "sigma_source": verdict.sigma_source, "p_chi2": verdict.p_chi2, "minimum": best,
                     "noise_config": config.noise})

@@ -207,3 +207,34 @@ def test_the_strategy_in_memory_makes_the_flows_fe_runs(hybrid_run, measured_fil
         assert rnd == h["round"] and jac == h["jacobian"]
         np.testing.assert_allclose(x, h["x"], rtol=0, atol=1e-12)
         assert error == pytest.approx(h["error"], rel=1e-9)
+
+
+def test_a_run_that_ends_on_its_budget_states_the_reported_points_check(tmp_path, measured_file, prefect_harness):
+    """Issue 33: the stop reason speaks of the reported point. A budget that ends inside the global cycle: the
+    last check looked at the reported point, or the stop reason checks the reported point itself."""
+    config = UpdateConfig(run_id="budget", runs_dir=str(tmp_path / "runs"), measured=str(measured_file),
+                          **{**SETTINGS, "max_fe_evaluations": 40})
+    summary = update.update_flow(config)
+    last = RunStore(tmp_path / "runs" / "budget").stage_info(summary["iterations"], htasks.CHECK_STAGE)
+    assert summary["iterations"] == 2 and not summary["converged"]
+    assert (last["sample_id"] == summary["best_sample_id"]
+            or f"the reported point, sample {summary['best_sample_id']}" in summary["stop_reason"])
+
+
+def test_the_stop_reason_quotes_the_check_of_the_reported_point_when_the_last_cycle_found_worse():
+    """The case of the issue: a last global cycle ending on its budget at 25.5 %, the reported point at 1.79 %
+    from cycle 2."""
+    from flows.hybrid import stop_reason
+    from mrgp_core.strategies.hybrid import Check
+
+    last = {"phase": {"status": "budget"},
+            "check": {"sample_id": 120, "at_floor": False, "reason": "rms 25.5% vs noise 1% (configured): structure"}}
+    reported = pd.Series({"sample_id": 41, "iteration": 2, "overall_error": 0.0179})
+    assert stop_reason(4, last, reported) == ("cycle 4 (global): budget; check: rms 25.5% vs noise 1% (configured): "
+                                              "structure", False)
+    at_best = Check(True, "rms 1.2% vs noise 1% (configured); chi2 80 on 66 dof, p = 0.1: noise", 0.012, 0.01,
+                    "configured", 0.1)
+    reason, converged = stop_reason(4, last, reported, at_best)
+    assert converged and "25.5" not in reason
+    assert reason == ("cycle 4 (global): budget; the reported point, sample 41 of cycle 2 (overall error 1.7900%): "
+                      "rms 1.2% vs noise 1% (configured); chi2 80 on 66 dof, p = 0.1: noise")
