@@ -24,13 +24,7 @@ default), with ``correlation.html`` (printed at the end).
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("DO_NOT_TRACK", "1")
-os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-os.environ.setdefault("PREFECT_CLOUD_ENABLE_ORCHESTRATION_TELEMETRY", "false")
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from flows import environment  # noqa: F401  (first: the environment Prefect starts in)
 
 import argparse  # noqa: E402
 import json  # noqa: E402

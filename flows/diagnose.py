@@ -34,12 +34,7 @@ Examples::
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("DO_NOT_TRACK", "1")
-os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from flows import environment  # noqa: F401  (first: the environment Prefect starts in)
 
 import argparse  # noqa: E402
 import json  # noqa: E402
@@ -54,7 +49,9 @@ from fe_core.closure.fits import ALPHA_BOUNDS  # noqa: E402
 from fe_core.closure.effects import registered_effects  # noqa: E402
 from flows.config import REPO, ConfigError  # noqa: E402
 from flows.problem import load_model  # noqa: E402
+from tasks.closure.summary import STATUSES  # noqa: E402
 from tasks.problem import Problem  # noqa: E402
+from tasks.runstore import atomic_write_json  # noqa: E402
 from tasks.closure import steps as ct  # noqa: E402
 from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
 
@@ -134,6 +131,7 @@ def diagnose_flow(run_id: str, closure_root: str, settings: dict, run_info: dict
     ct.check_task(closure_root, problem, settings, freqs, u)
     summary = ct.decide_task(closure_root, problem, settings, freqs, sensors, u, run_info)
     summary["wall_seconds"] = round(time.perf_counter() - t0, 3)
+    atomic_write_json(Path(closure_root) / "closure.json", summary)  # the record is what the command returns
     return summary
 
 
@@ -181,33 +179,35 @@ def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closu
         raise DiagnoseError(f"--significance must lie in (0, 1), got {settings['significance']}")
     closure_root = root / name
     ct.ClosureStore(closure_root).write_settings(dict(settings))
-    run_info = {"run_id": run_id, "run_folder": str(root), "parameters": summary["parameters"], "selection": selection}
+    data = manifest.get("measured_data", {})
+    metric = (f"Eq. (6b) of the run's {data['residual']} residual over {data['values']} values" if data else
+              "Eq. (6b) of the run's residual")
+    run_info = {"run_id": run_id, "run_folder": str(root), "parameters": summary["parameters"], "selection": selection,
+                "overall_error": summary.get("overall_error"), "error_metric": metric}
     problem = Problem(model, ref, None, np.full(len(alpha), lower), np.full(len(alpha), upper))
     return diagnose_flow(run_id, str(closure_root), dict(settings), run_info, problem, measurements)
 
 
 def print_closure(summary: dict, file=None) -> None:
+    """The closure's printout, rendered from closure.json's fields alone (what is printed is what is recorded)."""
     file = file or sys.stdout
     print(file=file)
     print(f"closure: {summary['decision']}", file=file)
     rb, ra = summary["residual_before"], summary["residual_after"]
     print(f"residual before: rms {rb['rms']:.3%}, noise {rb['sigma']:.3%} ({rb['sigma_source']}), chi2 "
           f"{rb['chi2']:.1f} on {rb['dof']} dof, p = {rb['p_chi2']:.3g}", file=file)
-    print(f"residual after:  rms {ra['rms']:.3%}, chi2 {ra['chi2']:.1f} on {ra['dof']} dof, p = {ra['p_chi2']:.3g}",
-          file=file)
-    e = summary["effect"]
+    print(f"residual after:  rms {ra['rms']:.3%}, noise {ra['sigma']:.3%} ({ra['sigma_source']}), chi2 "
+          f"{ra['chi2']:.1f} on {ra['dof']} dof, p = {ra['p_chi2']:.3g}", file=file)
     verdict = summary.get("verdict")
     if verdict is not None:
         print(f"verdict: {verdict}", file=file)
         for e in summary.get("effects", []):
-            evidence = f", evidence {e['evidence']:.0%}" if "evidence" in e else ""
-            if verdict not in ("explained", "ambiguous"):
-                word = "candidate (structure remains, not a finding)"
-            else:
-                word = "added" if e.get("identified", True) else "added, not singled out"
+            evidence = (f", evidence {e['evidence']:.0%} ("
+                        f"{'singled out' if e['identified'] else 'not singled out'} among the rivals checked there)")
             moved = f" (moved from {', '.join(e['moved_from'])})" if e.get("moved_from") else ""
-            print(f"  {e['step']}. {word}: {e['type']} at {e['location']}{moved}, {e['parameter']} = {e['value']:.4g} "
-                  f"{e['unit']}, explains {e['explained']:.1%} of the residual then{evidence}", file=file)
+            print(f"  {e['step']}. {STATUSES[e['status']]}: {e['type']} at {e['location']}{moved}, {e['parameter']} = "
+                  f"{e['value']:.4g} {e['unit']}, explains {e['explained']:.1%} of the residual then{evidence}",
+                  file=file)
             if e.get("locations_95", 0) > 1:
                 far = f", up to {e['spread_mm']:.0f} mm away" if e.get("spread_mm") is not None else ""
                 pinned = "" if e.get("located", True) else ": the location is not pinned down"
@@ -216,30 +216,30 @@ def print_closure(summary: dict, file=None) -> None:
             for r in e.get("rivals", []):
                 print(f"       or {r['type']} at {r['location']} = {r['value']:.4g} {r['unit']} (extended BIC "
                       f"{r['delta_ebic']:+.1f}, evidence {r['evidence']:.0%})", file=file)
-        if verdict == "ambiguous":
-            print("  the data cannot tell an added effect from its rivals or its place from others far off: "
-                  "none of them is a finding", file=file)
         for s in summary.get("swaps", []):
             print(f"  swapped: {s}", file=file)
         for e in summary.get("implausible", []):
             print(f"  implausible (fit ends on a plausibility bound): {e['type']} at {e['location']}, "
                   f"{e['parameter']} = {e['value']:.4g} {e['unit']}", file=file)
-    elif e is not None:
-        print(f"effect: {e['type']} at {e['location']}, {e['parameter']} = {e['value']:.4g} {e['unit']}"
-              + (f"  {e['details']}" if e["details"] else ""), file=file)
-    print(f"overall error: {summary['error_before']:.3%} -> {summary['error_after']:.3%} "
-          f"(noise floor {summary['noise_floor']:.3%})", file=file)
+    floor = (f"noise floor {summary['noise_floor']:.3%} ({summary['noise_floor_source']})"
+             if summary.get("noise_floor") is not None else f"noise floor {summary.get('noise_floor_source')}")
+    print(f"overall error ({summary['error_metric']}): at the run's parameters {summary['error_at_run_parameters']:.3%}"
+          f" -> refitted without effects {summary['error_before']:.3%} -> with them {summary['error_after']:.3%}; "
+          f"{floor}", file=file)
+    if summary.get("error_run") is not None:
+        print(f"  (the run reported {summary['error_run']:.3%}: {summary['error_run_metric']})", file=file)
     print("per-sensor error: " + ", ".join(
         f"{k.split('_')[-1]}: {summary['per_sensor_error_before'][k]:.2%} -> {v:.2%}"
         for k, v in summary["per_sensor_error_after"].items()), file=file)
     run = summary.get("parameters_run") or {}
     before, after = summary["parameters_before"], summary["parameters_after"]
-    print(f"{'parameter':<22} {'run':>9} {'before':>9} {'after':>11}", file=file)
+    width = max(22, *map(len, after))
+    print(f"{'parameter':<{width}} {'run':>9} {'before':>9} {'after':>11}", file=file)
     for k in after:
         r, b = run.get(k), before.get(k)
-        print(f"{k:<22} {'-' if r is None else f'{r:9.4f}':>9} {'-' if b is None else f'{b:9.4f}':>9} "
+        print(f"{k:<{width}} {'-' if r is None else f'{r:9.4f}':>9} {'-' if b is None else f'{b:9.4f}':>9} "
               f"{after[k]:>11.4g}", file=file)
-    print("(run: the updating run's result; before: alpha-only least squares from it; after: with the effect)",
+    print("(run: the updating run's result; before: alpha-only least squares from it; after: with the effects)",
           file=file)
     print_closure_intervals(summary, file)
     print("candidates (best first):", file=file)

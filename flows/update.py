@@ -28,18 +28,7 @@ temporary local API for the run; nothing leaves the machine.
 
 from __future__ import annotations
 
-import os
-
-# Offline and quiet by default; an explicit environment wins.
-os.environ.setdefault("DO_NOT_TRACK", "1")
-os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-os.environ.setdefault("PREFECT_CLOUD_ENABLE_ORCHESTRATION_TELEMETRY", "false")
-# The temporary local API must start on a busy 2-core machine too (Prefect's default: 20 s).
-os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
-# One BLAS thread per process: the MRGP's small dense algebra is ~15x slower with
-# OpenBLAS's default threading on 2 cores, and FE workers run in parallel anyway.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from flows import environment  # noqa: F401  (first: the environment Prefect starts in)
 
 import argparse  # noqa: E402
 import datetime as dt  # noqa: E402

@@ -25,7 +25,7 @@ from prefect.cache_policies import NO_CACHE
 from mrgp_core.strategies.hybrid import BudgetSpent, HybridOptions, Ledger, check, global_phase, local_phase
 from mrgp_core.strategies.ledger import drive
 from tasks import record
-from tasks.common import done, fitted, logger
+from tasks.common import done, fitted, heartbeat, logger
 from tasks.fe_runs import JACOBIAN_COST, FEStage
 from tasks.runstore import RunStore
 
@@ -97,7 +97,9 @@ def _fe_stage(root: str, problem, config, iteration: int, stage: str, phase_of, 
     t0 = time.perf_counter()
     try:
         label = stage if stage == LOCAL_STAGE else f"{stage}-{iteration - 1}"
-        minima = drive(phase_of(ledger, lower, upper, options), ledger, evaluate, label)
+        with heartbeat(f"iteration {iteration}, stage {out}", lambda: f"{runner.rounds} rounds, {len(runner.rows)} "
+                                                                      "FE runs so far"):
+            minima = drive(phase_of(ledger, lower, upper, options), ledger, evaluate, label)
         minima = minima if isinstance(minima, list) else [minima]
         status = minima[0].status if minima else "budget"
     except BudgetSpent:

@@ -30,6 +30,7 @@ from prefect.cache_policies import NO_CACHE
 
 from fe_core.inference.intervals import parameter_intervals
 from fe_core.inference.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
+from tasks.common import beating
 from tasks.common import logger as run_logger
 from tasks.runstore import RunStore
 
@@ -41,6 +42,7 @@ POSTERIOR_TABLE = "posterior"
 
 
 @task(name="intervals", task_run_name="iteration-{iteration}-intervals", cache_policy=NO_CACHE)
+@beating("intervals (Gauss-Newton to the least-squares optimum, checks, the sampled posterior)")
 def intervals_task(root: str, problem, config, iteration: int, start, output_stage: str = INTERVALS_STAGE) -> dict:
     """Intervals near ``start`` (shape (n_parameters,), the run's best parameters); returns the stage record's info.
 

@@ -24,7 +24,7 @@ from prefect.cache_policies import NO_CACHE
 from mrgp_core.modal_outputs import ModalLayout
 from mrgp_core.strategies import paper as steps
 from tasks import record
-from tasks.common import done, finish, fitted, logger
+from tasks.common import beating, done, finish, fitted, logger
 from tasks.fe_runs import FEStage
 from tasks.runstore import RunStore
 
@@ -213,6 +213,7 @@ def _previous_hyperparameters(store: RunStore, iteration: int) -> dict | None:
 
 
 @task(name="train", task_run_name="iteration-{iteration}-train", cache_policy=NO_CACHE, retries=1)
+@beating("train (the MRGP's hyper-parameters)")
 def train_task(root: str, problem, config, iteration: int, trainer: str | None = None,
                output_stage: str = "train") -> dict:
     """MRGP training on all FE data so far; the hyper-parameters are stored, not the model."""
@@ -244,6 +245,7 @@ def train_task(root: str, problem, config, iteration: int, trainer: str | None =
 
 
 @task(name="predict", task_run_name="iteration-{iteration}-predict", cache_policy=NO_CACHE)
+@beating("predict (the candidates on the MRGP)")
 def predict_task(root: str, problem, config, iteration: int, train_stage: str = "train",
                  output_stage: str = "predict") -> dict:
     """Step g: draw ``w`` candidates and predict their overall errors with the trained MRGP."""

@@ -244,12 +244,14 @@ def multistart_update(model: ParametricModel, freqs_hz, amplitude, alpha_start=N
         raise ValueError("no start point: give alpha_start or n_starts > 0")
     best = None
     total = 0
-    for x0 in starts:  # coarse fits from every start, then the best one to full tolerance
+    for k, x0 in enumerate(starts, start=1):  # coarse fits from every start, then the best one to full tolerance
         fit = fit_update(model, freqs_hz, amplitude, x0, alpha_bounds=alpha_bounds,
                          **{**kwargs, "tol": coarse_tol} if len(starts) > 1 else kwargs)
         total += fit.evaluations
         if best is None or fit.rss < best.rss:
             best = fit
+        log.info("alpha-only fit %d of %d starts: rss %.4g after %d FE solves (best %.4g)", k, len(starts), fit.rss,
+                 fit.evaluations, best.rss)
     if len(starts) > 1:
         best = fit_update(model, freqs_hz, amplitude, best.alpha, alpha_bounds=alpha_bounds, **kwargs)
         total += best.evaluations
@@ -270,7 +272,9 @@ def baseline(model: ParametricModel, freqs_hz, amplitude, alpha_start, noise: fl
     u = np.asarray(amplitude, float)
     base = fit_update(model, freqs_hz, u, alpha_start, alpha_bounds=alpha_bounds)
     before = analyse_residual(base.residual, freqs_hz, base.n_parameters, noise, significance, base.relative(u))
+    log.info("alpha-only fit from the run's parameters: %d FE solves; %s", base.evaluations, before.summary())
     if before.structured and restarts > 0:
+        log.info("the residual is structure: alpha-only fits from %d more starts", restarts)
         other = multistart_update(model, freqs_hz, u, None, restarts, seed, alpha_bounds)
         other.evaluations += base.evaluations
         if other.rss < base.rss:

@@ -328,7 +328,9 @@ def swap_pass(model, freqs_hz, amplitude, current: Fit, steps: list[Candidate], 
                                     reference=incumbent.ebic)
         score(without, checked + [incumbent])
         rivals[j] = checked + [incumbent]
-        plausible = [c for c in checked if not c.implausible]
+        # A contender moved onto the incumbent's own place is the incumbent again, not a swap.
+        plausible = [c for c in checked if not c.implausible
+                     and (c.effect, c.location) != (incumbent.effect, incumbent.location)]
         best = min(plausible, key=lambda c: c.ebic, default=None)
         if best is not None and best.ebic < incumbent.ebic - 1e-6:
             swaps.append(f"{incumbent.effect} at {incumbent.location} -> {best.effect} at {best.location} "
@@ -372,7 +374,9 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
     u = np.asarray(amplitude, float)
     by_kind = {e.kind: e for e in library}
     always = [k for k in always if k in by_kind]
-    current, sigma = start, analysis.sigma
+    # The noise the rest is tested against: the configured level, else estimated anew from each residual (a level
+    # estimated from the first, structured residual is an upper bound and would call too much noise).
+    current, sigma = start, analysis.sigma if analysis.sigma_source == "configured" else None
     steps = list(steps)
     rounds = [list(r) for r in rounds]
     implausible: list[Candidate] = []

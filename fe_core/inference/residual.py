@@ -31,6 +31,7 @@ import numpy as np
 from scipy import stats
 
 __all__ = [
+    "STRUCTURED_ESTIMATE",
     "log_residual",
     "relative_residual",
     "overall_error",
@@ -153,6 +154,10 @@ def runs_test(residual: np.ndarray, freqs_hz) -> tuple[int, float, float]:
     return runs, float(z), float(stats.norm.cdf(z))
 
 
+#: ``ResidualAnalysis.sigma_source`` of a noise level estimated from a residual the test calls structure.
+STRUCTURED_ESTIMATE = "estimated from a residual that is structure: an upper bound, not the measured noise"
+
+
 @dataclass(frozen=True)
 class ResidualAnalysis:
     """Statistics of one residual (see :func:`analyse_residual`)."""
@@ -176,7 +181,14 @@ class ResidualAnalysis:
     noise_floor: float
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return {**asdict(self), "noise_known": self.noise_known}
+
+    @property
+    def noise_known(self) -> bool:
+        """Whether ``sigma`` is the measurement's noise: configured, or estimated from a residual the test calls
+        noise. A level estimated from a residual that is structure is an upper bound only (the structure's
+        curvature along frequency adds to it), labelled so and never the floor for calling the rest noise."""
+        return self.sigma_source in ("configured", "estimated")
 
     def summary(self) -> str:
         verdict = "structure" if self.structured else "noise"
@@ -216,6 +228,8 @@ def analyse_residual(residual: np.ndarray, freqs_hz, n_fitted: int, noise: float
     T, dof, p = chi_square_test(r, sigma, n_fitted)
     runs, z, p_runs = runs_test(r, freqs_hz)
     rel = np.expm1(r) if relative is None else np.asarray(relative, float)
+    if source == "estimated" and p < significance:
+        source = STRUCTURED_ESTIMATE
     return ResidualAnalysis(
         n_values=int(r.size), n_fitted=int(n_fitted), rss=float(np.sum(r**2)), rms=float(np.sqrt(np.mean(r**2))),
         sigma=sigma, sigma_source=source, sigma_estimated=estimated, chi2=T, dof=dof, p_chi2=p,

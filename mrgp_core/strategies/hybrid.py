@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fe_core.inference.residual import chi_square_test, estimate_noise
+from fe_core.inference.residual import STRUCTURED_ESTIMATE, chi_square_test, estimate_noise
 
 from .base import Batch, Evaluate, StopDecision, run_loop
 from .gauss_newton import Residual
@@ -95,11 +95,13 @@ def check(Z: np.ndarray, residual: Residual, layout: Layout, n_fitted: int, opti
             return Check(False, "the noise cannot be estimated (no band of three complete lines) and is not "
                                 "configured: treated as structure", rms, float("nan"), "none", 0.0)
     T, dof, p_chi2 = chi_square_test(r, sigma, n_fitted)
+    at_floor = p_chi2 >= options.significance or rms <= options.noise_ratio * sigma
+    if source == "estimated" and (sigma > options.max_noise or not at_floor):
+        source = STRUCTURED_ESTIMATE  # a level estimated from a residual that is structure bounds the noise only
     reason = f"rms {rms:.3%} vs noise {sigma:.3%} ({source}); chi2 {T:.1f} on {dof} dof, p = {p_chi2:.3g}"
-    if source == "estimated" and sigma > options.max_noise:
+    if source == STRUCTURED_ESTIMATE and sigma > options.max_noise:
         return Check(False, f"{reason}; but an estimated noise of {sigma:.1%} is above the {options.max_noise:.0%} "
                             "believed for measured amplitudes: structure", rms, sigma, source, p_chi2)
-    at_floor = p_chi2 >= options.significance or rms <= options.noise_ratio * sigma
     why = "noise" if p_chi2 >= options.significance else (f"rms within {options.noise_ratio:g} x the noise"
                                                            if at_floor else "structure")
     return Check(at_floor, f"{reason}: {why}", rms, sigma, source, p_chi2)

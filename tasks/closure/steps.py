@@ -31,6 +31,7 @@ from tasks.closure.store import (
     residual_table,
 )
 from tasks.closure.summary import _candidates_frame, _closure_json, _verdict_json
+from tasks.common import beating, heartbeat
 from tasks.runstore import atomic_write_bytes, atomic_write_json
 
 __all__ = [
@@ -87,6 +88,7 @@ def _cached_library(model, effects) -> dict:
 
 # -- tasks ---------------------------------------------------------------------------------------------
 @task(name="closure-baseline", cache_policy=NO_CACHE)
+@beating("closure baseline (alpha-only least squares from the run's parameters and the restarts)")
 def baseline_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: np.ndarray, u: np.ndarray) -> dict:
     """Alpha-only least squares from the run's parameters; residual and its analysis. ``problem``: the run's
     :class:`tasks.problem.Problem` (its model)."""
@@ -107,6 +109,7 @@ def baseline_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors
 
 
 @task(name="closure-screen", cache_policy=NO_CACHE)
+@beating("closure screen (every candidate effect, linearised)")
 def screen_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndarray) -> dict:
     """Linearised explained share of every candidate effect at the baseline."""
     store = ClosureStore(root)
@@ -175,10 +178,14 @@ def check_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndar
                                   settings["alpha_bounds"]) for k, c in todo)
         if todo:
             parallel = Parallel(n_jobs=settings.get("n_jobs", 1), backend="loky", return_as="generator_unordered")
-            for k, record in parallel(jobs):
-                store.write_table("check", f"check={k:03d}", pd.DataFrame([record]))
-                logger.info("closure check %d/%d: %s at %s, rss %.3g (%d FE solves)", k + 1, len(picked),
-                            record["effect"], record["location"], record["rss"], record["evaluations"])
+            count = [len(picked) - len(todo)]
+            with heartbeat("closure checks", lambda: f"{count[0]} of {len(picked)} candidates checked"):
+                for k, record in parallel(jobs):
+                    store.write_table("check", f"check={k:03d}", pd.DataFrame([record]))
+                    count[0] += 1
+                    logger.info("closure check %d of %d (candidate %d): %s at %s, rss %.3g (%d FE solves)", count[0],
+                                len(picked), k + 1, record["effect"], record["location"], record["rss"],
+                                record["evaluations"])
         parts = [pd.read_parquet(store.path("check", f"check={k:03d}")) for k in range(len(picked))]
         checks = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(
             columns=["effect", "screened_location", "location", "moved_from", "values", "alpha", "rss",
@@ -193,6 +200,7 @@ def _indexed(k, *args):
 
 
 @task(name="closure-decide", cache_policy=NO_CACHE)
+@beating("closure decision (forward selection, moves, swaps, intervals)")
 def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: np.ndarray, u: np.ndarray,
                 run_info: dict) -> dict:
     """Scores, the decision, the updated model, residual tables and ``closure.json``.
@@ -207,7 +215,6 @@ def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: 
     model = problem.model
     library = _library(model, settings)
     base = _baseline_fit(store, model, freqs, u)
-    before_info = store.info("baseline")["analysis"]
     before = analyse_residual(base.residual, freqs, base.n_parameters, settings["noise"], settings["significance"],
                               base.relative(u))
     screened = {(c.effect, c.location): c for c in _screened(store)}
@@ -224,7 +231,9 @@ def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: 
     checked = decisions.dedupe(checked)
     chosen = decisions.decide(base, before, checked)
     final = chosen.fit if chosen is not None else base
-    after = analyse_residual(final.residual, freqs, final.n_parameters, before.sigma, settings["significance"],
+    # Tested against the configured noise, else the level estimated from this residual itself (never the first
+    # residual's estimate when that residual was structure: an upper bound, not the noise).
+    after = analyse_residual(final.residual, freqs, final.n_parameters, settings["noise"], settings["significance"],
                              final.relative(u))
     ranked = decisions.rank(decisions.merge(checked, list(screened.values())))
     steps, implausible = ([chosen] if chosen is not None else []), [c for c in checked if c.implausible]
@@ -251,9 +260,12 @@ def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: 
     # The report-facing copies: (frequency_hz, sensor, residual) at the closure folder's top.
     for name, step in (("residual_before", "baseline"), ("residual_after", "decide")):
         atomic_write_bytes(store.root / f"{name}.parquet", store.path(step, name).read_bytes())
-    summary = _closure_json(store, settings, run_info, base, final, chosen, before, after, ranked, library, u,
-                            sensors, freqs, before_info)
-    summary.update(_verdict_json(verdict, steps, implausible, library, final, sel))
+    # The run's own parameters on the closure's measure (one FE solve), so that "before" is not mistaken for the
+    # run's reported error when the run fitted another residual (complex, other lines).
+    at_run = np.abs(extended_frf(model, np.asarray(settings["alpha_start"], float), freqs)) / u - 1.0
+    summary = _closure_json(store, settings, run_info, base, final, before, after, ranked, library, u, sensors,
+                            freqs, _verdict_json(verdict, steps, implausible, library, final, sel),
+                            float(np.mean(np.abs(at_run))))
     # Issue 19: 95 % intervals and the covariance of alpha and every added effect's value (the effects of the
     # forward selection, in the order added, as in parameters_after).
     from tasks.closure.intervals import closure_interval_fields

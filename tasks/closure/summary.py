@@ -62,7 +62,7 @@ def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, f
     effects = []
     for k, (c, v, w, rv, sp, at) in enumerate(zip(steps, finals, weights, rivals, spreads, where), start=1):
         entry = {**_effect_entry(c, library, v), "explained": c.explained, "delta_ebic": c.delta_ebic, "step": k,
-                 "moved_from": list(c.moved_from),
+                 "moved_from": list(c.moved_from), "status": effect_status(verdict),
                  "evidence": w, "located": bool(at), "identified": bool(w >= IDENTIFIED and at),
                  "rivals": [{"type": r.effect, "location": r.location, "value": float(r.values[0]),
                              "unit": _unit(library[r.effect], r.location), "delta_ebic": r.delta_ebic,
@@ -73,6 +73,33 @@ def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, f
     return {"verdict": verdict, "effects": effects,
             "implausible": [{**_effect_entry(c, library), "explained": c.explained} for c in implausible],
             "swaps": list(sel.swaps) if sel is not None else [], "moves": list(sel.moves) if sel is not None else []}
+
+
+#: What an added effect is under each verdict, as closure.json's ``status`` and the printout say it.
+STATUSES = {"finding": "added", "ambiguous": "added, not a finding (the closure is ambiguous)",
+            "candidate": "candidate (structure remains, not a finding)"}
+
+
+def effect_status(verdict: str) -> str:
+    """``finding`` (verdict ``explained``: the data explain the residual with the effects and single each out),
+    ``ambiguous`` (they explain it, but a rival or another place does about as well: none is a finding) or
+    ``candidate`` (structure remains: not a finding). Whether the evidence singles out one effect among the
+    rivals checked in its place is its own field, ``identified`` (with ``located``: its place is pinned down)."""
+    return {"explained": "finding", "ambiguous": "ambiguous"}.get(verdict, "candidate")
+
+
+def decision_text(verdict: str, effects: list[dict], before, analysis_after) -> str:
+    """The closure's headline, from the final effects (their places after every move and swap)."""
+    if effects:
+        added = "; ".join(f"{STATUSES[e['status']].split(' (')[0]} {e['type']} at {e['location']}"
+                          + (f" (moved from {', '.join(e['moved_from'])})" if e.get("moved_from") else "")
+                          for e in effects)
+        return (f"{added}: the residual before is structure (chi-square p = {before.p_chi2:.3g}); after: "
+                f"{'noise' if not analysis_after.structured else 'structure remains'} "
+                f"(p = {analysis_after.p_chi2:.3g}); verdict {verdict}")
+    if not before.structured:
+        return f"no effect: the residual is noise (chi-square p = {before.p_chi2:.3g} >= {before.significance})"
+    return "no effect: no checked candidate lowers the extended BIC"
 
 
 def _unit(effect, location) -> str:
@@ -86,35 +113,25 @@ def _errors(fit, u, sensors):
     return overall_error(rel), {f"sensor_{int(s)}": float(v) for s, v in zip(sensors, per_sensor_error(rel))}
 
 
+def effect_parameter(kind: str, location: str, parameter: str) -> str:
+    """The one name of an effect's parameter in closure.json, its intervals and the printout:
+    ``<kind>@<location>.<parameter>``, e.g. ``point_mass@node 412.mass``."""
+    return f"{kind}@{location}.{parameter}"
+
+
 def _params(fit, library) -> dict:
     out = {f"alpha_{i + 1}": float(v) for i, v in enumerate(fit.alpha)}
-    for a in fit.applied:  # the effects in the order added; a second one of a kind is named by its location
-        key = a.effect.kind if not any(f"{a.effect.kind}." in k for k in out) else f"{a.effect.kind}@{a.location}"
-        out.update({f"{key}.{n}": float(v) for n, v in zip(a.effect.parameters, a.values)})
+    for a in fit.applied:  # the effects in the order added
+        out.update({effect_parameter(a.effect.kind, a.location, n): float(v)
+                    for n, v in zip(a.effect.parameters, a.values)})
     return out
 
 
-def _closure_json(store, settings, run_info, base, final, chosen, before, after, ranked, library, u, sensors,
-                  freqs, before_info) -> dict:
+def _closure_json(store, settings, run_info, base, final, before, after, ranked, library, u, sensors,
+                  freqs, verdict_part: dict, error_at_run: float) -> dict:
     e_before, s_before = _errors(base, u, sensors)
     e_after, s_after = _errors(final, u, sensors)
-    effect = None
-    if chosen is not None:
-        eff = library[chosen.effect]
-        effect = {"type": chosen.effect, "location": chosen.location,
-                  "value": float(chosen.fit.values[0]) if eff.n_parameters == 1 else
-                  dict(zip(eff.parameters, map(float, chosen.fit.values))),
-                  "parameter": eff.parameters[0], "unit": _unit(eff, chosen.location),
-                  "details": eff.describe(chosen.location), "moved_from": chosen.moved_from,
-                  "explained": chosen.explained, "delta_bic": chosen.delta_bic, "delta_ebic": chosen.delta_ebic}
-    if chosen is not None:
-        decision = (f"added {chosen.effect} at {chosen.location}: residual before is structure "
-                    f"(chi-square p = {before.p_chi2:.3g}) and its extended BIC is {-chosen.delta_ebic:.1f} "
-                    f"below the model without it")
-    elif not before.structured:
-        decision = f"no effect: the residual is noise (chi-square p = {before.p_chi2:.3g} >= {before.significance})"
-    else:
-        decision = "no effect: no checked candidate lowers the extended BIC"
+    effects = verdict_part["effects"]
     cands = []
     for k, c in enumerate(ranked[:CANDIDATES_IN_JSON], start=1):
         entry = {"rank": k, "type": c.effect, "location": c.location, "checked": c.fit is not None,
@@ -126,18 +143,28 @@ def _closure_json(store, settings, run_info, base, final, chosen, before, after,
                           "moved_from": c.moved_from})
         cands.append(entry)
     fe = base.evaluations + sum(c.fit.evaluations for c in ranked if c.fit is not None)
+    known = after if settings["noise"] is None else before  # the configured noise, or the level of what is left
     return {
         "run_id": run_info.get("run_id"),
         "run_folder": run_info.get("run_folder"),
         "measured": settings["measured"],
         "settings": dict(settings),
-        "decision": decision,
-        "effect": effect,
+        **verdict_part,
+        "decision": decision_text(verdict_part["verdict"], effects, before, after),
+        "effect": dict(effects[0]) if effects else None,  # the first effect added, as closure.json's effects[0]
+        "error_metric": (f"Eq. (6b) of the relative amplitude residual over the closure's {u.size} values (the lines "
+                         "where every channel is kept)"),
+        "error_run": run_info.get("overall_error"),
+        "error_run_metric": run_info.get("error_metric"),
+        "error_at_run_parameters": error_at_run,
         "error_before": e_before,
         "error_after": e_after,
         "per_sensor_error_before": s_before,
         "per_sensor_error_after": s_after,
-        "noise_floor": before.noise_floor,
+        "noise_floor": known.noise_floor if known.noise_known else None,
+        "noise_floor_source": (known.sigma_source if known.noise_known else
+                               "unknown: no noise configured, and the level estimated from the residual after the "
+                               "closure is an upper bound (that residual is structure)"),
         "parameters_run": run_info.get("parameters"),
         "parameters_before": _params(base, library),
         "parameters_after": _params(final, library),

@@ -47,7 +47,8 @@ def test_the_closure_of_a_reduced_run_names_the_point_mass_and_writes_its_tables
     assert effect["value"] == pytest.approx(truth["value"], rel=0.2)
     assert on_disk["error_after"] < on_disk["error_before"] / 5
     assert on_disk["parameters_run"] == json.loads((root / "summary.json").read_text())["parameters"]
-    assert "point_mass.mass" in on_disk["parameters_after"] and "point_mass.mass" not in on_disk["parameters_before"]
+    mass = f"point_mass@{effect['location']}.mass"  # one naming scheme: <kind>@<location>.<parameter>
+    assert mass in on_disk["parameters_after"] and mass not in on_disk["parameters_before"]
     for key in ("before", "after"):
         table = pd.read_parquet(closure / on_disk["residual_tables"][key])
         assert list(table.columns[:3]) == ["frequency_hz", "sensor", "residual"] and len(table) == 72
@@ -81,7 +82,8 @@ def test_closure_json_has_intervals_and_covariance_of_alpha_and_the_effect(diagn
     root, summary, _ = diagnosed
     on_disk = json.loads((root / "closure" / "closure.json").read_text())
     names = list(on_disk["parameters_after"])
-    assert list(on_disk["intervals"]) == names and names[-1] == "point_mass.mass"
+    mass = f"point_mass@{on_disk['effects'][0]['location']}.mass"
+    assert list(on_disk["intervals"]) == names and names[-1] == mass
     assert on_disk["interval_method"] == "laplace" and on_disk["noise_sigma"] == 0.005  # --noise given
     d = on_disk["interval_details"]
     est = np.array([d["estimate"][n] for n in names])
@@ -89,7 +91,7 @@ def test_closure_json_has_intervals_and_covariance_of_alpha_and_the_effect(diagn
     cov = np.array(on_disk["covariance"])
     z = stats.norm.ppf(0.975)
     np.testing.assert_allclose(high - low, 2 * z * np.sqrt(np.diag(cov)), rtol=1e-12)
-    assert low[-1] > 0 and "point_mass.mass" not in d["unpinned"]  # a real effect: told from its absence
+    assert low[-1] > 0 and mass not in d["unpinned"]  # a real effect: told from its absence
     # The covariance is sigma^2 (J^T J)^-1 with J the derivative of ln|Z| of the extended model at the estimate:
     # central differences of the Krylov FRF (steps of 1e-4 of each parameter's scale) as the reference.
     freqs = np.unique(pd.read_parquet(root / "closure" / "residual_after.parquet")["frequency_hz"])
@@ -107,7 +109,7 @@ def test_closure_json_has_intervals_and_covariance_of_alpha_and_the_effect(diagn
     assert on_disk["interval_cost"]["jacobians"] <= 3 and "exact" in on_disk["interval_cost"]["columns"]
     out = io.StringIO()
     dg.print_closure(on_disk, file=out)
-    assert "95 % intervals after the closure" in out.getvalue() and "point_mass.mass" in out.getvalue()
+    assert "95 % intervals after the closure" in out.getvalue() and mass in out.getvalue()
 
 
 def test_closure_intervals_cover_every_effect_of_a_forward_selection(benchmark_model):
@@ -132,14 +134,15 @@ def test_closure_intervals_cover_every_effect_of_a_forward_selection(benchmark_m
     final = fit_update(benchmark_model, freqs, u, ALPHA_ACTUAL, gs, "node 919", [2e5],
                        prior=[Applied(pm, "node 337", np.array([0.06]))], max_evaluations=300)
     names = list(_params(final, library))
-    assert names[6:] == ["point_mass.mass", "grounded_spring.k"]
+    assert names[6:] == ["point_mass@node 337.mass", "grounded_spring@node 919.k"]
     fields = closure_interval_fields(benchmark_model, freqs, u, final, names, 0.005, (-0.95, 1.0))
     assert list(fields["intervals"]) == names
     theta = np.r_[ALPHA_ACTUAL, 0.12, 4e5]
     for name, t in zip(names, theta):
         lo, hi = fields["intervals"][name]
         assert lo <= t <= hi, (name, lo, t, hi)
-    assert fields["intervals"]["point_mass.mass"][0] > 0 and fields["intervals"]["grounded_spring.k"][0] > 0
+    assert fields["intervals"]["point_mass@node 337.mass"][0] > 0
+    assert fields["intervals"]["grounded_spring@node 919.k"][0] > 0
     assert not any(n in fields["interval_details"]["unpinned"] for n in names[6:])
 
 

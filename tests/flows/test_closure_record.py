@@ -1,0 +1,85 @@
+"""One source of truth for a closure's result (issue 33): the printout is rendered from closure.json, field by
+field, on a closure run with moves and a swap and a noise level estimated from a structured residual."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import pytest
+
+from flows import diagnose as dg
+from flows import update
+from flows.config import REPO, UpdateConfig
+from fe_core.inference.residual import STRUCTURED_ESTIMATE
+from tasks.closure.summary import STATUSES
+
+#: data/effects2's far point mass: the forward selection with every registered effect makes moves and a swap
+#: (a patch replaced by a sensor gain), with the noise estimated (no --noise).
+DATA = REPO / "data" / "effects2" / "far_point_mass.csv"
+
+
+@pytest.fixture(scope="module")
+def closure(tmp_path_factory, reduced_settings_frozen, prefect_harness):
+    runs = tmp_path_factory.mktemp("closure-record")
+    config = UpdateConfig(run_id="far", runs_dir=str(runs), measured=str(DATA), **dict(reduced_settings_frozen))
+    summary = update.update_flow(config)
+    record = dg.diagnose("far", runs)
+    out = io.StringIO()
+    dg.print_closure(record, file=out)
+    on_disk = json.loads((runs / "far" / "closure" / "closure.json").read_text())
+    return summary, record, on_disk, out.getvalue().splitlines()
+
+
+@pytest.mark.slow
+def test_the_run_has_moves_and_a_swap(closure):
+    _, record, _, _ = closure
+    assert record["swaps"] and record["moves"]
+    for swap in record["swaps"]:  # a swap that changes nothing is not one
+        old, new = swap.split(" (extended BIC")[0].split(" -> ")
+        assert old != new
+
+
+@pytest.mark.slow
+def test_closure_json_has_no_contradicting_fields(closure):
+    summary, record, on_disk, _ = closure
+    assert record == on_disk  # what the command returns is what was written
+    effects = on_disk["effects"]
+    assert on_disk["effect"] == (effects[0] if effects else None)
+    verdict = on_disk["verdict"]
+    for e in effects:
+        assert e["status"] == {"explained": "finding", "ambiguous": "ambiguous"}.get(verdict, "candidate")
+        assert e["identified"] == (e["evidence"] >= 0.95 and e["located"])  # singled out in its place
+    # One naming scheme for the parameters: <kind>@<location>.<parameter>, the effects in the order added.
+    names = [f"alpha_{i}" for i in range(1, 7)] + [f"{e['type']}@{e['location']}.{p}" for e in effects
+                                                   for p in ([e["parameter"]] if not isinstance(e["value"], dict)
+                                                             else e["value"])]
+    assert list(on_disk["parameters_after"]) == names
+    # The errors: one measure, and the run's own figure beside it.
+    assert on_disk["error_run"] == pytest.approx(summary["overall_error"], rel=1e-12)
+    assert "amplitude residual" in on_disk["error_metric"] and "residual over" in on_disk["error_run_metric"]
+    assert on_disk["error_after"] <= on_disk["error_before"]
+
+
+@pytest.mark.slow
+def test_the_printout_says_what_closure_json_says(closure):
+    _, _, c, lines = closure
+    text = "\n".join(lines)
+    assert f"closure: {c['decision']}" in lines
+    headline = ", ".join(f"{e['type']} at {e['location']}" for e in c["effects"])
+    assert all(f"{e['type']} at {e['location']}" in c["decision"] for e in c["effects"]), headline
+    rb = c["residual_before"]
+    assert rb["structured"] and rb["sigma_source"] == STRUCTURED_ESTIMATE  # labelled, not called the noise
+    assert f"noise {rb['sigma']:.3%} ({STRUCTURED_ESTIMATE})" in text
+    for e in c["effects"]:
+        moved = f" (moved from {', '.join(e['moved_from'])})" if e["moved_from"] else ""
+        line = [x for x in lines if x.startswith(f"  {e['step']}. ")]
+        assert len(line) == 1
+        assert line[0].startswith(f"  {e['step']}. {STATUSES[e['status']]}: {e['type']} at {e['location']}{moved}, ")
+        assert f"evidence {e['evidence']:.0%} ({'singled out' if e['identified'] else 'not singled out'}" in line[0]
+    assert [x.split("swapped: ")[1] for x in lines if x.startswith("  swapped: ")] == c["swaps"]
+    assert (f"at the run's parameters {c['error_at_run_parameters']:.3%} -> refitted without effects "
+            f"{c['error_before']:.3%} -> with them {c['error_after']:.3%}") in text
+    assert f"(the run reported {c['error_run']:.3%}: {c['error_run_metric']})" in text
+    for name, value in c["parameters_after"].items():
+        assert any(x.startswith(name) and x.rstrip().endswith(f"{value:.4g}") for x in lines), name
