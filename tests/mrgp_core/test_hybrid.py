@@ -8,7 +8,7 @@ Its derivative is analytic, so the strategy's Jacobian runs are exact.
 import numpy as np
 import pytest
 
-from mrgp_core.strategies.gauss_newton import TrustRegionGN, composite_model
+from mrgp_core.strategies.gauss_newton import Residual, TrustRegionGN, composite_model
 from mrgp_core.strategies.hybrid import HybridOptions, hybrid
 
 W = np.linspace(4.0, 9.0, 40)
@@ -110,3 +110,19 @@ def test_global_points_are_uniform_in_the_square_root_of_the_factor():
     assert np.allclose(_from_unit(q, lower, upper, HybridOptions(warp="none"))[1], [1.125, -0.61], atol=1e-12)
     with pytest.raises(ValueError, match="unknown warp"):
         _warped(x, HybridOptions(warp="log"))
+
+
+def test_a_noise_level_estimated_from_a_structured_residual_is_labelled_an_upper_bound():
+    """Issue 33: the check's estimate from a residual it calls structure is not presented as the noise."""
+    from fe_core.inference.residual import STRUCTURED_ESTIMATE
+    from mrgp_core.strategies.hybrid import Layout, check
+
+    layout = Layout.grid(W, 1)
+    wrong, _ = _toy(np.array([0.2, 0.0]))  # a wrong basin: smooth misfit far above any noise
+    verdict = check(wrong, Residual(U), layout, 2, HybridOptions())
+    assert not verdict.at_floor and verdict.sigma_source == STRUCTURED_ESTIMATE
+    assert f"({STRUCTURED_ESTIMATE})" in verdict.reason
+    noise = np.random.default_rng(3).normal(0.0, 0.01, W.size)
+    right, _ = _toy(TRUTH, noise)  # at the truth: what is left is the noise
+    verdict = check(right, Residual(U), layout, 2, HybridOptions())
+    assert verdict.at_floor and verdict.sigma_source == "estimated"
