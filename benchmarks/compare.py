@@ -146,7 +146,7 @@ class _Budget(Exception):
 def run_default(ds: Dataset, seed: int) -> list[tuple]:
     """The product's default (hybrid strategy): [(x, error, cost in FE-run equivalents, round), ...]."""
     from flows.config import UpdateConfig
-    from flows.hybrid import run_history
+    from tasks.record import history as run_history
     from flows.update import update_flow
     from tasks.runstore import RunStore
 
@@ -164,7 +164,7 @@ def run_adaptive(ds: Dataset, seed: int, trainer: str, strategy: str = "adaptive
                  polish: bool = True) -> list[tuple]:
     from flows.config import UpdateConfig
     from flows.update import update_flow
-    from flows.hybrid import run_history
+    from tasks.record import history as run_history
     from tasks.runstore import RunStore
 
     run_id = f"{ds.name}-{strategy}-{trainer}-seed{seed}" + ("" if polish else "-no-polish")

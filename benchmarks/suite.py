@@ -118,7 +118,7 @@ class Problem:
 def run_flow(prob: Problem, strategy: str, budget: int, seed: int, trainer: str, work: Path, ratio: float) -> dict:
     """The product through ``flows.update`` (in this process); fills ``prob.history``."""
     from flows.config import UpdateConfig
-    from flows.hybrid import run_history
+    from tasks.record import history as run_history
     from flows.update import update_flow
     from tasks.runstore import RunStore
 

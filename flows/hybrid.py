@@ -8,14 +8,13 @@ Cycle 1 (subflow ``cycle-1``): ``local`` (Gauss-Newton from the nominal model wi
 
 from __future__ import annotations
 
-import numpy as np
 from prefect import flow
 
 from tasks import hybrid as tasks
 from tasks import record
 from tasks.runstore import RunStore
 
-__all__ = ["cycle_flow", "run_hybrid", "run_history", "stop_reason"]
+__all__ = ["cycle_flow", "run_hybrid", "stop_reason"]
 
 
 @flow(name="cycle", flow_run_name="cycle-{iteration}", log_prints=True)
@@ -66,23 +65,3 @@ def stop_reason(iteration: int, last: dict, reported, at_best=None) -> tuple[str
         return f"{where}; check: {last['check']['reason']}", bool(last["check"]["at_floor"])
     return (f"{where}; the reported point, sample {int(reported['sample_id'])} of cycle {int(reported['iteration'])} "
             f"(overall error {reported['overall_error']:.4%}): {at_best.reason}", bool(at_best.at_floor))
-
-
-def run_history(store, iterations: int | None = None) -> list[dict]:
-    """Every FE run of a run in evaluation order: ``round`` (counted over the whole run), ``x``, ``error``
-    (overall error, inf for a failed run), ``jacobian``, ``cost`` (FE-run equivalents). ``store``: a
-    :class:`RunStore` or the run folder; any strategy's run (the paper loop's iterations are one round each)."""
-    store = store if isinstance(store, RunStore) else RunStore(store)
-    runs = record.fe_runs(store, iterations)
-    names = record.parameter_columns(runs)
-    out, offset = [], 0
-    order = {s: i for i, s in enumerate(record.FE_STAGE_ORDER)}
-    for (k, _, stage), g in runs.assign(rank=runs["stage"].map(order)).groupby(["iteration", "rank", "stage"],
-                                                                              sort=True):
-        for row in g.sort_values("sample_id").itertuples(index=False):
-            d = row._asdict()
-            out.append({"round": offset + int(d["round"]), "x": np.array([d[n] for n in names], float),
-                        "error": float(d["overall_error"]) if d["status"] == "ok" else float("inf"),
-                        "jacobian": bool(d["jacobian"]), "cost": float(d["cost"])})
-        offset += int(store.stage_info(int(k), stage)["rounds"])
-    return out

@@ -24,7 +24,7 @@ import pandas as pd
 from tasks.runstore import RunStore
 
 __all__ = ["RUN_COLUMNS", "RESPONSE_COLUMNS", "FE_STAGE_ORDER", "fe_stages", "fe_runs", "responses", "spent",
-           "next_sample_id", "grid", "parameter_columns", "best_run"]
+           "next_sample_id", "grid", "parameter_columns", "best_run", "history"]
 
 RUN_COLUMNS = ("sample_id", "round", "jacobian", "cost", "seconds", "pid", "status", "message", "overall_error")
 RESPONSE_COLUMNS = ("sample_id", "sensor", "frequency_hz", "real", "imag")
@@ -118,3 +118,23 @@ def best_run(runs: pd.DataFrame) -> pd.Series:
     if ok.empty:
         raise ValueError("no successful FE run")
     return ok.loc[ok["overall_error"].idxmin()]
+
+
+def history(store, upto: int | None = None) -> list[dict]:
+    """Every FE run of a run in evaluation order: ``round`` (counted over the whole run), ``x``, ``error``
+    (overall error, inf for a failed run), ``jacobian``, ``cost`` (FE-run equivalents). ``store``: a
+    :class:`RunStore` or the run folder; any strategy's run (the paper loop's iterations are one round each)."""
+    store = store if isinstance(store, RunStore) else RunStore(store)
+    runs = fe_runs(store, upto)
+    names = parameter_columns(runs)
+    out, offset = [], 0
+    order = {s: i for i, s in enumerate(FE_STAGE_ORDER)}
+    for (k, _, stage), g in runs.assign(rank=runs["stage"].map(order)).groupby(["iteration", "rank", "stage"],
+                                                                              sort=True):
+        for row in g.sort_values("sample_id").itertuples(index=False):
+            d = row._asdict()
+            out.append({"round": offset + int(d["round"]), "x": np.array([d[n] for n in names], float),
+                        "error": float(d["overall_error"]) if d["status"] == "ok" else float("inf"),
+                        "jacobian": bool(d["jacobian"]), "cost": float(d["cost"])})
+        offset += int(store.stage_info(int(k), stage)["rounds"])
+    return out

@@ -172,7 +172,7 @@ def test_the_intervals_cost_is_measured_in_fe_runs_of_the_hybrid_update(hybrid_r
 def test_the_strategy_in_memory_makes_the_flows_fe_runs(hybrid_run, measured_file):
     """One strategy, two drivers: :class:`mrgp_core.strategies.hybrid.Hybrid` through ``run_loop`` with FE runs
     made here asks for the same points, in the same rounds, as the flow's stages did."""
-    from flows.hybrid import run_history
+    from tasks.record import history as run_history
     from flows.rerun import run_problem
     from fe_core.solvers.sensitivity import frf_jacobian
     from mrgp_core.strategies.base import Outcome, run_loop

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from flows import update
-from flows.hybrid import run_history
+from tasks.record import history as run_history
 from flows.rerun import run_problem
 from mrgp_core.strategies.base import Outcome, run_loop
 from mrgp_core.strategies.paper import PaperLoop
