@@ -235,7 +235,7 @@ def test_resume_with_other_settings_is_refused_before_any_write(tmp_path, existi
     before = _snapshot(existing_run)
     assert update.main(["--run-id", "existing", "--runs-dir", str(tmp_path / "runs"), "--seed", "5"]) == 2
     err = capsys.readouterr().err
-    assert f"{existing_run / 'manifest.json'}: run 'existing' was started with other settings (seed)" in err
+    assert f"{existing_run / 'manifest.json'}: run 'existing' was started with other inputs: setting seed (" in err
     assert _snapshot(existing_run) == before
 
 

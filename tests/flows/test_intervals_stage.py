@@ -62,13 +62,18 @@ def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_recompu
     mtime = stage.stat().st_mtime_ns
     again = update.update_flow(config)
     assert again["intervals"] == summary["intervals"] and stage.stat().st_mtime_ns == mtime
-    noisier = update.update_flow(config.replace(noise=0.004))
-    assert noisier["noise_sigma"] == 0.004
-    np.testing.assert_allclose(np.array(noisier["covariance"]), 4 * cov, rtol=1e-9)
+    # another noise level is another run's input, refused on resume; the intervals stage reruns with it
+    with pytest.raises(ConfigError, match=r"setting noise \(0.002 then, 0.004 now\).*--stage check --noise"):
+        update.update_flow(config.replace(noise=0.004))
+    rerun = update.rerun_stage(root, summary["iterations"], INTERVALS_STAGE, noise=0.004)
+    info = RunStore(root).stage_info(summary["iterations"], rerun.name.removeprefix("stage="))
+    assert info["noise_sigma"] == 0.004
+    np.testing.assert_allclose(np.array(info["covariance"]), 4 * cov, rtol=1e-9)
 
-    # The sampled path on the same run (a changed posterior_fe recomputes the stage): the reduced run ends
+    # The sampled path on the same run, rerun at the higher noise with posterior_fe = 40: the reduced run ends
     # far from the optimum, flagged parameters fail the linearity check, 40 FE runs sample the posterior.
-    sampled = update.update_flow(config.replace(noise=0.004, posterior_fe=40))
+    rerun = update.rerun_stage(root, summary["iterations"], INTERVALS_STAGE, noise=0.004, posterior_fe=40)
+    sampled = RunStore(root).stage_info(summary["iterations"], rerun.name.removeprefix("stage="))
     d = sampled["interval_details"]
     assert sampled["interval_method"] == "importance sampling" and d["method_reason"].startswith("importance")
     assert d["posterior"]["fe_runs"] == 40 and d["linearity"]["poor"]
@@ -76,9 +81,9 @@ def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_recompu
     assert sampled["interval_cost"]["fe_runs"] == 40 + d["linearity"]["fe_runs"] + 1  # + the error at the optimum
     low, high = np.array([sampled["intervals"][n] for n in names]).T
     assert np.all(low >= -1.0) and np.all(high <= 1.0) and np.all(low <= high)  # on the search box
-    assert d["laplace"]["intervals"] == noisier["intervals"]  # the Laplace ones kept beside
+    assert d["laplace"]["intervals"] == info["intervals"]  # the Laplace ones kept beside
     out = io.StringIO()
-    update.print_summary(sampled, file=out)
+    update.print_summary({**summary, **sampled}, file=out)
     assert "importance sampling of the posterior" in out.getvalue() and "why: importance" in out.getvalue()
 
 
