@@ -18,7 +18,7 @@ from tasks.intervals import INTERVALS_STAGE
 from tasks.runstore import RunStore
 
 
-def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_recomputes_them(reduced_config,
+def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_reruns_them(reduced_config,
                                                                                           prefect_harness):
     # posterior_fe = 0: the Laplace intervals whatever the check would say (the sampled path: the next test).
     # emulate = "errors": the paper's emulation ends this reduced run far from the optimum, which the sampled
