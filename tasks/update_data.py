@@ -264,7 +264,8 @@ def resolve_channels(measured: MeasuredFRF, model) -> tuple[np.ndarray | None, n
         info = [{"label": f"sensor {s}", "response": None, "reference": None,
                  "sensor": model.sensor_names[s - 1] if s <= model.n_sensors else None,
                  "excitation": model.excitation_name, "sign": 1, "kind": (measured.kinds or ["receptance"] * n)[j],
-                 "place": measured.place(j)} for j, s in enumerate(measured.sensors.tolist())]
+                 "unit": (measured.units or [None] * n)[j], "place": measured.place(j)}
+                for j, s in enumerate(measured.sensors.tolist())]
         return None, None, info, np.ones(n)
     responses, references, signs, info = [], [], [], []
     for j in range(n):
@@ -279,7 +280,8 @@ def resolve_channels(measured: MeasuredFRF, model) -> tuple[np.ndarray | None, n
         signs.append(sr * se)
         info.append({"label": measured.channel_label(j), "response": measured.responses[j], "reference": label,
                      "sensor": model.sensor_names[r], "excitation": model.excitation_names[e], "sign": sr * se,
-                     "kind": (measured.kinds or ["receptance"] * n)[j], "place": place})
+                     "kind": (measured.kinds or ["receptance"] * n)[j], "unit": (measured.units or [None] * n)[j],
+                     "place": place})
     seen = {}
     for j, key in enumerate(zip(responses, references)):
         if key in seen:

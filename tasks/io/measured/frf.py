@@ -169,6 +169,8 @@ class MeasuredFRF:
         Where each frequency line first appears in the file.
     notes : tuple of str
         What was converted or dropped while reading, one sentence each.
+    units : tuple of str, length n, or None
+        The unit each channel had in the file (``"g/N"``), before the conversion to SI; None = SI.
     """
 
     frequencies_hz: np.ndarray
@@ -183,6 +185,7 @@ class MeasuredFRF:
     places: tuple | None = None
     line_places: tuple | None = None
     notes: tuple = ()
+    units: tuple | None = None
 
     def __post_init__(self):
         f = _read_only(self.frequencies_hz, float)
@@ -207,7 +210,7 @@ class MeasuredFRF:
             raise ValueError("coherence must be shaped as amplitude, with values in [0, 1]")
         n = s.size
         for name, value in (("responses", self.responses), ("references", self.references),
-                            ("kinds", self.kinds), ("places", self.places)):
+                            ("kinds", self.kinds), ("places", self.places), ("units", self.units)):
             if value is not None and len(value) != n:
                 raise ValueError(f"{name} must have one entry per channel ({n})")
         if self.line_places is not None and len(self.line_places) != f.size:
@@ -223,7 +226,7 @@ class MeasuredFRF:
         names = ("frequencies_hz", "sensors", "amplitude", "complex_frf", "coherence")
         for name, value in zip(names, (f, s, a, c, g)):
             object.__setattr__(self, name, value)
-        for name in ("responses", "references", "kinds", "places", "line_places", "notes"):
+        for name in ("responses", "references", "kinds", "places", "line_places", "notes", "units"):
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, tuple(value))
@@ -267,7 +270,7 @@ def first_bad(mask, values, problem, where, source):
 
 
 def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, complex_data=None,
-                   file_notes=()) -> MeasuredFRF:
+                   file_notes=(), units=None) -> MeasuredFRF:
     """Check long rows and reshape them to a :class:`MeasuredFRF` (receptance).
 
     Parameters
@@ -285,6 +288,8 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
         Complex values given directly (UFF); else built from ``real``, ``imag``.
     file_notes : sequence of str
         Notes of the reader to keep.
+    units : ndarray of str, shape (r,), optional
+        The unit each row had in the file (values already converted to SI); one per channel.
     """
     if not where:
         raise MeasuredDataError(f"{source}: no data rows")
@@ -361,6 +366,10 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
             raise MeasuredDataError(f"{source}: {where[i0]} and {where[other[0]]}: {_describe_key(channel_keys[c])} "
                                     f"is given as {kinds[i0]} and as {kinds[other[0]]}; one kind per channel")
         channel_kind.append(str(kinds[i0]))
+        if units is not None and np.any(units[mine] != units[i0]):
+            j = mine[units[mine] != units[i0]][0]
+            raise MeasuredDataError(f"{source}: {where[i0]} and {where[j]}: {_describe_key(channel_keys[c])} is given "
+                                    f"in {units[i0]} and in {units[j]}; one unit per channel")
 
     # Drop the 0 Hz lines (mobility, accelerance), then check the grid.
     notes = list(file_notes)
@@ -421,6 +430,7 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
         places=tuple(where[i] for i in channel_first),
         line_places=tuple(where[line_first[k]] for k in range(frequencies.size)),
         notes=tuple(notes),
+        units=None if units is None else tuple(str(units[i]) for i in channel_first),
     )
 
 

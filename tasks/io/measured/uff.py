@@ -15,7 +15,9 @@ What is read from each dataset 58 (record numbers of the standard, pyuff's keys)
   9 reaction force, 0 unknown are accepted as force);
 - record 12: abscissa (Hz) and ordinates.
 
-Units are SI (m, s, N); a dataset 164 declaring other units is refused.
+Units (:mod:`.units`): the units labels of records 8-10 and the unit system of the last dataset 164
+before the dataset; values are converted to SI and the conversion noted. An unknown label, or one that
+contradicts the data type, is refused naming the dataset and the label.
 
 Two forms:
 
@@ -39,6 +41,7 @@ import logging
 
 import numpy as np
 
+from .units import SI_FRF_UNIT, UnitError, frequency_unit, uff_units
 from .frf import (DIRECTION_NAMES, MeasuredDataError, MeasuredFRF, dof_label, from_receptance,
                   grid_from_rows, parse_dof)
 
@@ -76,7 +79,7 @@ def read(path) -> MeasuredFRF:
         types = list(uff.get_set_types())
     except Exception as exc:  # pyuff raises bare Exception
         raise MeasuredDataError(f"{path}: not a UFF file ({exc})") from None
-    frfs, coherences, skipped = [], {}, 0
+    frfs, coherences, skipped, system = [], {}, 0, None
     for k, set_type in enumerate(types):
         if set_type not in (58, 164):
             continue
@@ -86,13 +89,11 @@ def read(path) -> MeasuredFRF:
             message = f"{path}: dataset {k + 1}: unreadable dataset {set_type} ({exc})"
             raise MeasuredDataError(message) from None
         if set_type == 164:
-            if dataset.get("units_code", 1) != 1:
-                raise MeasuredDataError(f"{path}: dataset {k + 1}: units code {dataset.get('units_code')} "
-                                        f"({dataset.get('units_description', '').strip()}); only SI (1) is read")
+            system = dict(dataset, dataset=k + 1)
             continue
         func_type = dataset.get("func_type")
         if func_type == 4:
-            frfs.append((k, dataset))
+            frfs.append((k, dataset, system))
         elif func_type == 6:
             key = _key(dataset)
             if key in coherences:
@@ -105,7 +106,7 @@ def read(path) -> MeasuredFRF:
                         path, k + 1, func_type)
     if not frfs:
         raise MeasuredDataError(f"{path}: no FRF found (dataset 58 with function type 4)")
-    legacy = [dataset["ref_node"] == 0 for _, dataset in frfs]
+    legacy = [dataset["ref_node"] == 0 for _, dataset, _ in frfs]
     if any(legacy) and not all(legacy):
         k = frfs[legacy.index(not legacy[0])][0]
         raise MeasuredDataError(f"{path}: dataset {k + 1}: FRFs with and without a reference node (0) in one "
@@ -123,9 +124,9 @@ def _label(node_dir) -> str:
 
 
 def _rows(path, frfs, coherences, legacy, skipped):
-    parts, where, kinds, notes, used = [], [], [], [], set()
+    parts, where, kinds, units, notes, used = [], [], [], [], [], set()
     complex_kind = set()
-    for k, dataset in frfs:
+    for k, dataset, system in frfs:
         key = _key(dataset)
         if legacy:
             place = f"dataset {k + 1} (sensor {key[0]})"
@@ -139,27 +140,30 @@ def _rows(path, frfs, coherences, legacy, skipped):
                     raise MeasuredDataError(f"{path}: {place}: {what} direction {direction} is not a UFF58 "
                                             "direction code (0, +-1 .. +-6)")
         ordinate = int(dataset.get("ordinate_spec_data_type", 0))
-        kind = ORDINATE_KIND.get(ordinate)
-        if kind is None and legacy and ordinate == 0:
-            kind = "receptance"
-            notes.append(f"dataset {k + 1}: ordinate type unknown (0), read as receptance (legacy form)")
-        if kind is None:
+        if ordinate not in ORDINATE_KIND and ordinate not in (0, 1):
             raise MeasuredDataError(f"{path}: {place}: ordinate specific data type {ordinate} (record 9); an FRF "
                                     "needs 8 (displacement), 11 (velocity) or 12 (acceleration) over force")
         denominator = int(dataset.get("orddenom_spec_data_type", 0))
         if denominator not in FORCE_DENOMINATORS:
             raise MeasuredDataError(f"{path}: {place}: ordinate denominator type {denominator} (record 10) is "
                                     "not a force (13, 9 or 0)")
+        unit = _units(path, place, dataset, system, ordinate, legacy, k, notes)
+        kind = unit["kind"]
         data = np.asarray(dataset["data"])
+        if unit["factor"] != 1.0:
+            data = data * unit["factor"]
         complex_kind.add(np.iscomplexobj(data))
         if len(complex_kind) > 1:
             raise MeasuredDataError(f"{path}: {place}: real and complex FRFs mixed in one file")
-        x = _abscissa(path, place, dataset)
+        x = _abscissa(path, place, dataset) * unit["frequency_factor"]
         coherence = None
         if key in coherences:
             used.add(key)
             ck, cset = coherences[key]
-            cx = np.asarray(cset["x"], dtype=float)
+            try:
+                cx = np.asarray(cset["x"], dtype=float) * frequency_unit(cset.get("abscissa_axis_units_lab", ""))
+            except UnitError as exc:
+                raise MeasuredDataError(f"{path}: dataset {ck + 1}: record 8: {exc}") from None
             cdata = np.asarray(cset["data"])
             if np.iscomplexobj(cdata) or cx.shape != x.shape or np.any(np.abs(cx - x) > 1e-9 * np.abs(x).max()):
                 raise MeasuredDataError(f"{path}: dataset {ck + 1}: the coherence of {place} must be real and "
@@ -168,6 +172,7 @@ def _rows(path, frfs, coherences, legacy, skipped):
         parts.append((key, x, data, coherence, kind))
         where += [f"{place} point {j + 1}" for j in range(data.size)]
         kinds += [kind] * data.size
+        units += [unit["unit"]] * data.size
     given = [c is not None for *_, c, _ in parts]
     if any(given) and not all(given):
         k = frfs[given.index(False)][0]
@@ -198,7 +203,40 @@ def _rows(path, frfs, coherences, legacy, skipped):
     else:
         columns["amplitude"] = data.astype(float)
     return grid_from_rows(columns, where, str(path), kinds=np.array(kinds, dtype=object),
-                          complex_data=complex_data, file_notes=notes)
+                          complex_data=complex_data, file_notes=_unit_notes(notes), units=np.array(units, dtype=object))
+
+
+def _units(path, place, dataset, system, ordinate, legacy, k, notes) -> dict:
+    """The dataset's units (:func:`.units.uff_units`); the legacy form's unlabelled type 0 is receptance in m/N."""
+    if legacy and ordinate == 0 and str(dataset.get("ordinate_axis_units_lab", "")).strip().upper() in ("", "NONE"):
+        notes.append(f"dataset {k + 1}: ordinate type unknown (0), read as receptance (legacy form)")
+        ordinate = KIND_ORDINATE["receptance"]
+    try:
+        unit = uff_units(dataset, system, ordinate)
+    except UnitError as exc:
+        raise MeasuredDataError(f"{path}: {place}: {exc}") from None
+    source = unit["source"] if system is None or unit["source"] != "dataset 164" else \
+        f"unit system of the dataset 164 at dataset {system['dataset']}"
+    notes.append(("unit", unit["unit"], unit["kind"], unit["factor"], unit["frequency_factor"], source, k + 1))
+    return unit
+
+
+def _unit_notes(notes) -> list:
+    """Plain notes, plus one sentence per distinct unit: how many datasets, the factor to SI, from where."""
+    out = [n for n in notes if isinstance(n, str)]
+    groups = {}
+    for _, unit, kind, factor, ffactor, source, k in (n for n in notes if not isinstance(n, str)):
+        groups.setdefault((unit, kind, factor, ffactor, source), []).append(k)
+    for (unit, kind, factor, ffactor, source), ks in groups.items():
+        si = SI_FRF_UNIT[kind]
+        what = "SI, no conversion" if factor == 1.0 else f"converted to {si} (x {factor:.10g})"
+        freq = "" if ffactor == 1.0 else f"; abscissa converted to Hz (x {ffactor:.10g})"
+        out.append(f"unit {unit} ({kind}) in {len(ks)} dataset(s) ({_ranges(ks)}; {source}): {what}{freq}")
+    return out
+
+
+def _ranges(ks) -> str:
+    return "dataset " + ", ".join(str(k) for k in ks[:6]) + (f" ... {ks[-1]}" if len(ks) > 6 else "")
 
 
 def _abscissa(path, place, dataset) -> np.ndarray:
