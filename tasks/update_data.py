@@ -39,6 +39,7 @@ import numpy as np
 
 from mrgp_core import errors
 from tasks.io.measured import MeasuredDataError, MeasuredFRF, dof_label, parse_dof
+from tasks.io.measured.problems import Problems
 from tasks.lines import select_lines
 
 __all__ = ["UpdateData", "update_data", "RESIDUALS", "resolve_channels"]
@@ -268,13 +269,20 @@ def resolve_channels(measured: MeasuredFRF, model) -> tuple[np.ndarray | None, n
                 for j, s in enumerate(measured.sensors.tolist())]
         return None, None, info, np.ones(n)
     responses, references, signs, info = [], [], [], []
+    problems = Problems(measured.source)  # every channel the model cannot give, in one message
     for j in range(n):
         place = measured.place(j)
-        r, sr = _match(measured.responses[j], model.sensor_names, model.sensor_test_dofs, "response", "sensors",
-                       measured.source, place)
+        r = e = None
+        with problems.collect():
+            r, sr = _match(measured.responses[j], model.sensor_names, model.sensor_test_dofs, "response", "sensors",
+                           measured.source, place)
         label = measured.references[j]
-        e, se = (default, 1) if label is None else _match(label, model.excitation_names, model.excitation_test_dofs,
-                                                          "reference", "excitations", measured.source, place)
+        with problems.collect():
+            e, se = (default, 1) if label is None else _match(label, model.excitation_names,
+                                                              model.excitation_test_dofs, "reference",
+                                                              "excitations", measured.source, place)
+        if r is None or e is None:
+            continue
         responses.append(r)
         references.append(e)
         signs.append(sr * se)
@@ -282,14 +290,17 @@ def resolve_channels(measured: MeasuredFRF, model) -> tuple[np.ndarray | None, n
                      "sensor": model.sensor_names[r], "excitation": model.excitation_names[e], "sign": sr * se,
                      "kind": (measured.kinds or ["receptance"] * n)[j], "unit": (measured.units or [None] * n)[j],
                      "place": place})
+    problems.check()
     seen = {}
     for j, key in enumerate(zip(responses, references)):
         if key in seen:
-            raise MeasuredDataError(f"{measured.source}: {measured.place(seen[key])} and {measured.place(j)}: "
-                                    f"channels {measured.channel_label(seen[key])!r} and "
-                                    f"{measured.channel_label(j)!r} are the same model sensor and excitation "
-                                    f"({model.sensor_names[key[0]]}, {model.excitation_names[key[1]]})")
-        seen[key] = j
+            problems.add(f"{measured.place(seen[key])} and {measured.place(j)}: channels "
+                         f"{measured.channel_label(seen[key])!r} and {measured.channel_label(j)!r} are the same "
+                         f"model sensor and excitation ({model.sensor_names[key[0]]}, "
+                         f"{model.excitation_names[key[1]]})")
+        else:
+            seen[key] = j
+    problems.check()
     return np.array(responses), np.array(references), info, np.array(signs, float)
 
 

@@ -48,6 +48,7 @@ import re
 import numpy as np
 
 from .frf import KINDS, MeasuredDataError, MeasuredFRF, from_receptance, grid_from_rows, kind_of
+from .problems import Problems
 from .units import SI_FRF_UNIT, UnitError, frf_unit
 
 __all__ = ["read_csv", "read_parquet", "write_csv", "write_parquet", "table_columns", "LEGACY_COLUMNS", "COLUMNS"]
@@ -87,27 +88,30 @@ def _check_header(names, source):
                                 "measured under the model's default excitation)")
 
 
-def _to_float(cells, name, where, source):
-    """Parse cells one by one so that a bad one can be named."""
+def _to_float(cells, name, where, source, problems: Problems, bad: np.ndarray):
+    """Parse cells one by one so that each bad one can be named (added to ``problems``, its row marked ``bad``)."""
     values = np.empty(len(cells))
     for i, cell in enumerate(cells):
         if cell is None or (isinstance(cell, str) and not cell.strip()):
-            raise MeasuredDataError(f"{source}: {where[i]}: {name} is empty")
+            problems.add(f"{where[i]}: {name} is empty")
+            values[i], bad[i] = np.nan, True
+            continue
         try:
             values[i] = float(cell)
         except (TypeError, ValueError):
-            message = f"{source}: {where[i]}: {name} {cell!r} is not a number"
-            raise MeasuredDataError(message) from None
+            problems.add(f"{where[i]}: {name} {cell!r} is not a number")
+            values[i], bad[i] = np.nan, True
     return values
 
 
-def _to_text(cells, name, where, source):
+def _to_text(cells, name, where, source, problems: Problems, bad: np.ndarray):
     out = np.empty(len(cells), dtype=object)
     for i, cell in enumerate(cells):
         if cell is None:
             cell = ""
         if not isinstance(cell, str):
-            raise MeasuredDataError(f"{source}: {where[i]}: {name} {cell!r} is not text")
+            problems.add(f"{where[i]}: {name} {cell!r} is not text")
+            cell, bad[i] = "", True
         out[i] = cell.strip()
     return out
 
@@ -169,22 +173,31 @@ def _units(columns, where, source, kinds, explicit, unit, unit_at):
     return labels, notes
 
 
-def _rows(names, records, where, source, declared=None, declared_at="", unit=None, unit_at=""):
+def _rows(names, records, where, source, declared=None, declared_at="", unit=None, unit_at="", problems=None):
+    problems = problems if problems is not None else Problems(source)
+    bad = np.zeros(len(where), dtype=bool)
     columns = {}
     for name, cells in zip(names, records):
         reader = _to_text if name in TEXT_COLUMNS else _to_float
-        columns[name] = reader(cells, name, where, source)
-    return _grid(columns, where, source, declared, declared_at, unit, unit_at)
+        columns[name] = reader(cells, name, where, source, problems, bad)
+    return _grid(columns, where, source, declared, declared_at, unit, unit_at, problems, bad)
 
 
-def _grid(columns, where, source, declared, declared_at, unit, unit_at):
+def _grid(columns, where, source, declared, declared_at, unit, unit_at, problems=None, bad=None):
+    """Kinds and units of the rows, then :func:`.frf.grid_from_rows`; the problems of every step in one message."""
+    problems = problems if problems is not None else Problems(source)
     explicit = np.full(len(where), declared is not None)
     if "kind" in columns:
         explicit |= np.array([bool(c) for c in columns["kind"]], dtype=bool)
-    kinds = _kinds(columns, where, source, declared, declared_at)
-    labels, unit_notes = _units(columns, where, source, kinds, explicit, unit, unit_at)
+    before = len(problems)
+    with problems.collect():
+        kinds = _kinds(columns, where, source, declared, declared_at)
+        labels, unit_notes = _units(columns, where, source, kinds, explicit, unit, unit_at)
+    if len(problems) > before:
+        problems.check()  # a kind or unit unknown: the values cannot be converted, the grid not checked
     notes = [f"{declared_at} declares the file's kind: {declared}"] if declared else []
-    return grid_from_rows(columns, where, str(source), kinds=kinds, file_notes=notes + unit_notes, units=labels)
+    return grid_from_rows(columns, where, str(source), kinds=kinds, file_notes=notes + unit_notes, units=labels,
+                          problems=problems, bad_rows=bad)
 
 
 # -- CSV ---------------------------------------------------------------------------------------
@@ -222,14 +235,18 @@ def read_csv(path) -> MeasuredFRF:
         raise MeasuredDataError(f"{path}: empty file (no header line)")
     names = [name.strip() for name in records[0]]
     _check_header(names, path)
+    problems = Problems(path)
+    kept, kept_where = [], []
     for record, place in zip(records[1:], where[1:]):
         if len(record) != len(names):
-            raise MeasuredDataError(
-                f"{path}: {place}: {len(record)} fields, the header has {len(names)}"
-            )
-    where = where[1:]
-    cells = list(zip(*records[1:])) or [()] * len(names)
-    return _rows(names, cells, where, path, declared, declared_at, unit, unit_at)
+            problems.add(f"{place}: {len(record)} fields, the header has {len(names)}")
+        else:
+            kept.append(record)
+            kept_where.append(place)
+    if not kept:
+        problems.check()
+    cells = list(zip(*kept)) or [()] * len(names)
+    return _rows(names, cells, kept_where, path, declared, declared_at, unit, unit_at, problems)
 
 
 def _declaration(text, place, path, declared, declared_at, after_data):
@@ -265,6 +282,7 @@ def read_parquet(path) -> MeasuredFRF:
         declared = kind_of(text)
         if declared is None:
             raise MeasuredDataError(f"{path}: schema metadata 'kind' = {text!r} is not one of {', '.join(KINDS)}")
+    problems, bad = Problems(path), np.zeros(table.num_rows, dtype=bool)
     cells = []
     for name in names:
         values = table.column(name).to_numpy(zero_copy_only=False)
@@ -274,13 +292,14 @@ def read_parquet(path) -> MeasuredFRF:
     columns = {}
     for name, values in zip(names, cells):
         if name in TEXT_COLUMNS:
-            columns[name] = _to_text(values, name, where, path)
+            columns[name] = _to_text(values, name, where, path, problems, bad)
         elif values.dtype.kind == "f":
             columns[name] = values
         else:
-            columns[name] = _to_float(values, name, where, path)
+            columns[name] = _to_float(values, name, where, path, problems, bad)
     unit = metadata[b"unit"].decode("utf-8", errors="replace") if b"unit" in metadata else None
-    return _grid(columns, where, path, declared, "the schema metadata", unit, "the schema metadata 'unit'")
+    return _grid(columns, where, path, declared, "the schema metadata", unit, "the schema metadata 'unit'", problems,
+                 bad)
 
 
 # -- writing -----------------------------------------------------------------------------------
