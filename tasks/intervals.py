@@ -29,6 +29,7 @@ from prefect import task
 from prefect.cache_policies import NO_CACHE
 
 from fe_core.inference.intervals import parameter_intervals
+from fe_core.inference.residual import analyse_residual
 from fe_core.inference.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
 from tasks.common import beating
 from tasks.common import logger as run_logger
@@ -82,6 +83,7 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     jacobian_seconds = time.perf_counter() - t0
     iv = refined.intervals
     fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config)
+    fields["residual_check"] = residual_check(refined.residual, freqs_hz, len(model.parameter_names), config.noise)
     seconds = time.perf_counter() - t0
     cols = model.parameter_names
     reported = np.array(fields["covariance"], float)
@@ -122,6 +124,21 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     for line in fields["interval_details"]["flags"]:
         logger.warning(line)
     return store.stage_info(iteration, output_stage)
+
+
+def residual_check(residual, freqs_hz, n_fitted: int, noise) -> dict | None:
+    """Noise or structure in the log residual at the intervals' estimate (:func:`analyse_residual`, 1 % level).
+
+    The intervals assume the model explains the data up to noise; structure means they are conditional on a
+    model that does not (``flows.summary.interval_status``). None when no noise level can be estimated.
+    """
+    r = np.asarray(residual, float).reshape(len(freqs_hz), -1)
+    try:
+        a = analyse_residual(r, freqs_hz, n_fitted, noise)
+    except ValueError:
+        return None
+    return {"structured": a.structured, "rms": a.rms, "sigma": a.sigma, "sigma_source": a.sigma_source,
+            "p_chi2": a.p_chi2, "text": a.summary()}
 
 
 def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config):
