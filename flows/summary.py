@@ -281,10 +281,8 @@ def interval_sentences(summary: dict) -> list[str]:
     if conditional:
         lines.append(f"warning: the intervals are {summary['conditional_on']}; they hold only if the model were "
                      "right and understate the uncertainty of the parameters")
-    if "method_reason" in d and not conditional:
+    if "method_reason" in d:
         lines.append(f"why: {d['method_reason']}")
-    elif "method_reason" in d:
-        lines.append(f"method: {d['method_reason'].split(':')[0]}")
     if not cost["at_optimum"]:
         lines.append("warning: the Gauss-Newton steps did not settle at the optimum; the intervals are approximate")
     return lines + d["flags"]

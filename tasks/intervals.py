@@ -55,7 +55,9 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     The data (``problem.data``): the log amplitudes of its channels on the lines where every channel is kept
     (coherence), through the model seen with the channels' one reference as its load; the phase of complex
     data is not used here (the intervals' error model is the relative amplitude noise). Data with several
-    references (MIMO) get no intervals: ``{"skipped": reason}``. ``output_stage``: another folder (a rerun).
+    references (roving hammer, MIMO) stack their channels in one residual (the same relative amplitude noise on
+    every channel; one Krylov space per point carries every reference's load). ``output_stage``: another
+    folder (a rerun).
     """
     store = RunStore(root)
     logger = run_logger()
@@ -70,19 +72,23 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
                     old, settings)
     data, full_model = problem.data, problem.model
     try:
-        model = data.single_reference_model(full_model)
-    except ValueError as exc:
-        logger.warning("iteration %d, stage intervals: skipped: %s", iteration, exc)
-        return {"skipped": str(exc)}
+        model, channels = data.single_reference_model(full_model), None
+    except ValueError:  # several references (roving hammer, MIMO): the channels stacked in one residual
+        model, channels = full_model, data.channels
+        logger.info("iteration %d, stage intervals: %d references stacked in one error model", iteration,
+                    np.unique(data.references).size)
     lines = data.complete_lines
     freqs_hz, measured_amplitude = data.frequencies_hz[lines], data.amplitude[lines]
     lower, upper = problem.solver_box
     t0, c0 = time.perf_counter(), time.process_time()
     refined = parameter_intervals(model, freqs_hz, measured_amplitude, np.asarray(start, float), lower, upper,
-                                  noise=config.noise)
+                                  noise=config.noise, channels=channels)
     jacobian_seconds = time.perf_counter() - t0
     iv = refined.intervals
-    fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config)
+    fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config,
+                                            channels)
+    if channels is not None:
+        fields["interval_details"]["references"] = int(np.unique(data.references).size)
     fields["residual_check"] = residual_check(refined.residual, freqs_hz, len(model.parameter_names), config.noise)
     seconds = time.perf_counter() - t0
     cols = model.parameter_names
@@ -141,7 +147,7 @@ def residual_check(residual, freqs_hz, n_fitted: int, noise) -> dict | None:
             "p_chi2": a.p_chi2, "text": a.summary()}
 
 
-def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config):
+def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config, channels=None):
     """The Laplace fields, or the sampled posterior's where the linearity check fails; also (check, posterior).
 
     The check (two FE runs per parameter) looks at the parameters the Laplace flags (an interval wider
@@ -155,7 +161,7 @@ def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper
         log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
 
         def residual(alpha):
-            return np.log(np.abs(model.parameter_frf(alpha, freqs_hz))).ravel() - log_u
+            return np.log(np.abs(model.parameter_frf(alpha, freqs_hz, channels))).ravel() - log_u
 
         check = linearity_check(residual, iv, refined.residual, lower, upper, which=flagged)
         if check.poor.any():
