@@ -199,3 +199,20 @@ def test_csv_unknown_unit_and_kind_clash_are_refused(tmp_path, reference):
     with pytest.raises(MeasuredDataError, match=r"line 4: unit 'g/N' is a accelerance, but the row's kind is "
                                                 r"mobility"):
         read_measured(path)
+
+
+def test_parquet_unit_metadata_and_column(tmp_path, reference):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    f = reference.frequencies_hz[200:204]
+    z = reference.complex_frf[200:204, 0] * -(2 * np.pi * f) ** 2 / G  # g/N
+    columns = {"response": ["1:+z"] * 4, "reference": ["5:+z"] * 4, "frequency_hz": f, "real": z.real,
+               "imag": z.imag}
+    table = pa.table(columns).replace_schema_metadata({"unit": "g/N"})
+    pq.write_table(table, tmp_path / "g.parquet")
+    m = read_measured(tmp_path / "g.parquet")
+    np.testing.assert_allclose(m.complex_frf[:, 0], reference.complex_frf[200:204, 0], rtol=1e-12)
+    pq.write_table(pa.table({**columns, "unit": ["gee/N"] * 4}), tmp_path / "bad.parquet")
+    with pytest.raises(MeasuredDataError, match=r"bad.parquet: row 1: .*'gee/N'"):
+        read_measured(tmp_path / "bad.parquet")
