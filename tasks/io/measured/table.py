@@ -142,7 +142,8 @@ def _units(columns, where, source, kinds, explicit, unit, unit_at):
     """
     cells = columns.pop("unit", None)
     if cells is None and unit is None:
-        return None, []
+        si = ", ".join(SI_FRF_UNIT[k] for k in sorted(set(kinds.tolist())))
+        return None, [f"no unit given (no '# unit = ...' line, no 'unit' column): values read as SI ({si})"]
     r = len(where)
     labels = np.array([(c or unit or "") for c in (cells if cells is not None else [""] * r)], dtype=object)
     if np.any(labels == ""):
