@@ -21,7 +21,7 @@ from tasks.fe_runs import JACOBIAN_COST
 from tasks.runstore import RunStore, atomic_write_json
 
 __all__ = ["run_summary", "finish_run", "repeat_summary", "print_summary", "interval_sentences",
-           "report_least_squares_optimum", "LEAST_SQUARES_SOURCE"]
+           "report_least_squares_optimum", "LEAST_SQUARES_SOURCE", "interval_status", "CONDITIONAL_WORDS"]
 
 
 def run_summary(problem, config, store: RunStore, iterations: int, outcome: dict, wall: float) -> dict:
@@ -66,6 +66,12 @@ def finish_run(problem, config, store: RunStore, iteration: int, summary: dict) 
     data = problem.data
     if (uses_polish(config) or config.strategy == "hybrid") and config.intervals:
         summary.update(_interval_fields(problem, config, store, iteration, summary))
+        if "intervals" in summary:
+            summary.update(interval_status(summary))
+        if summary.get("interval_status") == "conditional" and "method_reason" in summary["interval_details"]:
+            details = summary["interval_details"]  # its reason speaks of a model that explains the data
+            summary["interval_details"] = {**details, "method_reason": f"{details['method_reason'].split(':')[0]}: "
+                                           f"{summary['conditional_on']}"}
         if data.residual == "amplitude":
             summary = report_least_squares_optimum(summary, data.sensors, config.true_parameters)
         else:  # the optimum of the log amplitudes ignores the phase this run's residual uses
@@ -77,6 +83,31 @@ def finish_run(problem, config, store: RunStore, iteration: int, summary: dict) 
     return summary
 
 
+#: ``summary["interval_status"]``: the intervals are the stated level's, or conditional on the model.
+INTERVALS_AT_LEVEL, INTERVALS_CONDITIONAL = "95 %", "conditional"
+CONDITIONAL_WORDS = "conditional on a model that does not explain the data"
+
+
+def interval_status(summary: dict) -> dict:
+    """``interval_status`` and, when conditional, ``conditional_on`` (the reasons, in words).
+
+    The intervals are 95 % intervals only if the model explains the data up to noise: they are
+    conditional when the residual at their estimate is structure (``residual_check``) or when a hybrid
+    run did not converge (its convergence is the same verdict at its own best point). A paper-loop run
+    that stopped on its budget is not a reason by itself: its threshold is an error level, and the
+    intervals' Gauss-Newton reaches the least-squares optimum where the residual check decides.
+    """
+    reasons = []
+    check = summary.get("residual_check")
+    if check and check["structured"]:
+        reasons.append(f"the residual at the estimate is structure, not noise ({check['text']})")
+    if summary.get("strategy") == "hybrid" and not summary.get("converged", True):
+        reasons.append(f"the run did not converge ({summary.get('stop_reason', '')})")
+    if not reasons:
+        return {"interval_status": INTERVALS_AT_LEVEL}
+    return {"interval_status": INTERVALS_CONDITIONAL, "conditional_on": f"{CONDITIONAL_WORDS}: {'; '.join(reasons)}"}
+
+
 def _interval_fields(problem, config, store: RunStore, iteration: int, summary: dict) -> dict:
     """95 % intervals at the least-squares optimum near the run's result (tasks.intervals), for summary.json."""
     start = np.array(list(summary["parameters"].values()))
@@ -84,7 +115,7 @@ def _interval_fields(problem, config, store: RunStore, iteration: int, summary: 
     if info.get("skipped"):
         return {"intervals_skipped": info["skipped"]}
     fields = {k: info[k] for k in ("intervals", "covariance", "interval_method", "noise_sigma", "interval_details",
-                                   "interval_cost", "estimate_errors") if k in info}
+                                   "interval_cost", "estimate_errors", "residual_check") if k in info}
     fields["interval_cost"] = {**info["interval_cost"], **_cost_against_update(store, iteration, summary,
                                                                                info["interval_cost"]["seconds"])}
     if config.true_parameters is not None:
@@ -208,7 +239,7 @@ def print_summary(summary: dict, file=None) -> None:
     other, label = ((lowest["parameters"], "lowest 6b") if lowest else
                     (summary["interval_details"]["estimate"], "LS optimum") if iv else (None, ""))
     print(f"{'parameter':<10} {'value':>9}" + (f" {'|error|':>9}" if "parameter_errors" in summary else "")
-          + (f" {'+/- (95 %)':>10}" if iv else "") + (f" {label:>10}" if other else ""), file=file)
+          + (f" {_half_label(summary):>10}" if iv else "") + (f" {label:>10}" if other else ""), file=file)
     for name, value in summary["parameters"].items():
         extra = f" {summary['parameter_errors'][name]:>9.4f}" if "parameter_errors" in summary else ""
         if iv:
@@ -225,6 +256,10 @@ def print_summary(summary: dict, file=None) -> None:
                                            for k, v in summary["per_sensor_error"].items()), file=file)
 
 
+def _half_label(summary: dict) -> str:
+    return "+/- (cond.)" if summary.get("interval_status") == INTERVALS_CONDITIONAL else "+/- (95 %)"
+
+
 def interval_sentences(summary: dict) -> list[str]:
     """How the intervals were made, and a sentence per parameter the data do not pin down or that meets a bound."""
     d = summary["interval_details"]
@@ -239,8 +274,13 @@ def interval_sentences(summary: dict) -> list[str]:
     how = ("laplace (Gauss-Newton) at the least-squares optimum of the log amplitudes"
            if summary["interval_method"] == "laplace" else
            f"{summary['interval_method']} of the posterior on the FE model around the least-squares optimum")
-    lines = [f"95 % intervals: {how}, noise {100 * summary['noise_sigma']:.3g} % ({d['noise_source']}, "
+    conditional = summary.get("interval_status") == INTERVALS_CONDITIONAL
+    title = ("intervals CONDITIONAL (not 95 % intervals)" if conditional else "95 % intervals")
+    lines = [f"{title}: {how}, noise {100 * summary['noise_sigma']:.3g} % ({d['noise_source']}, "
              f"{d['distribution']} quantile {d['quantile']:.3f}); cost {spent}"]
+    if conditional:
+        lines.append(f"warning: the intervals are {summary['conditional_on']}; they hold only if the model were "
+                     "right and understate the uncertainty of the parameters")
     if "method_reason" in d:
         lines.append(f"why: {d['method_reason']}")
     if not cost["at_optimum"]:

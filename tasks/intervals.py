@@ -29,6 +29,7 @@ from prefect import task
 from prefect.cache_policies import NO_CACHE
 
 from fe_core.inference.intervals import parameter_intervals
+from fe_core.inference.residual import analyse_residual
 from fe_core.inference.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
 from tasks.common import beating
 from tasks.common import logger as run_logger
@@ -54,7 +55,9 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     The data (``problem.data``): the log amplitudes of its channels on the lines where every channel is kept
     (coherence), through the model seen with the channels' one reference as its load; the phase of complex
     data is not used here (the intervals' error model is the relative amplitude noise). Data with several
-    references (MIMO) get no intervals: ``{"skipped": reason}``. ``output_stage``: another folder (a rerun).
+    references (roving hammer, MIMO) stack their channels in one residual (the same relative amplitude noise on
+    every channel; one Krylov space per point carries every reference's load). ``output_stage``: another
+    folder (a rerun).
     """
     store = RunStore(root)
     logger = run_logger()
@@ -69,19 +72,24 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
                     old, settings)
     data, full_model = problem.data, problem.model
     try:
-        model = data.single_reference_model(full_model)
-    except ValueError as exc:
-        logger.warning("iteration %d, stage intervals: skipped: %s", iteration, exc)
-        return {"skipped": str(exc)}
+        model, channels = data.single_reference_model(full_model), None
+    except ValueError:  # several references (roving hammer, MIMO): the channels stacked in one residual
+        model, channels = full_model, data.channels
+        logger.info("iteration %d, stage intervals: %d references stacked in one error model", iteration,
+                    np.unique(data.references).size)
     lines = data.complete_lines
     freqs_hz, measured_amplitude = data.frequencies_hz[lines], data.amplitude[lines]
     lower, upper = problem.solver_box
     t0, c0 = time.perf_counter(), time.process_time()
     refined = parameter_intervals(model, freqs_hz, measured_amplitude, np.asarray(start, float), lower, upper,
-                                  noise=config.noise)
+                                  noise=config.noise, channels=channels)
     jacobian_seconds = time.perf_counter() - t0
     iv = refined.intervals
-    fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config)
+    fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config,
+                                            channels)
+    if channels is not None:
+        fields["interval_details"]["references"] = int(np.unique(data.references).size)
+    fields["residual_check"] = residual_check(refined.residual, freqs_hz, len(model.parameter_names), config.noise)
     seconds = time.perf_counter() - t0
     cols = model.parameter_names
     reported = np.array(fields["covariance"], float)
@@ -124,7 +132,22 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     return store.stage_info(iteration, output_stage)
 
 
-def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config):
+def residual_check(residual, freqs_hz, n_fitted: int, noise) -> dict | None:
+    """Noise or structure in the log residual at the intervals' estimate (:func:`analyse_residual`, 1 % level).
+
+    The intervals assume the model explains the data up to noise; structure means they are conditional on a
+    model that does not (``flows.summary.interval_status``). None when no noise level can be estimated.
+    """
+    r = np.asarray(residual, float).reshape(len(freqs_hz), -1)
+    try:
+        a = analyse_residual(r, freqs_hz, n_fitted, noise)
+    except ValueError:
+        return None
+    return {"structured": a.structured, "rms": a.rms, "sigma": a.sigma, "sigma_source": a.sigma_source,
+            "p_chi2": a.p_chi2, "text": a.summary()}
+
+
+def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config, channels=None):
     """The Laplace fields, or the sampled posterior's where the linearity check fails; also (check, posterior).
 
     The check (two FE runs per parameter) looks at the parameters the Laplace flags (an interval wider
@@ -138,7 +161,7 @@ def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper
         log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
 
         def residual(alpha):
-            return np.log(np.abs(model.parameter_frf(alpha, freqs_hz))).ravel() - log_u
+            return np.log(np.abs(model.parameter_frf(alpha, freqs_hz, channels))).ravel() - log_u
 
         check = linearity_check(residual, iv, refined.residual, lower, upper, which=flagged)
         if check.poor.any():

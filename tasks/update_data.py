@@ -8,8 +8,14 @@ Channels
     matched to the sensor whose ``test_node`` is NODE and whose test
     direction is +-DIR; a reference label likewise among the excitations;
     no reference means the model's default excitation (its ``excitation``
-    key). A direction opposite to the model's (``-z`` against ``+z``) flips
-    the sign of the measured FRF. The legacy form (sensor numbers) is the
+    key). Direction rule: the sign applied to a measured FRF is the
+    product of the signs of the file's direction code and of the model
+    file's ``test_direction`` (what the test calls the model's DOF), so
+    ``-z`` in the file against ``+z`` in the model flips the sign, and a
+    negative code in the file against a negative ``test_direction`` flips
+    it twice (no flip): that combination is a warning naming the channels
+    (logged, printed, in the manifest's ``direction_warnings``), since it
+    usually is one upside-down sensor declared in both places. The legacy form (sensor numbers) is the
     model's sensors under its default excitation. Refusals
     (:class:`MeasuredDataError`) name the file and the line of the channel.
 Lines
@@ -39,6 +45,7 @@ import numpy as np
 
 from mrgp_core import errors
 from tasks.io.measured import MeasuredDataError, MeasuredFRF, dof_label, parse_dof
+from tasks.io.measured.problems import Problems
 from tasks.lines import select_lines
 
 __all__ = ["UpdateData", "update_data", "RESIDUALS", "resolve_channels"]
@@ -200,6 +207,7 @@ class UpdateData:
                 else "channels (response, reference)", "residual": self.residual, "values": self.n_values,
                 "complex": self.measured.complex_frf is not None,
                 "coherence": self.measured.coherence is not None, "notes": list(self.measured.notes),
+                "direction_warnings": [c["label"] for c in self.channel_info if c.get("double_flip")],
                 "channels": self.channel_info, "selection": sel}
 
     def describe(self) -> list[str]:
@@ -211,6 +219,11 @@ class UpdateData:
         flipped = [c["label"] for c in self.channel_info if c["sign"] < 0]
         if flipped:
             out.append(f"{self.source}: sign flipped (direction opposite to the model's) for {', '.join(flipped)}")
+        twice = [c["label"] for c in self.channel_info if c.get("double_flip")]
+        if twice:
+            out.append(f"WARNING: {self.source}: the file's direction and the model file's test_direction are both "
+                       f"negative for {', '.join(twice)}: the flips cancel (sign +1, data used as measured); an "
+                       "upside-down sensor is declared in one place only (see docs/measured-data.md)")
         windows = ", ".join(f"{lo:.4g}-{hi:.4g} Hz" for lo, hi in s["windows"])
         empty = f" ({s['lines_dropped']} lines left empty)" if s["lines_dropped"] else ""
         out.append(f"lines: {s['mode']}{' (' + windows + ')' if windows else ''}: {s['lines_selected']} of "
@@ -256,6 +269,15 @@ def _match(label: str, names: list[str], tests: list, what: str, table: str, sou
                             f"test_direction = \"{'+' if direction > 0 else '-'}{_AXES[abs(direction) - 1]}\"")
 
 
+def _flips_twice(label, test_dof) -> bool:
+    """A file direction code < 0 (``101:-z``) matched to a model test_direction < 0 (``"-z"``)."""
+    try:
+        dof = parse_dof(label) if isinstance(label, str) else None
+    except ValueError:
+        return False
+    return dof is not None and test_dof is not None and dof[1] < 0 and test_dof[1] < 0
+
+
 def resolve_channels(measured: MeasuredFRF, model) -> tuple[np.ndarray | None, np.ndarray | None, list, np.ndarray]:
     """Match the channels to the model: (responses, references, info, signs); None, None for the legacy form."""
     n = measured.n_channels
@@ -264,30 +286,51 @@ def resolve_channels(measured: MeasuredFRF, model) -> tuple[np.ndarray | None, n
         info = [{"label": f"sensor {s}", "response": None, "reference": None,
                  "sensor": model.sensor_names[s - 1] if s <= model.n_sensors else None,
                  "excitation": model.excitation_name, "sign": 1, "kind": (measured.kinds or ["receptance"] * n)[j],
-                 "place": measured.place(j)} for j, s in enumerate(measured.sensors.tolist())]
+                 "unit": (measured.units or [None] * n)[j], "place": measured.place(j)}
+                for j, s in enumerate(measured.sensors.tolist())]
         return None, None, info, np.ones(n)
     responses, references, signs, info = [], [], [], []
+    problems = Problems(measured.source)  # every channel the model cannot give, in one message
     for j in range(n):
         place = measured.place(j)
-        r, sr = _match(measured.responses[j], model.sensor_names, model.sensor_test_dofs, "response", "sensors",
-                       measured.source, place)
+        r = e = None
+        with problems.collect():
+            r, sr = _match(measured.responses[j], model.sensor_names, model.sensor_test_dofs, "response", "sensors",
+                           measured.source, place)
         label = measured.references[j]
-        e, se = (default, 1) if label is None else _match(label, model.excitation_names, model.excitation_test_dofs,
-                                                          "reference", "excitations", measured.source, place)
+        with problems.collect():
+            e, se = (default, 1) if label is None else _match(label, model.excitation_names,
+                                                              model.excitation_test_dofs, "reference",
+                                                              "excitations", measured.source, place)
+        if r is None or e is None:
+            continue
         responses.append(r)
         references.append(e)
         signs.append(sr * se)
+        double = [what for what, text, tests, k in (("response", measured.responses[j], model.sensor_test_dofs, r),
+                                                     ("reference", label, model.excitation_test_dofs, e))
+                  if _flips_twice(text, tests[k])]
+        if double:
+            log.warning("%s: %s: channel %s: the %s direction is negative in the file and test_direction is "
+                        "negative in the model file: the two sign flips cancel (sign %+d); if the sensor was "
+                        "mounted upside down, declare it in one place only", measured.source, place,
+                        measured.channel_label(j), " and ".join(double), sr * se)
         info.append({"label": measured.channel_label(j), "response": measured.responses[j], "reference": label,
+                     "double_flip": double,
                      "sensor": model.sensor_names[r], "excitation": model.excitation_names[e], "sign": sr * se,
-                     "kind": (measured.kinds or ["receptance"] * n)[j], "place": place})
+                     "kind": (measured.kinds or ["receptance"] * n)[j], "unit": (measured.units or [None] * n)[j],
+                     "place": place})
+    problems.check()
     seen = {}
     for j, key in enumerate(zip(responses, references)):
         if key in seen:
-            raise MeasuredDataError(f"{measured.source}: {measured.place(seen[key])} and {measured.place(j)}: "
-                                    f"channels {measured.channel_label(seen[key])!r} and "
-                                    f"{measured.channel_label(j)!r} are the same model sensor and excitation "
-                                    f"({model.sensor_names[key[0]]}, {model.excitation_names[key[1]]})")
-        seen[key] = j
+            problems.add(f"{measured.place(seen[key])} and {measured.place(j)}: channels "
+                         f"{measured.channel_label(seen[key])!r} and {measured.channel_label(j)!r} are the same "
+                         f"model sensor and excitation ({model.sensor_names[key[0]]}, "
+                         f"{model.excitation_names[key[1]]})")
+        else:
+            seen[key] = j
+    problems.check()
     return np.array(responses), np.array(references), info, np.array(signs, float)
 
 

@@ -180,7 +180,7 @@ class RefinedIntervals:
 
 def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, upper, noise: float | None = None,
                         level: float = 0.95, width_threshold: float = WIDTH_THRESHOLD, max_jacobians: int = 3,
-                        step_tolerance: float = 0.1) -> RefinedIntervals:
+                        step_tolerance: float = 0.1, channels=None) -> RefinedIntervals:
     """Laplace intervals at the log-amplitude least-squares optimum near an update's result.
 
     The update's result (the polish's best FE run) is within a fraction of
@@ -208,6 +208,11 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
         At least 1.
     step_tolerance : float
         In standard deviations.
+    channels : (responses, references), optional
+        (sensor, excitation) channels of ``measured_amplitude``'s columns (:meth:`ParametricModel.parameter_frf`):
+        several references (roving hammer, MIMO) are stacked in one residual, every (line, channel) amplitude
+        with the same relative noise; one Krylov space per point carries all their loads. None = the model's
+        sensors under its load.
 
     Returns
     -------
@@ -219,7 +224,7 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
 
     def at(alpha):  # residual and Jacobian from one Krylov space
-        J, Z = log_amplitude_jacobian(model, alpha, freqs, return_frf=True)
+        J, Z = log_amplitude_jacobian(model, alpha, freqs, return_frf=True, channels=channels)
         return np.log(np.abs(Z)).ravel() - log_u, J
 
     return _gauss_newton_intervals(at, alpha0, lo, hi, model.parameter_names, noise, level, width_threshold,

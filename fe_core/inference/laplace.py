@@ -229,7 +229,10 @@ def laplace_intervals(residual, jacobian, estimate, names=None, noise: float | N
         q = float(stats.norm.ppf(0.5 + level / 2))
 
     # (J^T J)^-1 through the SVD; a parameter with weight on a (numerically) null direction is unbounded.
-    _, s, Vt = np.linalg.svd(J, full_matrices=True)
+    # Thin SVD: only V is needed. The full one built U, N x N (N = lines x channels: 9,606 values of 1,601 lines
+    # x 6 channels make 0.74 GB; complex residuals double N and quadruple it), the peak memory of a run.
+    # Fewer values than parameters need the full V (its null directions).
+    _, s, Vt = np.linalg.svd(J, full_matrices=N < m)
     s = np.concatenate([s, np.zeros(m - s.size)]) if s.size < m else s
     full = s > (s[0] * max(N, m) * np.finfo(float).eps if s[0] > 0 else 0.0)
     V = Vt.T

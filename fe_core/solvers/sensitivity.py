@@ -190,7 +190,7 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
 
 
 def log_amplitude_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov",
-                           return_frf: bool = False):
+                           return_frf: bool = False, channels=None):
     """Normalised sensitivity ``d log|Z_fs| / d alpha_i`` of the FRF amplitudes.
 
     Parameters
@@ -200,6 +200,9 @@ def log_amplitude_jacobian(model: ParametricModel, alpha, freqs_hz, method: str 
     return_frf : bool
         Also return the receptance ``Z`` (shape (p, n_sensors)) it was computed
         with: the same FRF as ``model.frf`` (to 1e-9), for free.
+    channels : (responses, references), optional
+        As in :func:`frf_jacobian`: (sensor, excitation) channels, several references stacked (roving
+        hammer, MIMO); then the rows are frequency-major with channels fastest.
 
     Returns
     -------
@@ -207,7 +210,7 @@ def log_amplitude_jacobian(model: ParametricModel, alpha, freqs_hz, method: str 
         Rows frequency-major with sensors fastest (the layout of Eq. 5), one
         column per parameter; dimensionless.
     """
-    Z, dZ = frf_jacobian(model, alpha, freqs_hz, method)
+    Z, dZ = frf_jacobian(model, alpha, freqs_hz, method, channels=channels)
     J = np.real(dZ / Z[:, :, None])  # d log|Z| = Re(dZ / Z)
     J = J.reshape(-1, J.shape[-1])
     return (J, Z) if return_frf else J

@@ -210,7 +210,10 @@ def intervals_section(data: RunData, out: Path) -> Section | None:
         laplace_std = arr(d["laplace"]["std"][n] for n in names) if "laplace" in d else None
     fig = plot_intervals(names, est, std, low, high, corr, out / "intervals.png", truth, _bounds(data),
                          samples=samples, weights=weights, laplace_std=laplace_std)
-    table = pd.DataFrame({"parameter": names, "estimate": est, "low (95 %)": low, "high (95 %)": high, "std": std})
+    conditional = s.get("interval_status") == "conditional"
+    level = "conditional" if conditional else "95 %"
+    table = pd.DataFrame({"parameter": names, "estimate": est, f"low ({level})": low, f"high ({level})": high,
+                          "std": std})
     if truth is not None:
         table["true"] = truth
         table["contains truth"] = (low <= truth) & (truth <= high)
@@ -229,8 +232,12 @@ def intervals_section(data: RunData, out: Path) -> Section | None:
                   f"{d['quantile']:.3f}); cost {spent}. The coverage of these intervals is checked in "
                   "docs/coverage.md and docs/posterior.md.", *([f"Why: {d['method_reason']}"] if "method_reason" in d
                                                                else []), *d["flags"]]
+    if conditional:  # the model does not explain the data: not 95 % intervals (flows.summary.interval_status)
+        paragraphs.insert(0, f"These intervals are {s['conditional_on']}. They would be 95 % intervals if the model "
+                             "were right; here they understate the uncertainty and are not 95 % intervals.")
     return Section(title="How sure: parameter intervals", paragraphs=paragraphs,
-                   tables=[("95 % intervals", table)], figures=[(fig, "Marginal posteriors and correlations")])
+                   tables=[("Intervals conditional on the model" if conditional else "95 % intervals", table)],
+                   figures=[(fig, "Marginal posteriors and correlations")])
 
 
 # -- Figure 9 -------------------------------------------------------------------------------------

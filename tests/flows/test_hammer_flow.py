@@ -96,8 +96,8 @@ def test_the_hammer_test_selects_its_two_resonances():
 @pytest.mark.slow
 def test_two_references_at_once_run_through_the_flow(reduced_settings, prefect_harness, tmp_path):
     """MIMO: three responses under the hammer (UFF-style node labels) and three under the combined load (names),
-    made with the direct solver at the actual alpha; the run evaluates all six channels per FE run and skips the
-    intervals (one reference needed) with the reason."""
+    made with the direct solver at the actual alpha; the run evaluates all six channels per FE run, and the
+    intervals stack the two references in one error model."""
     from tasks.io.measured import MeasuredFRF
 
     model = load_model("three_plate")
@@ -113,7 +113,8 @@ def test_two_references_at_once_run_through_the_flow(reduced_settings, prefect_h
     info = json.loads((tmp_path / "runs" / "mimo" / "manifest.json").read_text())["measured_data"]
     assert [c["excitation"] for c in info["channels"]] == ["hammer"] * 3 + ["combined"] * 3
     assert [c["sensor"] for c in info["channels"]] == ["s2", "s4", "s6", "s1", "s3", "s5"]
-    assert "2 references" in summary["intervals_skipped"] and "intervals" not in summary
+    assert "intervals_skipped" not in summary and set(summary["intervals"]) == set(summary["parameters"])
+    assert summary["interval_details"]["references"] == 2
     assert len(summary["per_sensor_error"]) == 6
     stage = tmp_path / "runs" / "mimo" / "iteration=1" / "stage=fe"
     fe, runs = pd.read_parquet(stage / "responses.parquet"), pd.read_parquet(stage / "runs.parquet")

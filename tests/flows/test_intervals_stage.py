@@ -54,7 +54,10 @@ def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_reruns_
     out = io.StringIO()
     update.print_summary(summary, file=out)
     text = out.getvalue()
-    assert "+/- (95 %)" in text and "laplace" in text and "noise 0.2 % (given, normal" in text
+    # This reduced run ends far from the optimum (tens of % per channel): the residual there is structure, so the
+    # intervals are conditional, not 95 % ones (tests/flows/test_conditional_intervals.py has the full story).
+    assert summary["residual_check"]["structured"] and summary["interval_status"] == "conditional"
+    assert "+/- (cond.)" in text and "laplace" in text and "noise 0.2 % (given, normal" in text
     assert "exact Jacobian" in text and "% of the update's" in text
 
     # resume: read back; with another noise level: recomputed from the same start, widths scale with the noise

@@ -537,8 +537,9 @@ def test_cli_prints_one_line_summary(tmp_path, rng, capsys):
     path = write_measured(tmp_path / "m.csv", _random_measured(rng, BAND_HZ, [1, 2, 3]))
     assert main([str(path)]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert len(out) == 1
+    assert len(out) == 2  # the summary, then the one note: the unit (none declared: SI)
     assert f"3 sensors (1..3), {BAND_HZ.size} frequencies (106..295 Hz)" in out[0]
+    assert "values read as SI (m/N)" in out[1]
 
 
 def test_cli_prints_error_and_exits_2(tmp_path, capsys):

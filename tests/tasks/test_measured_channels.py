@@ -263,12 +263,16 @@ def test_bad_uff_names_the_dataset(tmp_path, build, expected):
         assert text in message, message
 
 
-def test_uff_in_other_units_is_refused(tmp_path):
+def test_uff_in_other_units_is_converted_by_dataset_164(tmp_path):
+    """Unlabelled data in the foot-pound system (164 gives file units per SI unit: 1/0.3048 ft per m,
+    1/4.4482216152605 lbf per N): an accelerance of 1e-3 (ft/s^2)/lbf is 1e-3 x 0.3048 / 4.448... (m/s^2)/N."""
     path = tmp_path / "m.uff"
     uff = pyuff.UFF(str(path))
     uff.write_sets(pyuff.prepare_164(units_code=2, units_description="Foot-pound", temp_mode=1,
-                                     length=0.3048, force=4.448, temp=1.8, temp_offset=459.67),
+                                     length=1 / 0.3048, force=1 / 4.4482216152605, temp=1.8, temp_offset=459.67),
                    mode="overwrite")
     uff.write_sets(_frf58((1, 3), (1, 3), np.array([1.0, 2.0]), np.ones(2) * 1e-3), mode="add")
-    with pytest.raises(MeasuredDataError, match="dataset 1: units code 2"):
-        read_measured(path)
+    m = read_measured(path)
+    expected = 1e-3 * 0.3048 / 4.4482216152605 / (2 * np.pi * np.array([1.0, 2.0])) ** 2
+    np.testing.assert_allclose(m.amplitude[:, 0], expected, rtol=1e-12)
+    assert any("dataset 164" in note and "units code 2" in note for note in m.notes)

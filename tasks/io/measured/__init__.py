@@ -10,10 +10,15 @@
 - :mod:`.uff`: Universal File Format dataset 58 (FRFs and coherence; response
   and reference nodes and directions, ordinate kind).
 
+- :mod:`.units`: the units labels test systems write (``g``, ``mm/s``,
+  ``lbf``, ...), UFF58 records 8-10 and dataset 164; every value is converted
+  to SI and the conversion noted, an unknown or contradicting label refused;
+- :mod:`.problems`: every problem of a file collected and reported at once.
+
 ``read_measured`` and ``write_measured`` pick the module by the file's
-extension. Every problem raises :class:`MeasuredDataError` naming the file and
-the place (CSV ``line k`` with the header as line 1, Parquet ``row k``, UFF
-``dataset k`` and ``point j``). ``python -m tasks.io.measured FILE``
+extension. Problems raise one :class:`MeasuredDataError` naming the file and
+the place of each (CSV ``line k`` with the header as line 1, Parquet ``row k``,
+UFF ``dataset k`` and ``point j``): up to 20 listed, then how many more. ``python -m tasks.io.measured FILE``
 validates a file. Matching channels to a model's sensors and excitations is
 not done here (the data alone do not know the model): see
 :mod:`tasks.update_data`.

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .problems import MeasuredDataError, Problems
+
 __all__ = [
     "MeasuredDataError", "MeasuredFRF", "KINDS", "AMPLITUDE_RTOL", "kind_of", "to_receptance",
     "from_receptance", "parse_dof", "dof_label", "grid_from_rows", "first_bad",
@@ -41,16 +43,6 @@ _KIND_NAMES = {
 }
 #: Power of (j w) that turns a receptance into each kind.
 _POWER = {"receptance": 0, "mobility": 1, "accelerance": 2}
-
-
-class MeasuredDataError(ValueError):
-    """A measured-FRF file that does not follow the format.
-
-    The message starts with the file and names the place of the first
-    problem: a column, or a row as the user sees it in the file (for CSV the
-    line number with the header as line 1; for Parquet the 1-based data row;
-    for UFF the 1-based dataset and point).
-    """
 
 
 def kind_of(text) -> str | None:
@@ -169,6 +161,8 @@ class MeasuredFRF:
         Where each frequency line first appears in the file.
     notes : tuple of str
         What was converted or dropped while reading, one sentence each.
+    units : tuple of str, length n, or None
+        The unit each channel had in the file (``"g/N"``), before the conversion to SI; None = SI.
     """
 
     frequencies_hz: np.ndarray
@@ -183,6 +177,7 @@ class MeasuredFRF:
     places: tuple | None = None
     line_places: tuple | None = None
     notes: tuple = ()
+    units: tuple | None = None
 
     def __post_init__(self):
         f = _read_only(self.frequencies_hz, float)
@@ -207,7 +202,7 @@ class MeasuredFRF:
             raise ValueError("coherence must be shaped as amplitude, with values in [0, 1]")
         n = s.size
         for name, value in (("responses", self.responses), ("references", self.references),
-                            ("kinds", self.kinds), ("places", self.places)):
+                            ("kinds", self.kinds), ("places", self.places), ("units", self.units)):
             if value is not None and len(value) != n:
                 raise ValueError(f"{name} must have one entry per channel ({n})")
         if self.line_places is not None and len(self.line_places) != f.size:
@@ -223,7 +218,7 @@ class MeasuredFRF:
         names = ("frequencies_hz", "sensors", "amplitude", "complex_frf", "coherence")
         for name, value in zip(names, (f, s, a, c, g)):
             object.__setattr__(self, name, value)
-        for name in ("responses", "references", "kinds", "places", "line_places", "notes"):
+        for name in ("responses", "references", "kinds", "places", "line_places", "notes", "units"):
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, tuple(value))
@@ -256,18 +251,21 @@ def _read_only(values, dtype):
 
 
 # -- long rows -> grid -------------------------------------------------------------------------
-def first_bad(mask, values, problem, where, source):
-    """Raise naming the first row where ``mask`` holds and how many more there are."""
+def first_bad(mask, values, problem, where, source, problems: Problems | None = None):
+    """Name the first row where ``mask`` holds and how many more there are: raise, or add to ``problems``."""
     bad = np.flatnonzero(mask)
     if bad.size:
         more = f" ({bad.size - 1} more rows like it)" if bad.size > 1 else ""
         value = values[bad[0]]
         value = value.item() if hasattr(value, "item") else value
-        raise MeasuredDataError(f"{source}: {where[bad[0]]}: {problem.format(value)}{more}")
+        message = f"{source}: {where[bad[0]]}: {problem.format(value)}{more}"
+        if problems is None:
+            raise MeasuredDataError(message)
+        problems.add(message)
 
 
 def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, complex_data=None,
-                   file_notes=()) -> MeasuredFRF:
+                   file_notes=(), units=None, problems: Problems | None = None, bad_rows=None) -> MeasuredFRF:
     """Check long rows and reshape them to a :class:`MeasuredFRF` (receptance).
 
     Parameters
@@ -285,46 +283,64 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
         Complex values given directly (UFF); else built from ``real``, ``imag``.
     file_notes : sequence of str
         Notes of the reader to keep.
+    units : ndarray of str, shape (r,), optional
+        The unit each row had in the file (values already converted to SI); one per channel.
+    problems : Problems, optional
+        The reader's problems so far, reported with these checks' in one message.
+    bad_rows : ndarray of bool, shape (r,), optional
+        Rows the reader already found faulty (not checked again).
     """
     if not where:
         raise MeasuredDataError(f"{source}: no data rows")
     r = len(where)
+    # Every check below runs; each names its first row and counts the others.
+    problems = Problems(source) if problems is None else problems
     kinds = np.full(r, "receptance", dtype=object) if kinds is None else np.asarray(kinds, dtype=object)
     numeric = [k for k in ("sensor", "frequency_hz", "amplitude", "real", "imag", "coherence") if k in columns]
+    # Rows with no problem yet: a later check does not repeat an earlier one's row.
+    ok = np.ones(r, dtype=bool) if bad_rows is None else ~np.asarray(bad_rows, dtype=bool)
     for name in numeric:
         values = columns[name]
-        first_bad(~np.isfinite(values), values, name + " is {!r}", where, source)
+        first_bad(ok & ~np.isfinite(values), values, name + " is {!r}", where, source, problems)
+        ok &= np.isfinite(values)
     frequency = columns["frequency_hz"]
     legacy = "sensor" in columns
     if legacy:
         sensor = columns["sensor"]
-        not_id = (sensor < 1) | (sensor != np.round(sensor))
-        first_bad(not_id, sensor, "sensor {!r} is not an integer >= 1", where, source)
+        not_id = ok & ((sensor < 1) | (sensor != np.round(sensor)))
+        first_bad(not_id, sensor, "sensor {!r} is not an integer >= 1", where, source, problems)
+        ok &= ~not_id
     # A mobility or an accelerance is 0 at 0 Hz by definition: such a line carries no information on
     # the structure (what the file holds there is noise) and the FE model needs f > 0, so it is dropped.
     zero = (frequency == 0) & (kinds != "receptance")
-    first_bad((frequency < 0) | ((frequency == 0) & ~zero), frequency, "frequency_hz {!r} is not > 0", where,
-              source)
+    bad = ok & ((frequency < 0) | ((frequency == 0) & ~zero))
+    first_bad(bad, frequency, "frequency_hz {!r} is not > 0", where, source, problems)
+    ok &= ~bad
     if complex_data is None and "real" in columns:
-        complex_data = columns["real"] + 1j * columns["imag"]
+        with np.errstate(invalid="ignore"):  # an infinite cell (reported above) gives nan
+            complex_data = columns["real"] + 1j * columns["imag"]
     if "amplitude" in columns:
         amplitude = columns["amplitude"]
     else:
         amplitude = np.abs(complex_data)
-    first_bad((amplitude <= 0) & ~zero, amplitude, "amplitude {!r} is not > 0", where, source)
+    bad = ok & (amplitude <= 0) & ~zero
+    first_bad(bad, amplitude, "amplitude {!r} is not > 0", where, source, problems)
+    ok &= ~bad
     if complex_data is not None and "amplitude" in columns:
         modulus = np.abs(complex_data)
         with np.errstate(divide="ignore", invalid="ignore"):  # real = imag = 0 gives gap inf: reported
             gap = np.abs(amplitude - modulus) / modulus
         gap = np.where(zero, 0.0, gap)
-        first_bad(~(gap <= AMPLITUDE_RTOL), gap, "amplitude and hypot(real, imag) differ by {:.2g} (relative)",
-                  where, source)
+        first_bad(ok & ~(gap <= AMPLITUDE_RTOL), gap, "amplitude and hypot(real, imag) differ by {:.2g} (relative)",
+                  where, source, problems)
     coherence = columns.get("coherence")
     if coherence is not None:
-        first_bad((coherence < 0) | (coherence > 1), coherence, "coherence {!r} is outside [0, 1]", where, source)
+        first_bad(ok & ((coherence < 0) | (coherence > 1)), coherence, "coherence {!r} is outside [0, 1]", where,
+                  source, problems)
 
     # Channel keys and duplicates.
     if legacy:
+        problems.check()
         keys = [(int(s),) for s in sensor]
     else:
         responses = columns["response"]
@@ -333,20 +349,25 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
         for name, labels in (("response", responses), ("reference", references)):
             for i, label in enumerate(labels):
                 if not label and name == "response":
-                    raise MeasuredDataError(f"{source}: {where[i]}: response is empty")
+                    problems.add(f"{where[i]}: response is empty")
                 if label and label not in canonical:
                     try:
                         dof = parse_dof(label)
                     except ValueError as exc:
-                        raise MeasuredDataError(f"{source}: {where[i]}: {name} {exc}") from None
+                        problems.add(f"{where[i]}: {name} {exc}")
+                        dof = None
                     canonical[label] = label if dof is None else dof_label(*dof)
+        problems.check()
         keys = [(canonical[resp], canonical[ref] if ref else None) for resp, ref in zip(responses, references)]
+    problems.check()
     first_row = {}
     for i, key in enumerate(zip(keys, frequency.tolist())):
         if key in first_row:
-            raise MeasuredDataError(f"{source}: {where[first_row[key]]} and {where[i]} both give"
-                                    f" {_describe_key(key[0])} at frequency_hz {key[1]!r}")
-        first_row[key] = i
+            problems.add(f"{where[first_row[key]]} and {where[i]} both give {_describe_key(key[0])} at "
+                         f"frequency_hz {key[1]!r}")
+        else:
+            first_row[key] = i
+    problems.check()
     # Channels: the legacy form's sensors ascending, otherwise in the order of their first row.
     channel_keys = sorted(set(keys)) if legacy else list(dict.fromkeys(keys))
     channel_of = {key: c for c, key in enumerate(channel_keys)}
@@ -358,9 +379,14 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
         mine = np.flatnonzero(channel == c)
         other = mine[kinds[mine] != kinds[i0]]
         if other.size:
-            raise MeasuredDataError(f"{source}: {where[i0]} and {where[other[0]]}: {_describe_key(channel_keys[c])} "
-                                    f"is given as {kinds[i0]} and as {kinds[other[0]]}; one kind per channel")
+            problems.add(f"{where[i0]} and {where[other[0]]}: {_describe_key(channel_keys[c])} is given as "
+                         f"{kinds[i0]} and as {kinds[other[0]]}; one kind per channel")
         channel_kind.append(str(kinds[i0]))
+        if units is not None and np.any(units[mine] != units[i0]):
+            j = mine[units[mine] != units[i0]][0]
+            problems.add(f"{where[i0]} and {where[j]}: {_describe_key(channel_keys[c])} is given in {units[i0]} "
+                         f"and in {units[j]}; one unit per channel")
+    problems.check()
 
     # Drop the 0 Hz lines (mobility, accelerance), then check the grid.
     notes = list(file_notes)
@@ -421,6 +447,7 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
         places=tuple(where[i] for i in channel_first),
         line_places=tuple(where[line_first[k]] for k in range(frequencies.size)),
         notes=tuple(notes),
+        units=None if units is None else tuple(str(units[i]) for i in channel_first),
     )
 
 

@@ -23,6 +23,12 @@ column             unit          meaning
                                  accelerance ((m/s^2)/N), or those units
 =================  ============  ================================================================
 
+``unit``: optional, per row: the unit of the row's values, response over force (``g/N``, ``mm/s/N``,
+``m/s^2/lbf``; :mod:`.units`); it fixes the row's kind, and the values are converted to SI. The unit of a
+whole file: a comment line ``# unit = g/N`` before the first data row (CSV) or the Parquet schema metadata
+key ``unit``; a ``unit`` cell overrides it. Without a unit the values are SI in the kind's unit. An
+unknown unit, or one of another kind than the row's declared kind, is refused naming it.
+
 The kind of a whole file: a comment line ``# kind = accelerance`` before the
 first data row (CSV; other ``#`` lines are comments), or the Parquet schema
 metadata key ``kind``. Without either the data are receptance. One file holds
@@ -42,13 +48,16 @@ import re
 import numpy as np
 
 from .frf import KINDS, MeasuredDataError, MeasuredFRF, from_receptance, grid_from_rows, kind_of
+from .problems import Problems
+from .units import SI_FRF_UNIT, UnitError, frf_unit
 
 __all__ = ["read_csv", "read_parquet", "write_csv", "write_parquet", "table_columns", "LEGACY_COLUMNS", "COLUMNS"]
 
 LEGACY_COLUMNS = ("sensor", "frequency_hz", "amplitude", "real", "imag")
-COLUMNS = LEGACY_COLUMNS + ("response", "reference", "coherence", "kind")
-TEXT_COLUMNS = ("response", "reference", "kind")
+COLUMNS = LEGACY_COLUMNS + ("response", "reference", "coherence", "kind", "unit")
+TEXT_COLUMNS = ("response", "reference", "kind", "unit")
 _DECLARATION = re.compile(r"^#\s*kind\s*[=:]\s*(.*?)\s*$", re.IGNORECASE)
+_UNIT_DECLARATION = re.compile(r"^#\s*units?\s*[=:]\s*(.*?)\s*$", re.IGNORECASE)
 
 
 def _check_header(names, source):
@@ -79,27 +88,30 @@ def _check_header(names, source):
                                 "measured under the model's default excitation)")
 
 
-def _to_float(cells, name, where, source):
-    """Parse cells one by one so that a bad one can be named."""
+def _to_float(cells, name, where, source, problems: Problems, bad: np.ndarray):
+    """Parse cells one by one so that each bad one can be named (added to ``problems``, its row marked ``bad``)."""
     values = np.empty(len(cells))
     for i, cell in enumerate(cells):
         if cell is None or (isinstance(cell, str) and not cell.strip()):
-            raise MeasuredDataError(f"{source}: {where[i]}: {name} is empty")
+            problems.add(f"{where[i]}: {name} is empty")
+            values[i], bad[i] = np.nan, True
+            continue
         try:
             values[i] = float(cell)
         except (TypeError, ValueError):
-            message = f"{source}: {where[i]}: {name} {cell!r} is not a number"
-            raise MeasuredDataError(message) from None
+            problems.add(f"{where[i]}: {name} {cell!r} is not a number")
+            values[i], bad[i] = np.nan, True
     return values
 
 
-def _to_text(cells, name, where, source):
+def _to_text(cells, name, where, source, problems: Problems, bad: np.ndarray):
     out = np.empty(len(cells), dtype=object)
     for i, cell in enumerate(cells):
         if cell is None:
             cell = ""
         if not isinstance(cell, str):
-            raise MeasuredDataError(f"{source}: {where[i]}: {name} {cell!r} is not text")
+            problems.add(f"{where[i]}: {name} {cell!r} is not text")
+            cell, bad[i] = "", True
         out[i] = cell.strip()
     return out
 
@@ -122,20 +134,77 @@ def _kinds(columns, where, source, declared, declared_at):
     return kinds
 
 
-def _rows(names, records, where, source, declared=None, declared_at=""):
+def _units(columns, where, source, kinds, explicit, unit, unit_at):
+    """Scale the values of rows with a unit (``unit`` column, else the file's) to SI; the unit fixes the kind.
+
+    Returns the unit of each row (None without any) and the notes. ``explicit`` marks rows whose kind was
+    given (column or declaration): it must be the unit's.
+    """
+    cells = columns.pop("unit", None)
+    if cells is None and unit is None:
+        si = ", ".join(SI_FRF_UNIT[k] for k in sorted(set(kinds.tolist())))
+        return None, [f"no unit given (no '# unit = ...' line, no 'unit' column): values read as SI ({si})"]
+    r = len(where)
+    labels = np.array([(c or unit or "") for c in (cells if cells is not None else [""] * r)], dtype=object)
+    if np.any(labels == ""):
+        i = int(np.flatnonzero(labels == "")[0])
+        raise MeasuredDataError(f"{source}: {where[i]}: unit is empty and the file declares none (# unit = g/N); "
+                                "give every row a unit or none")
+    notes = []
+    for label in dict.fromkeys(labels.tolist()):
+        rows = np.flatnonzero(labels == label)
+        try:
+            kind, factor = frf_unit(label)
+        except UnitError as exc:
+            at = unit_at if cells is None or not cells[rows[0]] else where[rows[0]]
+            raise MeasuredDataError(f"{source}: {at}: {exc}") from None
+        clash = rows[explicit[rows] & (kinds[rows] != kind)]
+        if clash.size:
+            i = clash[0]
+            raise MeasuredDataError(f"{source}: {where[i]}: unit {label!r} is a {kind}, but the row's kind is "
+                                    f"{kinds[i]}")
+        kinds[rows] = kind
+        for name in ("amplitude", "real", "imag"):
+            if name in columns and factor != 1.0:
+                columns[name] = np.array(columns[name], dtype=float)
+                columns[name][rows] *= factor
+        what = "SI, no conversion" if factor == 1.0 else f"converted to {SI_FRF_UNIT[kind]} (x {factor:.10g})"
+        origin = f"{unit_at} declares it" if cells is None or not np.all([cells[i] for i in rows]) else "unit column"
+        notes.append(f"unit {label} ({kind}) in {rows.size} row(s) ({origin}): {what}")
+    return labels, notes
+
+
+def _rows(names, records, where, source, declared=None, declared_at="", unit=None, unit_at="", problems=None):
+    problems = problems if problems is not None else Problems(source)
+    bad = np.zeros(len(where), dtype=bool)
     columns = {}
     for name, cells in zip(names, records):
         reader = _to_text if name in TEXT_COLUMNS else _to_float
-        columns[name] = reader(cells, name, where, source)
-    kinds = _kinds(columns, where, source, declared, declared_at)
-    return grid_from_rows(columns, where, str(source), kinds=kinds,
-                          file_notes=[f"{declared_at} declares the file's kind: {declared}"] if declared else [])
+        columns[name] = reader(cells, name, where, source, problems, bad)
+    return _grid(columns, where, source, declared, declared_at, unit, unit_at, problems, bad)
+
+
+def _grid(columns, where, source, declared, declared_at, unit, unit_at, problems=None, bad=None):
+    """Kinds and units of the rows, then :func:`.frf.grid_from_rows`; the problems of every step in one message."""
+    problems = problems if problems is not None else Problems(source)
+    explicit = np.full(len(where), declared is not None)
+    if "kind" in columns:
+        explicit |= np.array([bool(c) for c in columns["kind"]], dtype=bool)
+    before = len(problems)
+    with problems.collect():
+        kinds = _kinds(columns, where, source, declared, declared_at)
+        labels, unit_notes = _units(columns, where, source, kinds, explicit, unit, unit_at)
+    if len(problems) > before:
+        problems.check()  # a kind or unit unknown: the values cannot be converted, the grid not checked
+    notes = [f"{declared_at} declares the file's kind: {declared}"] if declared else []
+    return grid_from_rows(columns, where, str(source), kinds=kinds, file_notes=notes + unit_notes, units=labels,
+                          problems=problems, bad_rows=bad)
 
 
 # -- CSV ---------------------------------------------------------------------------------------
 def read_csv(path) -> MeasuredFRF:
     records, where = [], []
-    declared, declared_at = None, ""
+    declared, declared_at, unit, unit_at = None, "", None, ""
     try:
         # utf-8-sig: spreadsheet programs put a byte-order mark before the header.
         with open(path, newline="", encoding="utf-8-sig") as fh:
@@ -148,6 +217,13 @@ def read_csv(path) -> MeasuredFRF:
                 continue
             if record[0].lstrip().startswith("#"):
                 match = _DECLARATION.match(",".join(record).strip())
+                unit_match = _UNIT_DECLARATION.match(",".join(record).strip())
+                if unit_match:
+                    if unit is not None or len(records) > 1:
+                        raise MeasuredDataError(f"{path}: line {reader.line_num}: a second unit declaration or "
+                                                "one after data rows; one '# unit = ...' before the header or "
+                                                "the first data row, or a 'unit' column")
+                    unit, unit_at = unit_match.group(1), f"line {reader.line_num}"
                 if match:
                     declared, declared_at = _declaration(match.group(1), f"line {reader.line_num}", path,
                                                          declared, declared_at, len(records) > 1)
@@ -160,14 +236,18 @@ def read_csv(path) -> MeasuredFRF:
         raise MeasuredDataError(f"{path}: empty file (no header line)")
     names = [name.strip() for name in records[0]]
     _check_header(names, path)
+    problems = Problems(path)
+    kept, kept_where = [], []
     for record, place in zip(records[1:], where[1:]):
         if len(record) != len(names):
-            raise MeasuredDataError(
-                f"{path}: {place}: {len(record)} fields, the header has {len(names)}"
-            )
-    where = where[1:]
-    cells = list(zip(*records[1:])) or [()] * len(names)
-    return _rows(names, cells, where, path, declared, declared_at)
+            problems.add(f"{place}: {len(record)} fields, the header has {len(names)}")
+        else:
+            kept.append(record)
+            kept_where.append(place)
+    if not kept:
+        problems.check()
+    cells = list(zip(*kept)) or [()] * len(names)
+    return _rows(names, cells, kept_where, path, declared, declared_at, unit, unit_at, problems)
 
 
 def _declaration(text, place, path, declared, declared_at, after_data):
@@ -203,6 +283,7 @@ def read_parquet(path) -> MeasuredFRF:
         declared = kind_of(text)
         if declared is None:
             raise MeasuredDataError(f"{path}: schema metadata 'kind' = {text!r} is not one of {', '.join(KINDS)}")
+    problems, bad = Problems(path), np.zeros(table.num_rows, dtype=bool)
     cells = []
     for name in names:
         values = table.column(name).to_numpy(zero_copy_only=False)
@@ -212,15 +293,14 @@ def read_parquet(path) -> MeasuredFRF:
     columns = {}
     for name, values in zip(names, cells):
         if name in TEXT_COLUMNS:
-            columns[name] = _to_text(values, name, where, path)
+            columns[name] = _to_text(values, name, where, path, problems, bad)
         elif values.dtype.kind == "f":
             columns[name] = values
         else:
-            columns[name] = _to_float(values, name, where, path)
-    kinds = _kinds(columns, where, path, declared, "the schema metadata")
-    return grid_from_rows(columns, where, str(path), kinds=kinds,
-                          file_notes=[f"the schema metadata declares the file's kind: {declared}"] if declared
-                          else [])
+            columns[name] = _to_float(values, name, where, path, problems, bad)
+    unit = metadata[b"unit"].decode("utf-8", errors="replace") if b"unit" in metadata else None
+    return _grid(columns, where, path, declared, "the schema metadata", unit, "the schema metadata 'unit'", problems,
+                 bad)
 
 
 # -- writing -----------------------------------------------------------------------------------

@@ -15,7 +15,9 @@ What is read from each dataset 58 (record numbers of the standard, pyuff's keys)
   9 reaction force, 0 unknown are accepted as force);
 - record 12: abscissa (Hz) and ordinates.
 
-Units are SI (m, s, N); a dataset 164 declaring other units is refused.
+Units (:mod:`.units`): the units labels of records 8-10 and the unit system of the last dataset 164
+before the dataset; values are converted to SI and the conversion noted. An unknown label, or one that
+contradicts the data type, is refused naming the dataset and the label.
 
 Two forms:
 
@@ -39,6 +41,8 @@ import logging
 
 import numpy as np
 
+from .problems import Problems
+from .units import SI_FRF_UNIT, UnitError, frequency_unit, uff_units
 from .frf import (DIRECTION_NAMES, MeasuredDataError, MeasuredFRF, dof_label, from_receptance,
                   grid_from_rows, parse_dof)
 
@@ -76,41 +80,43 @@ def read(path) -> MeasuredFRF:
         types = list(uff.get_set_types())
     except Exception as exc:  # pyuff raises bare Exception
         raise MeasuredDataError(f"{path}: not a UFF file ({exc})") from None
-    frfs, coherences, skipped = [], {}, 0
+    frfs, coherences, skipped, system = [], {}, 0, None
+    problems = Problems(path)
     for k, set_type in enumerate(types):
         if set_type not in (58, 164):
             continue
         try:
             dataset = uff.read_sets(k)
         except Exception as exc:
-            message = f"{path}: dataset {k + 1}: unreadable dataset {set_type} ({exc})"
-            raise MeasuredDataError(message) from None
+            problems.add(f"dataset {k + 1}: unreadable dataset {set_type} ({exc})")
+            continue
         if set_type == 164:
-            if dataset.get("units_code", 1) != 1:
-                raise MeasuredDataError(f"{path}: dataset {k + 1}: units code {dataset.get('units_code')} "
-                                        f"({dataset.get('units_description', '').strip()}); only SI (1) is read")
+            system = dict(dataset, dataset=k + 1)
             continue
         func_type = dataset.get("func_type")
         if func_type == 4:
-            frfs.append((k, dataset))
+            frfs.append((k, dataset, system))
         elif func_type == 6:
             key = _key(dataset)
             if key in coherences:
-                raise MeasuredDataError(f"{path}: datasets {coherences[key][0] + 1} and {k + 1}: two coherences "
-                                        f"of response {_label(key[:2])}, reference {_label(key[2:])}")
+                problems.add(f"datasets {coherences[key][0] + 1} and {k + 1}: two coherences of response "
+                             f"{_label(key[:2])}, reference {_label(key[2:])}")
+                continue
             coherences[key] = (k, dataset)
         else:
             skipped += 1
             logger.info("%s: dataset %d (function type %s) is neither an FRF nor a coherence, skipped",
                         path, k + 1, func_type)
     if not frfs:
-        raise MeasuredDataError(f"{path}: no FRF found (dataset 58 with function type 4)")
-    legacy = [dataset["ref_node"] == 0 for _, dataset in frfs]
+        problems.add("no FRF found (dataset 58 with function type 4)")
+        problems.check()
+    legacy = [dataset["ref_node"] == 0 for _, dataset, _ in frfs]
     if any(legacy) and not all(legacy):
         k = frfs[legacy.index(not legacy[0])][0]
-        raise MeasuredDataError(f"{path}: dataset {k + 1}: FRFs with and without a reference node (0) in one "
-                                "file; without one, the data are the legacy form (response node = sensor number)")
-    return _rows(path, frfs, coherences, legacy[0], skipped)
+        problems.add(f"dataset {k + 1}: FRFs with and without a reference node (0) in one file; without one, the "
+                     "data are the legacy form (response node = sensor number)")
+        problems.check()
+    return _rows(path, frfs, coherences, legacy[0], skipped, problems)
 
 
 def _key(dataset) -> tuple:
@@ -122,61 +128,82 @@ def _label(node_dir) -> str:
     return dof_label(node, direction) if abs(direction) <= 6 else f"{node}:{direction}"
 
 
-def _rows(path, frfs, coherences, legacy, skipped):
-    parts, where, kinds, notes, used = [], [], [], [], set()
+def _rows(path, frfs, coherences, legacy, skipped, problems):
+    parts, ks, where, kinds, units, notes = [], [], [], [], [], []
+    used = {_key(dataset) for _, dataset, _ in frfs}  # a coherence whose FRF is faulty is not also an orphan
     complex_kind = set()
-    for k, dataset in frfs:
-        key = _key(dataset)
-        if legacy:
-            place = f"dataset {k + 1} (sensor {key[0]})"
-            if key[1] != UFF_RESPONSE_DIRECTION:
-                raise MeasuredDataError(f"{path}: {place}: response direction {key[1]}, expected +Z (3) in a "
-                                        "file without reference nodes (the legacy form)")
-        else:
-            place = f"dataset {k + 1} (response {_label(key[:2])}, reference {_label(key[2:])})"
-            for what, direction in (("response", key[1]), ("reference", key[3])):
-                if abs(direction) > 6:
-                    raise MeasuredDataError(f"{path}: {place}: {what} direction {direction} is not a UFF58 "
-                                            "direction code (0, +-1 .. +-6)")
-        ordinate = int(dataset.get("ordinate_spec_data_type", 0))
-        kind = ORDINATE_KIND.get(ordinate)
-        if kind is None and legacy and ordinate == 0:
-            kind = "receptance"
-            notes.append(f"dataset {k + 1}: ordinate type unknown (0), read as receptance (legacy form)")
-        if kind is None:
-            raise MeasuredDataError(f"{path}: {place}: ordinate specific data type {ordinate} (record 9); an FRF "
-                                    "needs 8 (displacement), 11 (velocity) or 12 (acceleration) over force")
-        denominator = int(dataset.get("orddenom_spec_data_type", 0))
-        if denominator not in FORCE_DENOMINATORS:
-            raise MeasuredDataError(f"{path}: {place}: ordinate denominator type {denominator} (record 10) is "
-                                    "not a force (13, 9 or 0)")
-        data = np.asarray(dataset["data"])
-        complex_kind.add(np.iscomplexobj(data))
-        if len(complex_kind) > 1:
-            raise MeasuredDataError(f"{path}: {place}: real and complex FRFs mixed in one file")
-        x = _abscissa(path, place, dataset)
-        coherence = None
-        if key in coherences:
-            used.add(key)
-            ck, cset = coherences[key]
-            cx = np.asarray(cset["x"], dtype=float)
-            cdata = np.asarray(cset["data"])
-            if np.iscomplexobj(cdata) or cx.shape != x.shape or np.any(np.abs(cx - x) > 1e-9 * np.abs(x).max()):
-                raise MeasuredDataError(f"{path}: dataset {ck + 1}: the coherence of {place} must be real and "
-                                        "have the FRF's frequency lines")
-            coherence = cdata.astype(float)
-        parts.append((key, x, data, coherence, kind))
-        where += [f"{place} point {j + 1}" for j in range(data.size)]
-        kinds += [kind] * data.size
+    for k, dataset, system in frfs:
+        with problems.collect():
+            key, x, data, coherence, kind, place, unit = _part(path, k, dataset, system, legacy, coherences, used,
+                                                               notes, complex_kind)
+            parts.append((key, x, data, coherence, kind))
+            where += [f"{place} point {j + 1}" for j in range(data.size)]
+            kinds += [kind] * data.size
+            units += [unit["unit"]] * data.size
+            ks.append(k)
+    if not parts:
+        problems.check()
+    return _grid(path, coherences, legacy, skipped, problems, parts, ks, where, kinds, units, notes, used)
+
+
+def _part(path, k, dataset, system, legacy, coherences, used, notes, complex_kind):
+    """One FRF dataset checked and converted: (key, abscissa Hz, values SI, coherence, kind, place, unit)."""
+    key = _key(dataset)
+    if legacy:
+        place = f"dataset {k + 1} (sensor {key[0]})"
+        if key[1] != UFF_RESPONSE_DIRECTION:
+            raise MeasuredDataError(f"{path}: {place}: response direction {key[1]}, expected +Z (3) in a "
+                                    "file without reference nodes (the legacy form)")
+    else:
+        place = f"dataset {k + 1} (response {_label(key[:2])}, reference {_label(key[2:])})"
+        for what, direction in (("response", key[1]), ("reference", key[3])):
+            if abs(direction) > 6:
+                raise MeasuredDataError(f"{path}: {place}: {what} direction {direction} is not a UFF58 "
+                                        "direction code (0, +-1 .. +-6)")
+    ordinate = int(dataset.get("ordinate_spec_data_type", 0))
+    if ordinate not in ORDINATE_KIND and ordinate not in (0, 1):
+        raise MeasuredDataError(f"{path}: {place}: ordinate specific data type {ordinate} (record 9); an FRF "
+                                "needs 8 (displacement), 11 (velocity) or 12 (acceleration) over force")
+    denominator = int(dataset.get("orddenom_spec_data_type", 0))
+    if denominator not in FORCE_DENOMINATORS:
+        raise MeasuredDataError(f"{path}: {place}: ordinate denominator type {denominator} (record 10) is "
+                                "not a force (13, 9 or 0)")
+    unit = _units(path, place, dataset, system, ordinate, legacy, k, notes)
+    kind = unit["kind"]
+    data = np.asarray(dataset["data"])
+    if unit["factor"] != 1.0:
+        data = data * unit["factor"]
+    complex_kind.add(np.iscomplexobj(data))
+    if len(complex_kind) > 1:
+        raise MeasuredDataError(f"{path}: {place}: real and complex FRFs mixed in one file")
+    x = _abscissa(path, place, dataset) * unit["frequency_factor"]
+    coherence = None
+    if key in coherences:
+        used.add(key)
+        ck, cset = coherences[key]
+        try:
+            cx = np.asarray(cset["x"], dtype=float) * frequency_unit(cset.get("abscissa_axis_units_lab", ""))
+        except UnitError as exc:
+            raise MeasuredDataError(f"{path}: dataset {ck + 1}: record 8: {exc}") from None
+        cdata = np.asarray(cset["data"])
+        if np.iscomplexobj(cdata) or cx.shape != x.shape or np.any(np.abs(cx - x) > 1e-9 * np.abs(x).max()):
+            raise MeasuredDataError(f"{path}: dataset {ck + 1}: the coherence of {place} must be real and "
+                                    "have the FRF's frequency lines")
+        coherence = cdata.astype(float)
+    return key, x, data, coherence, kind, place, unit
+
+
+def _grid(path, coherences, legacy, skipped, problems, parts, ks, where, kinds, units, notes, used):
+    """The datasets read as long rows, checked together (:func:`.frf.grid_from_rows`) with every problem so far."""
     given = [c is not None for *_, c, _ in parts]
     if any(given) and not all(given):
-        k = frfs[given.index(False)][0]
-        raise MeasuredDataError(f"{path}: dataset {k + 1}: no coherence dataset for this FRF, while "
-                                f"{sum(given)} other FRFs have one; give all or none")
-    for key in set(coherences) - used:
+        k = ks[given.index(False)]
+        problems.add(f"dataset {k + 1}: no coherence dataset for this FRF, while {sum(given)} other FRFs have "
+                     "one; give all or none")
+    for key in sorted(set(coherences) - used):
         ck = coherences[key][0]
-        raise MeasuredDataError(f"{path}: dataset {ck + 1}: coherence of response {_label(key[:2])}, reference "
-                                f"{_label(key[2:])} belongs to no FRF in the file")
+        problems.add(f"dataset {ck + 1}: coherence of response {_label(key[:2])}, reference {_label(key[2:])} "
+                     "belongs to no FRF in the file")
     if skipped:
         notes.append(f"skipped {skipped} dataset(s) that are neither FRFs nor coherences")
     frequency = np.concatenate([x for _, x, *_ in parts])
@@ -198,7 +225,41 @@ def _rows(path, frfs, coherences, legacy, skipped):
     else:
         columns["amplitude"] = data.astype(float)
     return grid_from_rows(columns, where, str(path), kinds=np.array(kinds, dtype=object),
-                          complex_data=complex_data, file_notes=notes)
+                          complex_data=complex_data, file_notes=_unit_notes(notes), units=np.array(units, dtype=object),
+                          problems=problems)
+
+
+def _units(path, place, dataset, system, ordinate, legacy, k, notes) -> dict:
+    """The dataset's units (:func:`.units.uff_units`); the legacy form's unlabelled type 0 is receptance in m/N."""
+    if legacy and ordinate == 0 and str(dataset.get("ordinate_axis_units_lab", "")).strip().upper() in ("", "NONE"):
+        notes.append(f"dataset {k + 1}: ordinate type unknown (0), read as receptance (legacy form)")
+        ordinate = KIND_ORDINATE["receptance"]
+    try:
+        unit = uff_units(dataset, system, ordinate)
+    except UnitError as exc:
+        raise MeasuredDataError(f"{path}: {place}: {exc}") from None
+    source = unit["source"] if system is None or unit["source"] != "dataset 164" else \
+        f"unit system of the dataset 164 at dataset {system['dataset']}"
+    notes.append(("unit", unit["unit"], unit["kind"], unit["factor"], unit["frequency_factor"], source, k + 1))
+    return unit
+
+
+def _unit_notes(notes) -> list:
+    """Plain notes, plus one sentence per distinct unit: how many datasets, the factor to SI, from where."""
+    out = [n for n in notes if isinstance(n, str)]
+    groups = {}
+    for _, unit, kind, factor, ffactor, source, k in (n for n in notes if not isinstance(n, str)):
+        groups.setdefault((unit, kind, factor, ffactor, source), []).append(k)
+    for (unit, kind, factor, ffactor, source), ks in groups.items():
+        si = SI_FRF_UNIT[kind]
+        what = "SI, no conversion" if factor == 1.0 else f"converted to {si} (x {factor:.10g})"
+        freq = "" if ffactor == 1.0 else f"; abscissa converted to Hz (x {ffactor:.10g})"
+        out.append(f"unit {unit} ({kind}) in {len(ks)} dataset(s) ({_ranges(ks)}; {source}): {what}{freq}")
+    return out
+
+
+def _ranges(ks) -> str:
+    return "dataset " + ", ".join(str(k) for k in ks[:6]) + (f" ... {ks[-1]}" if len(ks) > 6 else "")
 
 
 def _abscissa(path, place, dataset) -> np.ndarray:
