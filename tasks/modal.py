@@ -1,0 +1,132 @@
+"""Modal data's steps, one core call each: read and match the measured modes to a model, correlate (FE
+modes at the test DOFs, MAC, pairing, frequency differences, COMAC), the MAC picture, the modal update
+(:mod:`fe_core.modal_update`) with its FE runs logged to the run folder, and the identifiability check.
+The commands are :mod:`flows.correlate` and :mod:`flows.modal_update`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from fe_core.correlation import comac, frequency_differences, mac_matrix, pair_modes, pairing_report
+from fe_core.modal_update import ModalResidual, fit_modes, identifiability
+from tasks.io.measured.frf import MeasuredDataError
+from tasks.io.measured.modes import read_modes
+from tasks.modal_data import band_limit, check_band, match_modes
+from tasks.runstore import atomic_write_json
+
+__all__ = ["load_modal_data", "correlate", "mac_figure", "modal_residual", "check_identifiable", "run_fit",
+           "N_EXTRA_MODES"]
+
+#: Model modes computed beyond the measured ones, for pairing and tracking.
+N_EXTRA_MODES = 6
+
+
+def load_modal_data(measured_path, model, upper: float):
+    """Read, match and band-check a modal file: :class:`tasks.modal_data.ModalData` and ``n_model``."""
+    modes = read_modes(measured_path)
+    data = match_modes(modes, model)
+    n_model = min(modes.n_modes + N_EXTRA_MODES, model.n_dofs - 1)
+    check_band(modes, band_limit(model, n_model, upper), n_model)
+    return data, n_model
+
+
+def correlate(data, model, theta, n_model: int, threshold: float) -> dict:
+    """FE modes at ``theta`` read at the test DOFs against the measured ones: a JSON-ready dict."""
+    alpha, gamma = model.factors(theta)
+    from fe_core.solvers.modal import eigenmodes
+
+    freqs, vecs = eigenmodes(model.stiffness(alpha), model.mass(gamma), n_model)
+    psi = (data.outputs.T @ vecs).T
+    m = data.modes
+    mac = mac_matrix(m.shapes, psi)
+    model_names = [f"model mode {k + 1}" for k in range(n_model)]
+    pairing = pair_modes(mac, threshold, m.names, model_names)
+    diffs = frequency_differences(m.frequencies_hz, freqs, pairing)
+    co = comac(m.shapes[pairing.test], psi[pairing.model]) if pairing.n_pairs else np.ones(len(m.dofs))
+    return {
+        "theta": np.asarray(theta, float).tolist(), "threshold": threshold,
+        "test_modes": m.names, "test_frequencies_hz": m.frequencies_hz.tolist(),
+        "model_frequencies_hz": freqs.tolist(), "mac": mac.tolist(),
+        "pairs": [{"test": m.names[t], "model": model_names[j], "f_test_hz": float(m.frequencies_hz[t]),
+                   "f_model_hz": float(freqs[j]), "difference": float(d), "mac": float(v)}
+                  for t, j, d, v in zip(pairing.test, pairing.model, diffs, pairing.mac)],
+        "unpaired_test": [m.names[k] for k in pairing.unpaired_test], "messages": pairing.messages,
+        "comac": dict(zip(m.dofs, co.tolist())),
+        "table": pairing_report(pairing, m.frequencies_hz, freqs, m.names, model_names),
+    }
+
+
+def mac_figure(result: dict, path: Path, title: str) -> Path:
+    """The MAC matrix as a picture (PNG), test modes down, model modes across, pairs outlined."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    mac = np.asarray(result["mac"])
+    fig = Figure(figsize=(1.2 + 0.55 * mac.shape[1], 1.2 + 0.55 * mac.shape[0]))
+    ax = fig.add_subplot()
+    im = ax.imshow(mac, vmin=0, vmax=1, cmap="viridis")
+    for i in range(mac.shape[0]):
+        for j in range(mac.shape[1]):
+            ax.text(j, i, f"{mac[i, j]:.2f}", ha="center", va="center", fontsize=7,
+                    color="black" if mac[i, j] > 0.5 else "white")
+    names = [n for n in result["test_modes"]]
+    ax.set_yticks(range(len(names)), names)
+    ax.set_xticks(range(mac.shape[1]), [str(k + 1) for k in range(mac.shape[1])])
+    ax.set_xlabel("model mode")
+    ax.set_title(title, fontsize=9)
+    fig.colorbar(im, ax=ax, label="MAC")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def modal_residual(data, model, n_model, sigma_f, sigma_s, threshold) -> ModalResidual:
+    m = data.modes
+    return ModalResidual(model, data.outputs, m.frequencies_hz, m.shapes, sigma_f, sigma_s, n_model, threshold,
+                         m.names)
+
+
+def check_identifiable(residual: ModalResidual, names: list[str], source: str) -> None:
+    """Refuse fewer paired modes than parameters, naming the parameters the frequencies cannot fix."""
+    theta0 = np.zeros(len(names))
+    pairing = residual.set_active(theta0)
+    if pairing.n_pairs >= len(names):
+        return
+    dfreq = residual.evaluate(theta0)["J"][:: 1 if residual.sigma_u is None else residual.n_dofs + 1]
+    lost = identifiability(dfreq, names)
+    raise MeasuredDataError(
+        f"{source}: {pairing.n_pairs} paired mode(s) for {len(names)} parameters: fewer paired modes than "
+        f"parameters; not identifiable from the frequencies: {', '.join(lost) or 'none singled out'}"
+        + ("; unpaired: " + "; ".join(pairing.messages) if pairing.messages else ""))
+
+
+def run_fit(residual: ModalResidual, lower, upper, n_starts, seed, stated, folder: Path):
+    """The fit, with every FE run (eigen-solve) logged to ``<folder>/modal_runs.jsonl``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    log = open(folder / "modal_runs.jsonl", "w")
+    inner = residual.modes_at
+
+    def logged(theta):
+        out = inner(theta)
+        log.write(json.dumps({"run": residual.n_evaluations, "theta": np.asarray(theta, float).tolist(),
+                              "frequencies_hz": out[0].tolist()}) + "\n")
+        log.flush()
+        return out
+
+    residual.modes_at = logged
+    try:
+        residual.set_active(np.zeros(lower.size))
+        return fit_modes(residual, lower, upper, n_starts=n_starts, seed=seed, stated=stated)
+    finally:
+        residual.modes_at = inner
+        log.close()
+
+
+def write_json(path: Path, obj) -> None:
+    atomic_write_json(Path(path), obj)
