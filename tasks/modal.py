@@ -92,17 +92,27 @@ def modal_residual(data, model, n_model, sigma_f, sigma_s, threshold) -> ModalRe
                          m.names)
 
 
-def check_identifiable(residual: ModalResidual, names: list[str], source: str) -> None:
-    """Refuse fewer paired modes than parameters, naming the parameters the frequencies cannot fix."""
+def check_identifiable(residual: ModalResidual, names: list[str], source: str) -> list[str]:
+    """Refuse fewer paired modes than parameters when the data cannot make up for them.
+
+    With frequencies only, fewer paired modes than parameters is refused, naming the parameters the
+    frequencies cannot fix (:func:`fe_core.modal_update.identifiability`). With shapes, the shapes carry
+    information too: fewer modes are accepted when the whole Jacobian (frequencies and shapes) at the nominal
+    model has full numerical rank, else refused naming the parameters past its rank. Returns notes.
+    """
     theta0 = np.zeros(len(names))
     pairing = residual.set_active(theta0)
     if pairing.n_pairs >= len(names):
-        return
-    dfreq = residual.evaluate(theta0)["J"][:: 1 if residual.sigma_u is None else residual.n_dofs + 1]
-    lost = identifiability(dfreq, names)
+        return []
+    lost = identifiability(residual.evaluate(theta0)["J"], names)
+    shapes = residual.sigma_u is not None
+    if shapes and not lost:
+        return [f"{pairing.n_pairs} paired modes for {len(names)} parameters: the shapes make up for the "
+                "missing frequencies (the Jacobian of frequencies and shapes has full rank at the nominal model)"]
+    what = "the frequencies and shapes" if shapes else "the frequencies"
     raise MeasuredDataError(
         f"{source}: {pairing.n_pairs} paired mode(s) for {len(names)} parameters: fewer paired modes than "
-        f"parameters; not identifiable from the frequencies: {', '.join(lost) or 'none singled out'}"
+        f"parameters, and {what} cannot determine {', '.join(lost)} (not identifiable)"
         + ("; unpaired: " + "; ".join(pairing.messages) if pairing.messages else ""))
 
 
