@@ -117,25 +117,17 @@ def check_identifiable(residual: ModalResidual, names: list[str], source: str) -
 
 
 def run_fit(residual: ModalResidual, lower, upper, n_starts, seed, stated, folder: Path):
-    """The fit, with every FE run (eigen-solve) logged to ``<folder>/modal_runs.jsonl``."""
+    """The fit; every FE run of the residual (eigen-solve: parameters, frequencies) goes to
+    ``<folder>/modal_runs.jsonl``, the checks' runs before it included."""
     folder.mkdir(parents=True, exist_ok=True)
-    log = open(folder / "modal_runs.jsonl", "w")
-    inner = residual.modes_at
-
-    def logged(theta):
-        out = inner(theta)
-        log.write(json.dumps({"run": residual.n_evaluations, "theta": np.asarray(theta, float).tolist(),
-                              "frequencies_hz": out[0].tolist()}) + "\n")
-        log.flush()
-        return out
-
-    residual.modes_at = logged
+    residual.set_active(np.zeros(lower.size))
     try:
-        residual.set_active(np.zeros(lower.size))
         return fit_modes(residual, lower, upper, n_starts=n_starts, seed=seed, stated=stated)
     finally:
-        residual.modes_at = inner
-        log.close()
+        text = "".join(json.dumps(h) + "\n" for h in residual.history)
+        from tasks.runstore import atomic_write_bytes
+
+        atomic_write_bytes(folder / "modal_runs.jsonl", text.encode())
 
 
 def write_json(path: Path, obj) -> None:

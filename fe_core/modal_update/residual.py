@@ -65,6 +65,7 @@ class ModalResidual:
         self.names = names or [f"mode {k + 1}" for k in range(self.f_test.size)]
         self.dmats = parameter_matrices(model)
         self.n_evaluations = 0
+        self.history: list[dict] = []  # every FE run (eigen-solve): parameters and frequencies
         self.n_jacobians = 0
         self._modes: dict = {}
         self.swaps: list[str] = []
@@ -75,7 +76,10 @@ class ModalResidual:
     def set_active(self, theta) -> "Pairing":
         """Pair at ``theta`` (MAC >= threshold) and keep the paired test modes for the update: the residual
         has one fixed length; each later evaluation pairs these modes anew (assignment, no threshold)."""
-        freqs, psi, *_ = self.modes_at(theta)
+        key = tuple(np.asarray(theta, float).tolist())
+        if key not in self._modes:
+            self._modes = {key: self.modes_at(theta)}
+        freqs, psi, *_ = self._modes[key]
         p = self.pairing(psi)
         self.active = p.test.copy()
         self.last_pairs = (tuple(p.test.tolist()), tuple(p.model.tolist()))
@@ -87,6 +91,9 @@ class ModalResidual:
         alpha, gamma = self.model.factors(theta)
         K, M = self.model.stiffness(alpha), self.model.mass(gamma)
         freqs, vecs = eigenmodes(K, M, self.n_model)
+        self.history.append({"run": len(self.history) + 1, "theta": np.asarray(theta, float).tolist(),
+                             "frequencies_hz": freqs.tolist()})
+        self.n_evaluations = len(self.history)
         return freqs, (self.L.T @ vecs).T, vecs, (2 * np.pi * freqs) ** 2, K, M
 
     def pairing(self, psi):
@@ -104,7 +111,7 @@ class ModalResidual:
         if (key, True) in self._cache:
             return self._cache[(key, True)]
         if key not in self._modes:
-            self.n_evaluations += 1  # one FE run: the eigen-solve (the Jacobian's solves are counted apart)
+            # one FE run: the eigen-solve (the Jacobian's solves are counted apart)
             self._modes = {key: self.modes_at(theta)}
         freqs, psi, vecs, lam, K, M = self._modes[key]
         pairing = self.pairing(psi)
