@@ -57,6 +57,10 @@ class ModalResidual:
         self.f_test = np.asarray(freqs_hz, float)
         shapes = np.asarray(shapes, float)
         self.u_test = shapes / np.linalg.norm(shapes, axis=1, keepdims=True)
+        # one sign per measured shape, its largest entry positive: the residual u - P u is then free of the
+        # scale and sign of both shapes (P, the projection on the model shape, ignores the model's sign)
+        big = self.u_test[np.arange(len(self.u_test)), np.argmax(np.abs(self.u_test), axis=1)]
+        self.u_test *= np.sign(big)[:, None]
         self.sigma_f, self.sigma_s = float(sigma_f), sigma_s
         self.n_dofs = shapes.shape[1]
         self.sigma_u = None if sigma_s is None else float(sigma_s) / np.sqrt(self.n_dofs)
@@ -133,7 +137,7 @@ class ModalResidual:
             res.append((freqs[m] - self.f_test[t]) / (self.sigma_f * self.f_test[t]))
             if self.sigma_u is not None:
                 p = psi[m]
-                u = self.u_test[t] * (1.0 if p @ self.u_test[t] >= 0 else -1.0)  # as the model shape: sign-free
+                u = self.u_test[t]
                 res.extend((u - p * (p @ u) / (p @ p)) / self.sigma_u)
         J = None
         if jacobian:
@@ -145,7 +149,7 @@ class ModalResidual:
                 blocks.append(df[None, :] / (self.sigma_f * self.f_test[t]))
                 if self.sigma_u is not None:
                     p = psi[m]
-                    u = self.u_test[t] * (1.0 if p @ self.u_test[t] >= 0 else -1.0)
+                    u = self.u_test[t]
                     dp = self.L.T @ dphi[a]  # (n_dofs, n_par)
                     pp, pu = p @ p, p @ u
                     d = -(np.outer(p, u @ dp) + dp * pu) / pp + np.outer(p, 2 * pu * (p @ dp)) / pp ** 2
