@@ -50,6 +50,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--shape-sigma", type=float, metavar="S", help="std of a shape value over the shape's RMS")
     p.add_argument("--no-shapes", action="store_true", help="frequencies only")
     p.add_argument("--mac-threshold", type=float, default=0.6, help="lowest MAC of a pair (default 0.6)")
+    p.add_argument("--identify-modes", metavar="LO-HI", help="FRF data: identify the modes between LO and HI Hz "
+                   "with sdypy-EMA (LSCF/LSFD) and update on them")
+    p.add_argument("--pol-order", type=int, default=40, help="highest LSCF polynomial order (default 40)")
     p.add_argument("--true-parameters", metavar="P1,P2,...", help="known parameters (synthetic data): the "
                                                                   "summary says which lie in their intervals")
     return p
@@ -62,7 +65,10 @@ def route(argv: list[str]) -> int | None:
     p = argparse.ArgumentParser(add_help=False)
     p.add_argument("--measured")
     p.add_argument("--config")
+    p.add_argument("--identify-modes")
     known, _ = p.parse_known_args(argv)
+    if known.identify_modes is not None:
+        return main(argv)
     try:
         config = load_config(known.config, measured=known.measured)
     except ConfigError:
@@ -85,8 +91,13 @@ def main(argv: list[str]) -> int:
         config = load_config(args.config, measured=args.measured, model=args.model, run_id=args.run_id,
                              runs_dir=args.runs_dir, seed=args.seed)
         truth = None if args.true_parameters is None else [float(v) for v in args.true_parameters.split(",")]
+        band = None
+        if args.identify_modes is not None:
+            from flows.config import parse_windows
+
+            band = parse_windows(args.identify_modes)[0]
         summary = run_modal_update(config, args.starts, args.frequency_sigma, args.shape_sigma, args.no_shapes,
-                                   args.mac_threshold, truth)
+                                   args.mac_threshold, truth, band, args.pol_order)
     except FileNotFoundError as exc:
         print(f"error: {exc.filename}: no such file", file=sys.stderr)
         return 2
@@ -98,7 +109,7 @@ def main(argv: list[str]) -> int:
 
 
 def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=False, threshold=0.6,
-                     true_parameters=None) -> dict:
+                     true_parameters=None, identify_band=None, pol_order=40) -> dict:
     from flows.problem import load_model
     from tasks import modal
 
@@ -112,7 +123,16 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
     if true_parameters is not None and len(true_parameters) != len(names):
         raise ConfigError(f"--true-parameters: {len(names)} values needed ({', '.join(names)})")
     measured = config.resolve(config.measured)
-    data, n_model = modal.load_modal_data(measured, model, float(upper.max()))
+    identified, stabilisation, seconds_identify = None, None, 0.0
+    if identify_band is not None:
+        from tasks.io.measured import read_measured
+        from tasks.modal_identify import identify_modes
+
+        t0 = time.perf_counter()
+        identified, stabilisation = identify_modes(read_measured(measured), identify_band[0], identify_band[1],
+                                                   pol_order)
+        seconds_identify = time.perf_counter() - t0
+    data, n_model = modal.load_modal_data(measured, model, float(upper.max()), identified)
     residual = modal.modal_residual(data, model, n_model, sigma_f, sigma_s, threshold)
     identifiable = modal.check_identifiable(residual, names, str(measured))
     run_id = config.run_id or f"modal-{dt.datetime.now(dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')}"
@@ -120,6 +140,10 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
     if (folder / "summary.json").exists():
         raise ConfigError(f"{folder}: a finished modal run; choose a new --run-id")
     folder.mkdir(parents=True, exist_ok=True)
+    if identified is not None:
+        from tasks.io.measured.modes import write_uff55
+
+        write_uff55(folder / "identified_modes.uff", identified)
     before = modal.correlate(data, model, np.zeros(len(names)), n_model, threshold)
     modal.write_json(folder / "correlation_before.json", before)
     modal.mac_figure(before, folder / "mac_before.png", "MAC before the update (nominal model)")
@@ -151,6 +175,9 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
         "fe_runs": fit.n_fe_runs, "jacobians": fit.n_jacobians, "seconds": seconds, "starts": fit.starts,
         "mode_swaps": residual.swaps, "n_test_dofs": len(m.dofs), "notes": m.notes + identifiable,
     }
+    if identified is not None:
+        summary.update(identified_from=config.measured, identification_band_hz=list(identify_band),
+                       stabilisation=stabilisation, seconds_identification=seconds_identify)
     if true_parameters is not None:
         t = np.asarray(true_parameters, float)
         summary["true_parameters"] = dict(zip(names, t.tolist()))
@@ -164,6 +191,12 @@ def print_summary(summary: dict) -> None:
           f"{summary['n_test_dofs']} test DOFs; {summary['fe_runs']} FE runs ({summary['jacobians']} with Nelson "
           f"derivatives), {summary['seconds']:.1f} s; chi2 {summary['chi2']:.1f} for {summary['n_residuals']} "
           f"residuals ({summary['uncertainties']})")
+    if "stabilisation" in summary:
+        st = summary["stabilisation"]
+        print(f"  modes identified from {summary['identified_from']} ({summary['seconds_identification']:.1f} s): "
+              + "; ".join(n for n in summary["notes"] if "identified by" in n)
+              + (f"; peaks without a stable pole dropped: {st['dropped_peaks_hz']} Hz" if st["dropped_peaks_hz"]
+                 else ""))
     for name, p in summary["parameters"].items():
         flag = ""
         if "inside95" in summary:
