@@ -49,6 +49,10 @@ def test_modal_update_recovers_the_actual_alpha_within_its_intervals(tmp_path, m
     ("few", r"2 paired mode\(s\) for 6 parameters: fewer paired modes than parameters, and the frequencies cannot "
             r"determine alpha_\d, alpha_\d, alpha_\d, alpha_\d \(not identifiable\)"),
     ("static", r"dataset 4: dataset 55 of analysis type 1 \(static\) is not a mode"),
+    ("buckling", r"dataset 4: dataset 55 of analysis type 6 \(buckling\) is not a mode"),
+    ("nonfinite", r"dataset 6 \(mode 3\): the shape is not finite at node 1\d\d"),
+    ("node", r"dataset 4: test node 999 \(999:\+z\) is not in the model"),
+    ("band", r"dataset 9 \(mode 6\): frequency 9000 Hz is above the model's band"),
 ])
 def test_bad_modal_input_exits_2(tmp_path, capsys, case, message):
     import re
@@ -57,12 +61,20 @@ def test_bad_modal_input_exits_2(tmp_path, capsys, case, message):
     if case == "few":
         m.frequencies_hz, m.damping, m.shapes = m.frequencies_hz[:2], m.damping[:2], m.shapes[:2]
         m.names, m.places = m.names[:2], m.places[:2]
+    if case == "node":
+        m.dofs[0] = "999:+z"
+    if case == "band":
+        m.frequencies_hz[5] = 9000.0
     path = write_uff55(tmp_path / "bad.uff", m)
-    if case == "static":
-        lines = path.read_text().splitlines()
-        k = next(i for i, line in enumerate(lines) if line.strip() == "55") + 6
-        lines[k] = lines[k][:10] + f"{1:10d}" + lines[k][20:]
-        path.write_text("\n".join(lines) + "\n")
+    lines = path.read_text().splitlines()
+    starts = [i for i, line in enumerate(lines) if line.strip() == "55"]  # datasets 4..9: modes 1..6
+    if case in ("static", "buckling"):
+        k = starts[0] + 6  # record 6 after the five ID lines
+        lines[k] = lines[k][:10] + f"{1 if case == 'static' else 6:10d}" + lines[k][20:]
+    if case == "nonfinite":
+        k = starts[2] + 10  # mode 3: records 6-8, then the first node's number and its values
+        lines[k] = "          nan" + lines[k][13:]
+    path.write_text("\n".join(lines) + "\n")
     extra = ["--no-shapes"] if case == "few" else []
     argv = ["--model", MODEL, "--measured", str(path), "--runs-dir", str(tmp_path / "runs"), "--run-id", "r", *extra]
     assert update.main(argv) == 2
