@@ -3,7 +3,8 @@
 The FE model's modes are read at the test DOFs (the model's sensors with ``test_node`` keys), compared with
 the measured modes by the MAC, paired (assignment on the MAC, pairs below ``--threshold`` refused and
 named), with frequency differences and the COMAC of each test DOF. Writes ``correlation.json`` and
-``mac.png`` (the MAC matrix) to ``--out`` and prints the pairing table. See docs/modal-data.md.
+``mac.png`` (the MAC matrix) and ``shapes.png`` (the paired
+shapes on the mesh) to ``--out`` and prints the pairing table. See docs/modal-data.md.
 
 Examples::
 
@@ -60,6 +61,7 @@ def run_correlation(model_name: str, measured: str, theta=None, threshold: float
     out.mkdir(parents=True, exist_ok=True)
     modal.write_json(out / "correlation.json", result)
     modal.mac_figure(result, out / "mac.png", f"MAC: {Path(measured).name} vs {Path(str(model_name)).name}")
+    modal.shapes_figure(data, model, theta, result, out / "shapes.png")
     result["out"] = str(out)
     return result
 
@@ -81,7 +83,7 @@ def main(argv=None) -> int:
         print(line)
     worst = sorted(result["comac"].items(), key=lambda kv: kv[1])[:3]
     print("lowest COMAC: " + ", ".join(f"{dof} {v:.3f}" for dof, v in worst))
-    print(f"written to {result['out']} (correlation.json, mac.png)")
+    print(f"written to {result['out']} (correlation.json, mac.png, shapes.png)")
     return 0
 
 

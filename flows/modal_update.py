@@ -153,6 +153,7 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
     after = modal.correlate(data, model, fit.theta, n_model, threshold)
     modal.write_json(folder / "correlation_after.json", after)
     modal.mac_figure(after, folder / "mac_after.png", "MAC after the update")
+    modal.shapes_figure(data, model, fit.theta, after, folder / "shapes_after.png")
     final = fit.final
     m = data.modes
     paired = [{"test": m.names[t], "model": f"model mode {j + 1}", "f_test_hz": float(m.frequencies_hz[t]),

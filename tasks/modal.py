@@ -133,3 +133,48 @@ def run_fit(residual: ModalResidual, lower, upper, n_starts, seed, stated, folde
 
 def write_json(path: Path, obj) -> None:
     atomic_write_json(Path(path), obj)
+
+
+def shapes_figure(data, model, theta, result: dict, path: Path) -> Path | None:
+    """Paired shapes on the mesh: per pair, the model mode's displacement along the test direction on the
+    mesh's nodes (small dots) and the measured values at the test points (large circles, the same colour
+    scale, after the modal scale factor brings the model shape onto the measured one). None without a mesh."""
+    if model.mesh is None or not result["pairs"]:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    alpha, gamma = model.factors(theta)
+    n_model = len(result["model_frequencies_hz"])
+    _, shapes, _ = model.modes(alpha, n_model, gamma)  # (n_model, n_nodes, 3)
+    L = data.outputs.tocsc()
+    rows = L.indices[L.indptr[:-1]]  # one free DOF per test DOF (the model's sensors)
+    dofs = model.free_dofs[rows]
+    nodes, comp = dofs // 3, dofs % 3
+    xyz = model.mesh.nodes
+    top = np.isclose(xyz[:, 2], xyz[:, 2].max())
+    m = data.modes
+    pairs = result["pairs"]
+    fig = Figure(figsize=(9, 1.0 + 1.6 * len(pairs)))
+    for k, pair in enumerate(pairs):
+        t = m.names.index(pair["test"])
+        j = int(pair["model"].split()[-1]) - 1
+        field = shapes[j][:, comp[0]]
+        at_test = shapes[j][nodes, comp] * np.sign(L.data)
+        msf = (m.shapes[t] @ at_test) / (at_test @ at_test)
+        ax = fig.add_subplot(len(pairs), 1, k + 1)
+        scale = np.abs(m.shapes[t]).max()
+        sc = ax.scatter(xyz[top, 0], xyz[top, 1], c=msf * field[top], s=4, cmap="coolwarm", vmin=-scale, vmax=scale)
+        ax.scatter(xyz[nodes, 0], xyz[nodes, 1], c=m.shapes[t] * np.sign(L.data), s=60, cmap="coolwarm",
+                   vmin=-scale, vmax=scale, edgecolors="black")
+        ax.set_aspect("equal")
+        ax.set_title(f"{pair['test']} {pair['f_test_hz']:.1f} Hz  <->  {pair['model']} {pair['f_model_hz']:.1f} Hz, "
+                     f"MAC {pair['mac']:.3f}", fontsize=8)
+        ax.tick_params(labelsize=6)
+        fig.colorbar(sc, ax=ax, fraction=0.02)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    return path

@@ -31,7 +31,7 @@ def test_correlation_at_the_actual_parameters_pairs_every_mode(tmp_path, capsys)
                                       out=tmp_path / "finer")
     assert all(-0.008 < p["difference"] < 0.015 for p in finer["pairs"])
     assert sum(p["difference"] > 0.003 for p in finer["pairs"]) >= 3
-    assert (tmp_path / "mac.png").stat().st_size > 1000
+    assert (tmp_path / "mac.png").stat().st_size > 1000 and (tmp_path / "shapes.png").stat().st_size > 1000
     assert set(result["comac"]) == {f"{n}:+z" for n in range(101, 119)}
     assert "model mode 6" in capsys.readouterr().out
 

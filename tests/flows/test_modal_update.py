@@ -37,7 +37,8 @@ def test_modal_update_recovers_the_actual_alpha_within_its_intervals(tmp_path, m
     assert s["fe_runs"] >= s["jacobians"] - 1 > 0
     lines = (tmp_path / "r" / "modal_runs.jsonl").read_text().splitlines()
     assert len(lines) == s["fe_runs"]
-    for name in ("mac_before.png", "mac_after.png", "correlation_before.json", "correlation_after.json"):
+    for name in ("mac_before.png", "mac_after.png", "shapes_after.png", "correlation_before.json",
+                 "correlation_after.json"):
         assert (tmp_path / "r" / name).exists()
     if measured.endswith(".csv"):  # OMA: mode 5 left out of the file is named
         assert s["missing_mode_numbers"] == ["mode 5"]
