@@ -108,3 +108,15 @@ def test_test_node_not_in_the_model_is_refused():
     # the -z test DOF reads the model's +z sensor with the opposite sign
     col = matched.outputs.toarray()
     assert col[:, 1].min() == -1.0 and col[:, 0].max() == 1.0
+
+
+def test_the_validator_describes_a_modal_file(tmp_path, capsys):
+    from tasks.io.measured import main
+
+    assert main([str(write_uff55(tmp_path / "m.uff", _modes()))]) == 0
+    out = capsys.readouterr().out
+    assert "2 modes at 3 test DOFs" in out and "mode 2: 250 Hz, damping ratio 0.02" in out
+    path = write_uff55(tmp_path / "s.uff", _modes())
+    _patch_analysis_type(path, 0, 6)
+    assert main([str(path)]) == 2
+    assert "analysis type 6 (buckling)" in capsys.readouterr().err

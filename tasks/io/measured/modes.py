@@ -39,7 +39,7 @@ import numpy as np
 
 from .frf import MeasuredDataError, dof_label, parse_dof
 
-__all__ = ["MeasuredModes", "read_modes", "write_uff55", "write_csv", "is_modal_file", "real_mode",
+__all__ = ["MeasuredModes", "read_modes", "describe_modes", "write_uff55", "write_csv", "is_modal_file", "real_mode",
            "ANALYSIS_TYPES", "MODAL_ANALYSIS_TYPES"]
 
 #: Dataset 55 record 6 field 2.
@@ -247,6 +247,16 @@ def _read_csv(path: Path) -> MeasuredModes:
                          np.array([[modes[n]["values"][k] for k in keys] for n in numbers]),
                          [dof_label(*k) for k in keys], [f"mode {n}" for n in numbers],
                          [f"line {modes[n]['line']}" for n in numbers], str(path))
+
+
+def describe_modes(modes: MeasuredModes) -> str:
+    """Summary lines: modes, frequencies, damping, test DOFs and what was converted."""
+    lines = [f"{modes.source}: {modes.n_modes} modes at {len(modes.dofs)} test DOFs "
+             f"({', '.join(modes.dofs[:4])}{', ...' if len(modes.dofs) > 4 else ''})"]
+    for name, f, z in zip(modes.names, modes.frequencies_hz, modes.damping):
+        lines.append(f"  {name}: {f:.4g} Hz" + ("" if not np.isfinite(z) else f", damping ratio {z:.3g}"))
+    lines += [f"  {note}" for note in modes.notes]
+    return "\n".join(lines)
 
 
 def _check(modes: MeasuredModes) -> None:
