@@ -85,8 +85,10 @@ def main(argv: list[str]) -> int:
 
     args, rest = _parser().parse_known_args(argv)
     for flag in rest:
-        if flag.split("=")[0] in _FRF_ONLY:
-            print(f"warning: {flag.split('=')[0]} applies to FRF data, ignored for modal data", file=sys.stderr)
+        if flag.startswith("-"):
+            name = flag.split("=")[0]
+            why = "applies to FRF data" if name in _FRF_ONLY else "is not an option of the modal update"
+            print(f"warning: {name} {why}, ignored for modal data (docs/modal-data.md)", file=sys.stderr)
     try:
         config = load_config(args.config, measured=args.measured, model=args.model, run_id=args.run_id,
                              runs_dir=args.runs_dir, seed=args.seed)
