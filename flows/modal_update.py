@@ -173,7 +173,8 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
                        for n, v, s, lo, hi in zip(names, fit.theta, fit.sd, fit.lower95, fit.upper95)},
         "covariance": fit.covariance.tolist(), "chi2": fit.chi2, "n_residuals": fit.n_residuals,
         "n_parameters": len(names), "scale2": fit.scale2, "paired_modes": paired,
-        "unpaired_measured": missing + final["unpaired"],
+        "unpaired_measured": sorted(set(missing + final["unpaired"]), key=m.names.index),
+        "left_out": [m.names[k] for k in range(m.n_modes) if k not in set(residual.active.tolist())],
         "missing_mode_numbers": [f"mode {k}" for k in gaps],
         "fe_runs": fit.n_fe_runs, "jacobians": fit.n_jacobians, "seconds": seconds, "starts": fit.starts,
         "mode_swaps": residual.swaps, "n_test_dofs": len(m.dofs), "notes": m.notes + identifiable,
@@ -212,6 +213,8 @@ def print_summary(summary: dict) -> None:
         print(f"  missing from the measured modes: {', '.join(summary['missing_mode_numbers'])}")
     if summary["unpaired_measured"]:
         print(f"  unpaired measured modes: {', '.join(summary['unpaired_measured'])}")
+    if summary["left_out"]:
+        print(f"  left out of the update (unpaired at the nominal model): {', '.join(summary['left_out'])}")
     if summary["mode_swaps"]:
         print(f"  mode swaps tracked: {'; '.join(summary['mode_swaps'])}")
     print(f"  written to {summary['folder']}")
