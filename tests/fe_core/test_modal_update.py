@@ -122,7 +122,7 @@ def _chain(n=6, groups=((0, 1), (2, 3), (4, 5))):
 
 def test_laplace_intervals_cover_at_their_rate_with_frequencies_and_unscaled_shapes():
     # Monte Carlo on a chain: 3 measured modes at 6 DOFs, 0.2 % frequency noise and 2 % shape noise (of the RMS),
-    # each set's shapes scaled and signed at random (OMA); 300 sets: coverage of each factor 0.95 +- 0.013
+    # each set's shapes scaled and signed at random (OMA); 200 sets: coverage of each factor 0.95 +- 0.015
     # (binomial), accepted within 0.90-0.99. This checks the shape weights sigma_u = sigma_s / sqrt(n_dofs) too.
     model = _chain()
     truth = np.array([0.2, -0.3, 0.1])
@@ -131,7 +131,7 @@ def test_laplace_intervals_cover_at_their_rate_with_frequencies_and_unscaled_sha
     shapes = v.T
     rng = np.random.default_rng(5)
     inside, z = [], []
-    for _ in range(300):
+    for _ in range(200):
         fn = f * (1 + 0.002 * rng.standard_normal(3))
         rms = np.sqrt(np.mean(shapes ** 2, axis=1, keepdims=True))
         sn = (shapes + 0.02 * rms * rng.standard_normal(shapes.shape)) * rng.choice([-1, 1], (3, 1)) \
@@ -142,5 +142,5 @@ def test_laplace_intervals_cover_at_their_rate_with_frequencies_and_unscaled_sha
         z.append((fit.theta - truth) / fit.sd)
     coverage = np.mean(inside, axis=0)
     assert np.all((coverage > 0.90) & (coverage < 0.99)), coverage
-    # and the standardised errors have unit spread (sd of 300 N(0,1) values: 1 +- 0.04)
+    # and the standardised errors have unit spread (sd of 200 N(0,1) values: 1 +- 0.05)
     assert np.all(np.abs(np.std(z, axis=0) - 1) < 0.15), np.std(z, axis=0)
