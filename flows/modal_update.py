@@ -7,7 +7,7 @@ model (``mac_before.png``), fit the parameters on the paired frequencies and sca
 (:mod:`fe_core.modal_update`: exact Nelson derivatives, trust-region Gauss-Newton from ``--starts``
 points, MAC mode tracking each FE run), correlate at the result (``mac_after.png``), Laplace 95 % intervals.
 The run folder ``<runs-dir>/<run-id>/`` gets ``modal_runs.jsonl`` (every FE run: parameters, frequencies),
-``correlation_before.json``, ``correlation_after.json``, the two pictures and ``summary.json``.
+``correlation_before.json``, ``correlation_after.json``, the pictures, ``summary.json`` and ``report.html``.
 
 Uncertainties: ``--frequency-sigma`` (relative standard deviation of a measured frequency) and
 ``--shape-sigma`` (of a shape value, relative to the shape's RMS) weight the residuals. Stated ones give the
@@ -187,6 +187,9 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
         summary["true_parameters"] = dict(zip(names, t.tolist()))
         summary["inside95"] = dict(zip(names, ((fit.lower95 <= t) & (t <= fit.upper95)).tolist()))
     modal.write_json(folder / "summary.json", summary)
+    from tasks.modal_report import write_report
+
+    write_report(folder, summary)
     return summary
 
 
@@ -217,4 +220,4 @@ def print_summary(summary: dict) -> None:
         print(f"  left out of the update (unpaired at the nominal model): {', '.join(summary['left_out'])}")
     if summary["mode_swaps"]:
         print(f"  mode swaps tracked: {'; '.join(summary['mode_swaps'])}")
-    print(f"  written to {summary['folder']}")
+    print(f"  written to {summary['folder']} (summary.json, report.html)")

@@ -37,10 +37,13 @@ def test_modal_update_recovers_the_actual_alpha_within_its_intervals(tmp_path, m
     assert s["fe_runs"] >= s["jacobians"] - 1 > 0
     lines = (tmp_path / "r" / "modal_runs.jsonl").read_text().splitlines()
     assert len(lines) == s["fe_runs"]
-    for name in ("mac_before.png", "mac_after.png", "shapes_after.png", "correlation_before.json",
+    for name in ("mac_before.png", "mac_after.png", "shapes_after.png", "correlation_before.json", "report.html",
                  "correlation_after.json"):
         assert (tmp_path / "r" / name).exists()
+    report = (tmp_path / "r" / "report.html").read_text()
+    assert 'src="mac_after.png"' in report and "alpha_6" in report and "OUTSIDE" not in report
     if measured.endswith(".csv"):  # OMA: mode 5 left out of the file is named
+        assert "missing from the measured modes: mode 5" in report
         assert s["missing_mode_numbers"] == ["mode 5"]
         assert [p["test"] for p in s["paired_modes"]] == ["mode 1", "mode 2", "mode 3", "mode 4", "mode 6"]
         assert any("shapes make up" in n for n in s["notes"])
