@@ -182,6 +182,11 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
     if identified is not None:
         summary.update(identified_from=config.measured, identification_band_hz=list(identify_band),
                        stabilisation=stabilisation, seconds_identification=seconds_identify)
+    wide = [n for n, lo, hi, a, b in zip(names, fit.lower95, fit.upper95, lower, upper) if hi - lo > b - a]
+    if wide:  # e.g. frequencies alone on a symmetric structure: mirror segments trade off
+        summary["not_determined"] = wide
+        summary["notes"] = summary["notes"] + [f"not determined by these data (95 % interval wider than the search "
+                                               f"box): {', '.join(wide)}"]
     if true_parameters is not None:
         t = np.asarray(true_parameters, float)
         summary["true_parameters"] = dict(zip(names, t.tolist()))
@@ -218,6 +223,9 @@ def print_summary(summary: dict) -> None:
         print(f"  unpaired measured modes: {', '.join(summary['unpaired_measured'])}")
     if summary["left_out"]:
         print(f"  left out of the update (unpaired at the nominal model): {', '.join(summary['left_out'])}")
+    if summary.get("not_determined"):
+        print(f"  warning: not determined by these data (95 % interval wider than the box): "
+              f"{', '.join(summary['not_determined'])}")
     if summary["mode_swaps"]:
         print(f"  mode swaps tracked: {'; '.join(summary['mode_swaps'])}")
     print(f"  written to {summary['folder']} (summary.json, report.html)")
