@@ -3,12 +3,14 @@
 Each start runs a trust-region least squares (``scipy.optimize.least_squares``, ``trf`` within the box)
 with the exact Jacobian of :class:`~fe_core.modal_update.residual.ModalResidual` (a Gauss-Newton step in
 a trust region); the best end point is kept. Starts: the nominal model, then points of a Latin
-hypercube in the box (seeded).
+hypercube in the inner half of the box (seeded; the far corners of a wide box give modes too unlike the
+measured ones to pair).
 
 Intervals (Laplace): the covariance ``s^2 (J^T J)^-1`` at the optimum, the residual being already
 divided by the standard deviations; ``s^2 = 1`` when the uncertainties are stated, else
 ``s^2 = chi^2 / (n_res - n_par)`` estimated from the residual (as the FRF update does without ``--noise``);
-95 % intervals ``theta +- 1.96 sd``.
+95 % intervals ``theta +- 1.96 sd``. The measured modes used are those the residual paired at the nominal
+model (:meth:`~fe_core.modal_update.residual.ModalResidual.set_active`), kept through the fit.
 """
 
 from __future__ import annotations
