@@ -160,6 +160,12 @@ def _rerun_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if not (argv and argv[0] == "rerun"):
+        from flows.modal_update import route  # a file of measured modes takes the modal path
+
+        routed = route(argv)
+        if routed is not None:
+            return routed
     try:
         if argv and argv[0] == "rerun":
             args = _rerun_parser().parse_args(argv[1:])

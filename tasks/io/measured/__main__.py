@@ -15,6 +15,16 @@ def main(argv=None) -> int:
     )
     parser.add_argument("path", help="measured-FRF file (.csv, .parquet, .uff, .unv)")
     args = parser.parse_args(argv)
+    from tasks.io.measured.modes import describe_modes, is_modal_file, read_modes
+
+    if is_modal_file(args.path):  # measured modes (UFF dataset 55, the modal CSV): docs/modal-data.md
+        try:
+            modes = read_modes(args.path)
+        except (MeasuredDataError, OSError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(describe_modes(modes))
+        return 0
     try:
         measured = read_measured(args.path)
     except (MeasuredDataError, OSError) as exc:

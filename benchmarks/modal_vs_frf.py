@@ -1,0 +1,82 @@
+"""Modal updating against FRF updating on the same measured FRFs (issue 31): the benchmark's hammer test.
+
+    nice -n 10 python -m benchmarks.modal_vs_frf            # a few minutes on 2 busy cores
+
+Both read ``data/benchmark/hammer.uff`` (impact at test node 5, 6 accelerometers, 0-400 Hz, 1 % noise,
+from the SPEC's actual structure) with ``data/benchmark/model.toml``:
+
+* FRF: ``python -m flows.update`` with its defaults (the hybrid: Gauss-Newton on the complex FRF residual,
+  its check, intervals);
+* modal: ``python -m flows.update --identify-modes 20-400`` (sdypy-EMA LSCF/LSFD: 2 modes at 6 test DOFs,
+  then the modal update from ``--starts`` points (default 1, the nominal model), uncertainties estimated from the residual).
+
+Prints and writes (``<out>/modal_vs_frf.json``) per path: FE runs (FRF: the run's FE evaluations, and its
+FE-run equivalents counting the Jacobians' cost; modal: eigen-solves and Nelson Jacobians), wall time, the
+largest |error| of the factors, how many true factors lie in their 95 % intervals.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fe_core.benchmark import ALPHA_ACTUAL
+from flows import update
+
+MODEL = "data/benchmark/model.toml"
+HAMMER = "data/benchmark/hammer.uff"
+TRUE = "--true-parameters=" + ",".join(str(v) for v in ALPHA_ACTUAL)
+
+
+def _run(argv) -> float:
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()):
+        code = update.main(argv)
+    if code != 0:
+        raise SystemExit(f"flows.update {' '.join(argv)} exited {code}")
+    return time.perf_counter() - t0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.modal_vs_frf")
+    p.add_argument("--runs-dir", default="data/runs/modal-vs-frf")
+    p.add_argument("--starts", type=int, default=1, help="local fits of the modal update (default 1: the nominal "
+                                                         "start, as the FRF hybrid's first cycle)")
+    args = p.parse_args(argv)
+    stamp = str(int(time.time()))
+    root = Path(args.runs_dir)
+    out = {}
+    seconds = _run(["--model", MODEL, "--measured", HAMMER, "--runs-dir", str(root), "--run-id", f"frf-{stamp}"])
+    s = json.loads((root / f"frf-{stamp}" / "summary.json").read_text())
+    names = list(s["parameters"])
+    est = np.array([s["parameters"][n] for n in names])
+    frf = {"wall_seconds_cli": seconds, "fe_evaluations": s["fe_evaluations"], "jacobians": s["jacobians"],
+           "fe_equivalents": s["fe_equivalents"], "wall_seconds": s["wall_seconds"],
+           "max_abs_error": float(np.max(np.abs(est - ALPHA_ACTUAL)))}
+    if s.get("intervals"):
+        lo, hi = np.array([s["intervals"][n] for n in names], float).T
+        frf["inside95"] = int(np.sum((lo <= ALPHA_ACTUAL) & (ALPHA_ACTUAL <= hi)))
+    out["frf"] = frf
+    seconds = _run(["--model", MODEL, "--measured", HAMMER, "--identify-modes", "20-400", "--starts", str(args.starts),
+                    "--runs-dir", str(root),
+                    "--run-id", f"modal-{stamp}", TRUE])
+    m = json.loads((root / f"modal-{stamp}" / "summary.json").read_text())
+    theta = np.array([v["value"] for v in m["parameters"].values()])
+    out["modal"] = {"wall_seconds_cli": seconds, "fe_runs": m["fe_runs"], "jacobians": m["jacobians"],
+                    "seconds_update": m["seconds"], "seconds_identification": m["seconds_identification"],
+                    "max_abs_error": float(np.max(np.abs(theta - ALPHA_ACTUAL))),
+                    "inside95": int(sum(m["inside95"].values())), "modes": len(m["paired_modes"])}
+    print(json.dumps(out, indent=1))
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "modal_vs_frf.json").write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,9 @@
+"""Updating on measured modes (plain numpy/scipy): exact eigen-derivatives by Nelson's method
+(:mod:`.nelson`), the paired frequency and shape residual with mode tracking (:mod:`.residual`), and the
+local least-squares fit from several starts with Laplace intervals (:mod:`.fit`)."""
+
+from .fit import ModalFit, fit_modes, laplace_intervals
+from .nelson import eigen_derivatives
+from .residual import ModalResidual, identifiability
+
+__all__ = ["eigen_derivatives", "ModalResidual", "identifiability", "ModalFit", "fit_modes", "laplace_intervals"]

@@ -1,0 +1,231 @@
+"""Updating on measured modes: ``python -m flows.update --measured MODES.uff`` (or ``.csv``) takes this path.
+
+A measured file of modes (UFF dataset 55, or the modal CSV; :mod:`tasks.io.measured.modes`) is recognised by
+:func:`route` before the FRF path reads it. The steps: read and match the modes to the model's test nodes,
+check the band and that the paired modes are at least as many as the parameters, correlate at the nominal
+model (``mac_before.png``), fit the parameters on the paired frequencies and scale-free shape residuals
+(:mod:`fe_core.modal_update`: exact Nelson derivatives, trust-region Gauss-Newton from ``--starts``
+points, MAC mode tracking each FE run), correlate at the result (``mac_after.png``), Laplace 95 % intervals.
+The run folder ``<runs-dir>/<run-id>/`` gets ``modal_runs.jsonl`` (every FE run: parameters, frequencies),
+``correlation_before.json``, ``correlation_after.json``, the pictures, ``summary.json`` and ``report.html``.
+
+Uncertainties: ``--frequency-sigma`` (relative standard deviation of a measured frequency) and
+``--shape-sigma`` (of a shape value, relative to the shape's RMS) weight the residuals. Stated ones give the
+intervals as they are; when neither is stated, 0.002 and 0.02 set the relative weights and the common scale
+is estimated from the residual (``chi^2 / (n - p)``), as the FRF update does without ``--noise``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from flows.config import ConfigError, load_config
+
+__all__ = ["route", "main", "run_modal_update"]
+
+DEFAULT_SIGMA_F = 0.002
+DEFAULT_SIGMA_S = 0.02
+#: Flags of the FRF path that mean nothing for modal data (ignored with a warning).
+_FRF_ONLY = ("--strategy", "--trainer", "--lines", "--line-windows", "--residuals", "--emulate", "--polish")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m flows.update (modal data)",
+                                description="Update the model's parameters on measured modes (docs/modal-data.md).")
+    p.add_argument("--config", metavar="PATH")
+    p.add_argument("--model", metavar="NAME|PATH")
+    p.add_argument("--measured", metavar="PATH", required=True)
+    p.add_argument("--run-id", metavar="ID")
+    p.add_argument("--runs-dir", metavar="PATH")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--starts", type=int, default=3, help="local fits: the nominal model plus N-1 Latin points "
+                                                         "(default 3)")
+    p.add_argument("--frequency-sigma", type=float, metavar="S", help="relative std of a measured frequency")
+    p.add_argument("--shape-sigma", type=float, metavar="S", help="std of a shape value over the shape's RMS")
+    p.add_argument("--no-shapes", action="store_true", help="frequencies only")
+    p.add_argument("--mac-threshold", type=float, default=0.6, help="lowest MAC of a pair (default 0.6)")
+    p.add_argument("--identify-modes", metavar="LO-HI", help="FRF data: identify the modes between LO and HI Hz "
+                   "with sdypy-EMA (LSCF/LSFD) and update on them")
+    p.add_argument("--pol-order", type=int, default=40, help="highest LSCF polynomial order (default 40)")
+    p.add_argument("--true-parameters", metavar="P1,P2,...", help="known parameters (synthetic data): the "
+                                                                  "summary says which lie in their intervals")
+    return p
+
+
+def route(argv: list[str]) -> int | None:
+    """Run the modal update when ``--measured`` (or the config's ``measured``) is a modal file; else None."""
+    from tasks.io.measured.modes import is_modal_file
+
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("--measured")
+    p.add_argument("--config")
+    p.add_argument("--identify-modes")
+    known, _ = p.parse_known_args(argv)
+    if known.identify_modes is not None:
+        return main(argv)
+    try:
+        config = load_config(known.config, measured=known.measured)
+    except ConfigError:
+        return None
+    if not is_modal_file(config.resolve(config.measured)):
+        return None
+    if known.measured is None:
+        argv = list(argv) + ["--measured", config.measured]
+    return main(argv)
+
+
+def main(argv: list[str]) -> int:
+    from tasks.io.measured import MeasuredDataError
+
+    args, rest = _parser().parse_known_args(argv)
+    for flag in rest:
+        if flag.startswith("-"):
+            name = flag.split("=")[0]
+            why = "applies to FRF data" if name in _FRF_ONLY else "is not an option of the modal update"
+            print(f"warning: {name} {why}, ignored for modal data (docs/modal-data.md)", file=sys.stderr)
+    try:
+        config = load_config(args.config, measured=args.measured, model=args.model, run_id=args.run_id,
+                             runs_dir=args.runs_dir, seed=args.seed)
+        truth = None if args.true_parameters is None else [float(v) for v in args.true_parameters.split(",")]
+        band = None
+        if args.identify_modes is not None:
+            from flows.config import parse_windows
+
+            band = parse_windows(args.identify_modes)[0]
+        summary = run_modal_update(config, args.starts, args.frequency_sigma, args.shape_sigma, args.no_shapes,
+                                   args.mac_threshold, truth, band, args.pol_order)
+    except FileNotFoundError as exc:
+        print(f"error: {exc.filename}: no such file", file=sys.stderr)
+        return 2
+    except (ConfigError, MeasuredDataError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print_summary(summary)
+    return 0
+
+
+def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=False, threshold=0.6,
+                     true_parameters=None, identify_band=None, pol_order=40) -> dict:
+    from flows.problem import load_model
+    from tasks import modal
+
+    stated = sigma_f is not None or sigma_s is not None
+    sigma_f = DEFAULT_SIGMA_F if sigma_f is None else sigma_f
+    sigma_s = None if no_shapes else (DEFAULT_SIGMA_S if sigma_s is None else sigma_s)
+    model, ref = load_model(config.model)
+    names = model.parameter_names
+    lower = np.maximum(np.full(model.n_parameters, config.lower), -0.95)
+    upper = np.full(model.n_parameters, config.upper)
+    if true_parameters is not None and len(true_parameters) != len(names):
+        raise ConfigError(f"--true-parameters: {len(names)} values needed ({', '.join(names)})")
+    measured = config.resolve(config.measured)
+    identified, stabilisation, seconds_identify = None, None, 0.0
+    if identify_band is not None:
+        from tasks.io.measured import read_measured
+        from tasks.modal_identify import identify_modes
+
+        t0 = time.perf_counter()
+        identified, stabilisation = identify_modes(read_measured(measured), identify_band[0], identify_band[1],
+                                                   pol_order)
+        seconds_identify = time.perf_counter() - t0
+    data, n_model = modal.load_modal_data(measured, model, float(upper.max()), identified)
+    residual = modal.modal_residual(data, model, n_model, sigma_f, sigma_s, threshold)
+    identifiable = modal.check_identifiable(residual, names, str(measured))
+    run_id = config.run_id or f"modal-{dt.datetime.now(dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')}"
+    folder = config.resolve(config.runs_dir) / run_id
+    if (folder / "summary.json").exists():
+        raise ConfigError(f"{folder}: a finished modal run; choose a new --run-id")
+    folder.mkdir(parents=True, exist_ok=True)
+    if identified is not None:
+        from tasks.io.measured.modes import write_uff55
+
+        write_uff55(folder / "identified_modes.uff", identified)
+    before = modal.correlate(data, model, np.zeros(len(names)), n_model, threshold)
+    modal.write_json(folder / "correlation_before.json", before)
+    modal.mac_figure(before, folder / "mac_before.png", "MAC before the update (nominal model)")
+    t0 = time.perf_counter()
+    fit = modal.run_fit(residual, lower, upper, starts, config.seed, stated, folder)
+    seconds = time.perf_counter() - t0
+    after = modal.correlate(data, model, fit.theta, n_model, threshold)
+    modal.write_json(folder / "correlation_after.json", after)
+    modal.mac_figure(after, folder / "mac_after.png", "MAC after the update")
+    modal.shapes_figure(data, model, fit.theta, after, folder / "shapes_after.png")
+    final = fit.final
+    m = data.modes
+    paired = [{"test": m.names[t], "model": f"model mode {j + 1}", "f_test_hz": float(m.frequencies_hz[t]),
+               "f_model_hz": float(f), "mac": float(v)}
+              for t, j, f, v in zip(final["pairing"].test, final["pairing"].model, final["f_model"], final["mac"])]
+    missing = [name for k, name in enumerate(m.names) if k not in set(final["pairing"].test.tolist())]
+    numbers = [int(n.split()[-1]) for n in m.names if n.split()[-1].isdigit()]
+    gaps = sorted(set(range(1, max(numbers) + 1)) - set(numbers)) if numbers else []
+    summary = {
+        "kind": "modal update", "run_id": run_id, "folder": str(folder), "model": config.model,
+        "measured": config.measured, "residual": "paired frequencies (f_model - f_test) / (sigma_f f_test) and "
+        "shape differences u - MSF psi of unit-norm measured shapes (|.|^2 = 1 - MAC) / (sigma_s / sqrt(n_dofs))",
+        "sigma_f": sigma_f, "sigma_s": sigma_s, "uncertainties": "stated" if stated else "estimated from the residual",
+        "parameters": {n: {"value": float(v), "sd": float(s), "lower95": float(lo), "upper95": float(hi)}
+                       for n, v, s, lo, hi in zip(names, fit.theta, fit.sd, fit.lower95, fit.upper95)},
+        "covariance": fit.covariance.tolist(), "chi2": fit.chi2, "n_residuals": fit.n_residuals,
+        "n_parameters": len(names), "scale2": fit.scale2, "paired_modes": paired,
+        "unpaired_measured": sorted(set(missing + final["unpaired"]), key=m.names.index),
+        "left_out": [m.names[k] for k in range(m.n_modes) if k not in set(residual.active.tolist())],
+        "missing_mode_numbers": [f"mode {k}" for k in gaps],
+        "fe_runs": fit.n_fe_runs, "jacobians": fit.n_jacobians, "seconds": seconds, "starts": fit.starts,
+        "mode_swaps": residual.swaps, "n_test_dofs": len(m.dofs), "notes": m.notes + identifiable,
+    }
+    if identified is not None:
+        summary.update(identified_from=config.measured, identification_band_hz=list(identify_band),
+                       stabilisation=stabilisation, seconds_identification=seconds_identify)
+    wide = [n for n, lo, hi, a, b in zip(names, fit.lower95, fit.upper95, lower, upper) if hi - lo > b - a]
+    if wide:  # e.g. frequencies alone on a symmetric structure: mirror segments trade off
+        summary["not_determined"] = wide
+        summary["notes"] = summary["notes"] + [f"not determined by these data (95 % interval wider than the search "
+                                               f"box): {', '.join(wide)}"]
+    if true_parameters is not None:
+        t = np.asarray(true_parameters, float)
+        summary["true_parameters"] = dict(zip(names, t.tolist()))
+        summary["inside95"] = dict(zip(names, ((fit.lower95 <= t) & (t <= fit.upper95)).tolist()))
+    modal.write_json(folder / "summary.json", summary)
+    from tasks.modal_report import write_report
+
+    write_report(folder, summary)
+    return summary
+
+
+def print_summary(summary: dict) -> None:
+    print(f"modal update {summary['run_id']}: {len(summary['paired_modes'])} paired modes at "
+          f"{summary['n_test_dofs']} test DOFs; {summary['fe_runs']} FE runs ({summary['jacobians']} with Nelson "
+          f"derivatives), {summary['seconds']:.1f} s; chi2 {summary['chi2']:.1f} for {summary['n_residuals']} "
+          f"residuals ({summary['uncertainties']})")
+    if "stabilisation" in summary:
+        st = summary["stabilisation"]
+        print(f"  modes identified from {summary['identified_from']} ({summary['seconds_identification']:.1f} s): "
+              + "; ".join(n for n in summary["notes"] if "identified by" in n)
+              + (f"; peaks without a stable pole dropped: {st['dropped_peaks_hz']} Hz" if st["dropped_peaks_hz"]
+                 else ""))
+    for name, p in summary["parameters"].items():
+        flag = ""
+        if "inside95" in summary:
+            flag = "  (true value inside)" if summary["inside95"][name] else "  (true value OUTSIDE)"
+        print(f"  {name:<10} {p['value']:+.4f}  sd {p['sd']:.4f}  95 % [{p['lower95']:+.4f}, {p['upper95']:+.4f}]{flag}")
+    for p in summary["paired_modes"]:
+        print(f"  {p['test']:<8} {p['f_test_hz']:9.3f} Hz <-> {p['model']:<14} {p['f_model_hz']:9.3f} Hz  "
+              f"MAC {p['mac']:.3f}")
+    if summary["missing_mode_numbers"]:
+        print(f"  missing from the measured modes: {', '.join(summary['missing_mode_numbers'])}")
+    if summary["unpaired_measured"]:
+        print(f"  unpaired measured modes: {', '.join(summary['unpaired_measured'])}")
+    if summary["left_out"]:
+        print(f"  left out of the update (unpaired at the nominal model): {', '.join(summary['left_out'])}")
+    if summary.get("not_determined"):
+        print(f"  warning: not determined by these data (95 % interval wider than the box): "
+              f"{', '.join(summary['not_determined'])}")
+    if summary["mode_swaps"]:
+        print(f"  mode swaps tracked: {'; '.join(summary['mode_swaps'])}")
+    print(f"  written to {summary['folder']} (summary.json, report.html)")

@@ -1,0 +1,53 @@
+"""The modal run's report: ``report.html`` in the run folder, from ``summary.json`` and the pictures the run
+wrote (MAC before and after, the paired shapes on the mesh). Plain HTML, pictures linked, nothing fetched."""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+__all__ = ["write_report"]
+
+
+def _table(header: list[str], rows: list[list]) -> str:
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def write_report(folder: Path, summary: dict) -> Path:
+    """Write ``<folder>/report.html``; returns its path."""
+    folder = Path(folder)
+    params = [[n, f"{p['value']:+.4f}", f"{p['sd']:.4f}", f"[{p['lower95']:+.4f}, {p['upper95']:+.4f}]"]
+              + ([("inside" if summary["inside95"][n] else "OUTSIDE")] if "inside95" in summary else [])
+              for n, p in summary["parameters"].items()]
+    pairs = [[p["test"], f"{p['f_test_hz']:.3f}", p["model"], f"{p['f_model_hz']:.3f}",
+              f"{100 * (p['f_model_hz'] - p['f_test_hz']) / p['f_test_hz']:+.3f}", f"{p['mac']:.3f}"]
+             for p in summary["paired_modes"]]
+    lines = [f"{summary['fe_runs']} FE runs ({summary['jacobians']} with Nelson derivatives), "
+             f"{summary['seconds']:.1f} s; chi-square {summary['chi2']:.1f} for {summary['n_residuals']} residuals, "
+             f"uncertainties {summary['uncertainties']} (sigma_f {summary['sigma_f']}, sigma_s {summary['sigma_s']})"]
+    for key, label in (("missing_mode_numbers", "missing from the measured modes"),
+                       ("left_out", "left out (unpaired at the nominal model)"), ("mode_swaps", "mode swaps tracked")):
+        if summary.get(key):
+            lines.append(f"{label}: {'; '.join(summary[key])}")
+    lines += summary.get("notes", [])
+    pictures = "".join(f'<h2>{html.escape(title)}</h2><img src="{name}" alt="{name}">'
+                       for name, title in (("mac_before.png", "MAC before the update"),
+                                           ("mac_after.png", "MAC after the update"),
+                                           ("shapes_after.png", "Paired shapes on the mesh, after the update"))
+                       if (folder / name).exists())
+    text = (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(summary['run_id'])}</title>"
+            "<style>body{font-family:sans-serif;max-width:60em} td,th{padding:2px 8px;text-align:right}"
+            "img{max-width:100%}</style></head><body>"
+            f"<h1>Modal update {html.escape(summary['run_id'])}</h1>"
+            f"<p>model {html.escape(str(summary['model']))}, measured {html.escape(str(summary['measured']))}</p>"
+            + "".join(f"<p>{html.escape(line)}</p>" for line in lines)
+            + "<h2>Parameters (95 % intervals)</h2>"
+            + _table(["parameter", "value", "sd", "95 %"] + (["truth"] if "inside95" in summary else []), params)
+            + "<h2>Paired modes</h2>"
+            + _table(["measured", "f Hz", "model", "f Hz", "difference %", "MAC"], pairs)
+            + f"<p>Residual: {html.escape(summary['residual'])}</p>" + pictures + "</body></html>\n")
+    path = folder / "report.html"
+    path.write_text(text)
+    return path
