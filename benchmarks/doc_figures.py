@@ -1,6 +1,6 @@
 """The documentation's run pictures, redrawn from fresh runs with the code of this checkout.
 
-``nice -n 10 python -m benchmarks.doc_figures`` (about 5 minutes on 2 busy cores) runs, in a temporary runs
+``nice -n 10 python -m benchmarks.doc_figures`` (3 min CPU; 16 min wall on 2 cores at load 8-14) runs, in a temporary runs
 folder, the commands the docs show and copies the figures their reports draw:
 
 1. ``python -m flows.update`` (the main job) and ``python -m flows.report``: ``docs/report-frf.png`` (the
