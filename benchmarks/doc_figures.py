@@ -1,7 +1,7 @@
 """The documentation's run pictures, redrawn from fresh runs with the code of this checkout.
 
-``nice -n 10 python -m benchmarks.doc_figures`` (3 min CPU; 16 min wall on 2 cores at load 8-14) runs, in a temporary runs
-folder, the commands the docs show and copies the figures their reports draw:
+``nice -n 10 python -m benchmarks.doc_figures`` (3 min CPU; 16 min wall on 2 cores at load 8-14) runs, in a
+temporary runs folder, the commands the docs show and copies the figures their reports draw:
 
 1. ``python -m flows.update`` (the main job) and ``python -m flows.report``: ``docs/report-frf.png`` (the
    report's FRF overview: measured points, initial and updated model) and ``docs/report-error.png`` (the
