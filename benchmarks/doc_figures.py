@@ -10,7 +10,9 @@ temporary runs folder, the commands the docs show and copies the figures their r
    (the hammer test's channels, initial and updated model) and ``docs/hammer-lines.png`` (the lines used,
    those left out for coherence, the coherence);
 3. ``python -m flows.update --measured data/effects/point_mass.csv --close-loop --noise 0.005``:
-   ``docs/closure-residuals.png`` (the residual per sensor before and after the closure adds the point mass).
+   ``docs/closure-residuals.png`` (the residual per sensor before and after the closure adds the point mass);
+4. ``python -m flows.correlation --samples 10000``: ``docs/correlation.png`` (Pearson correlation of each
+   parameter with each sensor's amplitude; ``--correlation-samples`` sets N; 10,000 FE runs take 3-10 min).
 
 ``--only report hammer closure`` redraws some of them. Each command's printed summary goes to
 ``<runs>/<name>.log``; the runs folder is kept when ``--keep`` is given.
@@ -29,13 +31,14 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
 
-#: name: (update options, [(file the run folder holds, docs figure)]).
+#: name: (update options, or None for the correlation analysis, [(file the run folder holds, docs figure)]).
 FIGURES = {
     "report": ([], [("report/frf_overview.png", "report-frf.png"), ("report/error_overall.png", "report-error.png")]),
     "hammer": (["--measured", "data/benchmark/hammer.uff"],
                [("report/frf_overview.png", "hammer-frf.png"), ("report/line_selection.png", "hammer-lines.png")]),
     "closure": (["--measured", "data/effects/point_mass.csv", "--close-loop", "--noise", "0.005"],
                 [("closure/residuals.png", "closure-residuals.png")]),
+    "correlation": (None, [("correlation/correlation.png", "correlation.png")]),
 }
 
 
@@ -48,13 +51,17 @@ def _run(args: list[str], log: Path) -> None:
         raise SystemExit(f"python -m {' '.join(args)} exited {proc.returncode}; see {log}")
 
 
-def draw(name: str, runs: Path) -> list[Path]:
+def draw(name: str, runs: Path, correlation_samples: int = 10000) -> list[Path]:
     """Run ``name``'s update and report in ``runs`` and copy its figures into docs/; the paths written."""
     options, figures = FIGURES[name]
     run_id, log = f"docs-{name}", runs / f"{name}.log"
     t0 = time.perf_counter()
-    _run(["flows.update", "--runs-dir", str(runs), "--run-id", run_id, *options], log)
-    _run(["flows.report", "--runs-dir", str(runs), "--run-id", run_id], log)
+    if options is None:
+        _run(["flows.correlation", "--samples", str(correlation_samples), "--runs-dir", str(runs), "--run-id", run_id],
+             log)
+    else:
+        _run(["flows.update", "--runs-dir", str(runs), "--run-id", run_id, *options], log)
+        _run(["flows.report", "--runs-dir", str(runs), "--run-id", run_id], log)
     written = []
     for source, target in figures:
         src = runs / run_id / source
@@ -71,11 +78,13 @@ def main(argv=None) -> int:
     parser.add_argument("--only", nargs="+", choices=sorted(FIGURES), default=sorted(FIGURES),
                         help="redraw only these (default: all)")
     parser.add_argument("--keep", action="store_true", help="keep the temporary runs folder (printed)")
+    parser.add_argument("--correlation-samples", type=int, default=10000, metavar="N",
+                        help="FE samples of the correlation analysis (default 10000, the paper's)")
     args = parser.parse_args(argv)
     runs = Path(tempfile.mkdtemp(prefix="doc-figures-"))
     try:
         for name in args.only:
-            draw(name, runs)
+            draw(name, runs, args.correlation_samples)
     finally:
         if args.keep:
             print(f"runs kept in {runs}")
