@@ -1,4 +1,4 @@
-"""Speed of the tet10 element family on the L-bracket example (figures for the README).
+"""Speed of the tet10 element family on the L-bracket example (docs/elements.md).
 
     nice -n 5 python -m benchmarks.elements [--mesh data/examples/bracket/bracket.msh]
 

@@ -54,7 +54,7 @@ import numpy as np  # noqa: E402
 
 from benchmarks.mrgp import CACHE_DIR, candidates, draw_design, load_cache, save_cache  # noqa: E402
 from mrgp_core import ProfileLikelihood, condition, fit, fit_reduced, standardise  # noqa: E402
-from mrgp_core.adaptive import relative_residuals  # noqa: E402
+from mrgp_core.errors import relative_residuals  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "many-responses.md"

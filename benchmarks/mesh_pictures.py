@@ -1,4 +1,4 @@
-"""The README's mesh pictures, and how long drawing and model.vtu take on the 35k-DOF tet10 bracket.
+"""The docs' mesh pictures (docs/model-files.md), and how long drawing and model.vtu take on the 35k-DOF tet10 bracket.
 
 ``nice -n 5 python -m benchmarks.mesh_pictures`` (one run; about a minute on 2 busy cores plus the
 benchmark update when its run is missing):

@@ -11,6 +11,7 @@ parameter's absolute error against the known truth.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -34,7 +35,10 @@ def rows(run_dir: Path) -> list[str]:
 
 
 def main(argv=None) -> int:
-    dirs = [Path(a) for a in (sys.argv[1:] if argv is None else argv)]
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.update_table",
+                                     description="Print the markdown table of docs/update-results.md from run folders.")
+    parser.add_argument("runs", nargs="+", type=Path, help="run folders (data/runs/<run-id>, --repeats folders)")
+    dirs = parser.parse_args(sys.argv[1:] if argv is None else argv).runs
     print("| strategy / trainer | seed | iterations | FE runs | of which polish | overall error | "
           + " | ".join(f"\\|err\\| alpha_{i}" for i in range(1, 7)) + " | largest |")
     print("|" + "---|" * 14)

@@ -72,8 +72,8 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--config", metavar="PATH", help="TOML file with any of the settings (data/update.example.toml)")
     p.add_argument("--model", metavar="NAME|PATH", help="FE model: three_plate (default, the benchmark) or a "
-                                                       "model file model.toml (README: Your own structure)")
-    p.add_argument("--measured", metavar="PATH", help="measured FRFs: .csv, .parquet or .uff (README: Measured data) "
+                                                       "model file model.toml (docs/model-files.md)")
+    p.add_argument("--measured", metavar="PATH", help="measured FRFs: .csv, .parquet or .uff (docs/measured-formats.md) "
                                                       "(default data/benchmark/measured.csv)")
     p.add_argument("--run-id", metavar="ID", help="run folder name under data/runs; an existing id resumes that run")
     p.add_argument("--runs-dir", metavar="PATH", help="where run folders go (default data/runs)")

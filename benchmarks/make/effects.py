@@ -88,4 +88,7 @@ def _unit(effect, location) -> str:
 
 
 if __name__ == "__main__":
+    from benchmarks.make import parse_no_options
+
+    parse_no_options("benchmarks.make.effects", __doc__)
     sys.exit(main())

@@ -110,4 +110,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    from benchmarks.make import parse_no_options
+
+    parse_no_options("benchmarks.make.effects2", __doc__)
     sys.exit(main())
