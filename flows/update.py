@@ -68,7 +68,10 @@ def _run_parser() -> argparse.ArgumentParser:
         prog="python -m flows.update",
         description="Update the FE model's segment parameters from measured FRF amplitudes "
                     "(adaptive MRGP, Zhou & Tang). Subcommand 'rerun' recomputes one stage of an earlier run.",
-        epilog="Settings come from the defaults, then --config, then these flags. See data/update.example.toml.",
+        epilog="Settings come from the defaults, then --config, then these flags. See data/update.example.toml. "
+               "Measured modes (UFF dataset 55 or a modal CSV), or FRFs with --identify-modes LO-HI, take the modal "
+               "update, with its own options --frequency-sigma, --shape-sigma, --no-shapes, --mac-threshold, "
+               "--identify-modes, --pol-order, --starts (docs/modal-data.md).",
     )
     p.add_argument("--config", metavar="PATH", help="TOML file with any of the settings (data/update.example.toml)")
     p.add_argument("--model", metavar="NAME|PATH", help="FE model: three_plate (default, the benchmark) or a "

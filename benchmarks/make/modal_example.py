@@ -116,4 +116,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    from benchmarks.make import parse_no_options
+
+    parse_no_options("benchmarks.make.modal_example", __doc__)
     raise SystemExit(main())
