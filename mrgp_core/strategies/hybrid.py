@@ -122,7 +122,8 @@ class Hybrid:
         self.layout = layout if isinstance(layout, Layout) else Layout.grid(layout, self.residual.u.size
                                                                             // len(layout))
         self.options = options
-        self.ledger = Ledger(self.residual, options.max_cost, options.jacobian_cost)
+        self.ledger = Ledger(self.residual, options.max_cost, options.jacobian_cost, cap=options.cap,
+                             improve_rounds=options.improve_rounds, improve_rtol=options.improve_rtol)
         self.minima: list[Minimum] = []
         self.checks: list = []
         self.status = "budget"
@@ -176,6 +177,7 @@ class Hybrid:
             self._done = True
             return True
         self.cycle += 1
+        self.ledger.phase_start = self.ledger.rounds
         self._label = f"global-{self.cycle}"
         self._phase = global_phase(self.ledger, self.lower, self.upper, [m.x for m in self.minima], self.options,
                                    self.cycle)
