@@ -37,16 +37,13 @@ from .fits import Fit
 from .screening import screen
 from ..model import ParametricModel
 
-__all__ = ["Screen", "Evidence", "screen_point", "screen_points", "weigh", "weigh_round", "log_rss", "FAR_BETTER", "MIN_EXPLAINED"]
+__all__ = ["Screen", "Evidence", "screen_point", "screen_points", "weigh", "weigh_round", "log_rss", "FAR_BETTER"]
 
 #: The closure takes over when the best effect leaves at most this share of the best basin's sum of squares.
 #: A quarter: an effect worth the closure's cost halves the residual's rms at least where every basin found so
 #: far leaves it (on the benchmark with a 5 % point mass, the effect leaves 1-3 % of the local fit's sum of
 #: squares, the global round's best basin 60-100 %; docs/closure-far-off.md).
 FAR_BETTER = 0.25
-#: ... and explains at least this share of what re-fitting alpha alone leaves at its point (a candidate that
-#: explains little anywhere is no evidence of a missing effect).
-MIN_EXPLAINED = 0.5
 
 
 @dataclass(frozen=True)
@@ -160,11 +157,11 @@ class Evidence:
                 "rss_basin": self.rss_basin, "best_screen": None if self.best is None else self.best.to_dict()}
 
 
-def weigh(screens: Sequence[Screen], rss_basin: float, far_better: float = FAR_BETTER,
-          min_explained: float = MIN_EXPLAINED) -> Evidence:
+def weigh(screens: Sequence[Screen], rss_basin: float, far_better: float = FAR_BETTER) -> Evidence:
     """Missing effect or wrong basin: ``closure`` when the best screened effect leaves at most ``far_better``
-    of ``rss_basin`` (the smallest sum of squares of any basin found: the local fit and the global round's
-    minima) and explains at least ``min_explained`` at its point; ``basins`` otherwise."""
+    of the best basin's sum of squares: the smallest of ``rss_basin`` (the minima found: the local fit, the
+    global round's) and of what re-fitting alpha alone is predicted to leave at each screened point (so the
+    effect also explains at least ``1 - far_better`` at its own point); ``basins`` otherwise."""
     useful = [s for s in screens if s.effect is not None]
     best = min(useful, key=lambda s: s.rss_effect) if useful else None
     rss_basin = min([float(rss_basin)] + [s.rss_alpha for s in screens])  # alpha re-fitted linearly is a basin too
@@ -174,13 +171,11 @@ def weigh(screens: Sequence[Screen], rss_basin: float, far_better: float = FAR_B
     ratio = best.rss_effect / rss_basin if rss_basin > 0 else np.inf
     what = (f"{best.effect} at {best.location} (screened at the {best.at}) leaves a sum of squares of "
             f"{best.rss_effect:.4g}, {ratio:.1%} of the best basin's {rss_basin:.4g}")
-    if ratio <= far_better and best.explained >= min_explained:
+    if ratio <= far_better:
         return Evidence("closure", f"{what} (at most {far_better:.0%}): a missing effect explains the residual far "
                                    "better than any basin found; the closure takes over", best.rss_effect,
                         float(rss_basin), best)
-    why = (f"more than {far_better:.0%}" if ratio > far_better
-           else f"but it explains only {best.explained:.0%} at its point (< {min_explained:.0%})")
-    return Evidence("basins", f"{what} ({why}): no effect explains the residual far better than a basin; keep "
+    return Evidence("basins", f"{what} (more than {far_better:.0%}): no effect explains the residual far better than a basin; keep "
                               "searching basins", best.rss_effect, float(rss_basin), best)
 
 
