@@ -85,6 +85,7 @@ def run_hybrid(problem, config, store: RunStore) -> tuple[int, dict]:
 def _evidence_summary(evidence: dict, decision: dict | None) -> dict:
     """``summary.json``'s ``evidence``: the screens and the decision (None when no global round followed)."""
     screens = evidence.get("screens", []) if decision is None else decision.get("screens", [])
+    screens = [{k: v for k, v in s.items() if k != "seconds"} for s in screens]  # wall time: in the stage records
     return {"screens": screens, "skipped": evidence.get("skipped", ""),
             "choice": None if decision is None else decision["choice"],
             "reason": "no global round with structure followed the screen" if decision is None else decision["reason"],
