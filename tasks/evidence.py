@@ -22,7 +22,7 @@ import pandas as pd
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from fe_core.closure.evidence import Screen, log_rss, screen_points, weigh_round
+from fe_core.closure.evidence import Screen, log_rss, screen_points, weigh, weigh_round
 from tasks import record
 from tasks.common import done, logger
 from tasks.runstore import RunStore
@@ -87,12 +87,15 @@ def weigh_task(root: str, problem, config, iteration: int, evidence: dict, check
     store = RunStore(root)
     if done(store, iteration, WEIGH_STAGE):
         return store.stage_info(iteration, WEIGH_STAGE)
-    found = [c for c in checks if c.get("sample_id") is not None]
+    found = [c for c in checks if c.get("sample_id") is not None and c.get("minimum")]
     basins = {int(c["sample_id"]): _sample_rss(store, problem, iteration, c["sample_id"]) for c in found}
-    best = min(found, key=lambda c: basins[int(c["sample_id"])])
     screens = [Screen.from_dict(s) for s in evidence.get("screens", [])]
     inputs, _ = screen_inputs(problem)
-    decision, screens = weigh_round(*inputs, screens, best["minimum"]["x"], basins[int(best["sample_id"])])
+    if found and inputs is not None:
+        best = min(found, key=lambda c: basins[int(c["sample_id"])])
+        decision, screens = weigh_round(*inputs, screens, best["minimum"]["x"], basins[int(best["sample_id"])])
+    else:  # nothing to screen at: the screens so far against what re-fitting alpha alone leaves
+        decision = weigh(screens, float("inf"))
     info = {**decision.to_dict(), "basins": {str(k): v for k, v in basins.items()},
             "screens": [s.to_dict() for s in screens]}
     store.write_table(iteration, WEIGH_STAGE, WEIGH_STAGE, pd.DataFrame({"choice": [decision.choice],
