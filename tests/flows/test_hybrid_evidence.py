@@ -53,6 +53,52 @@ def test_an_undeclared_point_mass_ends_the_search_for_basins_with_the_mass_named
     assert store.is_finished(1, etasks.EVIDENCE_STAGE) and store.is_finished(2, etasks.WEIGH_STAGE)
 
 
+def test_the_strategy_in_memory_weighs_the_same_evidence_after_the_same_fe_runs(point_mass_run):
+    """One strategy, two drivers (as ``test_hybrid_flow.py``): :class:`mrgp_core.strategies.hybrid.Hybrid` with
+    the screen makes the flow's FE runs and stops on the same evidence."""
+    from fe_core.closure.evidence import screen_points
+    from fe_core.solvers.sensitivity import frf_jacobian
+    from flows.rerun import run_problem
+    from mrgp_core.strategies.base import Outcome, run_loop
+    from mrgp_core.strategies.hybrid import Hybrid
+    from tasks.common import fitted
+    from tasks.fe_runs import JACOBIAN_COST
+    from tasks.hybrid import hybrid_options
+    from tasks.record import history as run_history
+
+    summary, store = point_mass_run
+    config = UpdateConfig(run_id="pm", runs_dir=str(store.root.parent), measured=str(DATA / "measured_point_mass.csv"),
+                          **SETTINGS)
+    problem = run_problem(config)
+    line, channel = problem.data.cells
+
+    def evaluate(batch):
+        out = []
+        for x, jac in zip(batch.points, batch.jacobian):
+            if jac:
+                Z, dZ = frf_jacobian(problem.model, x, problem.freqs_hz, channels=problem.channels)
+                out.append(Outcome(Z[line, channel], dZ[line, channel], JACOBIAN_COST))
+            else:
+                out.append(Outcome(problem.model.parameter_frf(x, problem.freqs_hz, problem.channels)[line, channel]))
+        return out
+
+    inputs, why = etasks.screen_inputs(problem)
+    assert not why
+    residual, layout = fitted(problem.data)
+    strategy = Hybrid(problem.nominal, residual, layout, *problem.solver_box, hybrid_options(config),
+                      screen=lambda points: screen_points(*inputs, points))
+    decision = run_loop(strategy, evaluate)
+    assert decision.stop and not decision.converged and strategy.status == "effect"
+    assert strategy.evidence.choice == summary["evidence"]["choice"] == "closure"
+    assert strategy.evidence.rss_effect == pytest.approx(summary["evidence"]["rss_effect"], rel=1e-6)
+    flow = run_history(store)
+    memory = strategy.result().history
+    assert len(memory) == len(flow) == summary["fe_evaluations"]
+    for (rnd, x, error, jac, _), h in zip(memory, flow):
+        assert rnd == h["round"] and jac == h["jacobian"]
+        np.testing.assert_allclose(x, h["x"], rtol=0, atol=1e-12)
+
+
 def test_without_an_effect_the_global_round_reaches_the_floor_and_nothing_is_weighed(tmp_path, prefect_harness):
     from tasks.io.measured import MeasuredFRF, read_measured, write_measured
 
