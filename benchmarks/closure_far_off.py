@@ -116,7 +116,10 @@ def main(argv=None) -> int:
                 continue
             rows.append(run_case(case, Path(work)))
             print(rows[-1], flush=True)
-    print(pd.DataFrame(rows).to_markdown(index=False, floatfmt=".3g"))
+    table = pd.DataFrame(rows)
+    print("| " + " | ".join(table.columns) + " |\n|" + "---|" * len(table.columns))
+    for row in table.itertuples(index=False):
+        print("| " + " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in row) + " |")
     return 0
 
 
