@@ -10,7 +10,9 @@ Cases (truths in ``data/far_off/truth.json``; measured data from a model other t
 * ``cantilever-5%``, ``cantilever-10%``: the exported matrices with a point mass of 5 % / 10 % of the beam's mass at
   node 208 added (direct solve), the truth's alpha, 0.5 % noise (``--make``);
 * ``benchmark-2%``: ``data/effects/point_mass.csv`` (three-plate benchmark, 0.12 kg, 2.1 %, 0.5 % noise);
-* ``benchmark-5%``: the benchmark at the SPEC's alpha with 0.29 kg (5 %) at node 337 (direct solve), 0.5 % noise.
+* ``benchmark-5%``: the benchmark at the SPEC's alpha with 0.29 kg (5 %) at node 337 (direct solve), 0.5 % noise;
+* ``cantilever-spring``: the exported matrices with a 3e5 N/m spring to ground along y at node 208 (a stiff mount;
+  direct solve), 0.5 % noise.
 
 Per case: the update's evidence decision, its FE runs and FE-run equivalents, the closure's verdict, whether it
 named the right kind at the right node, the size's error, wall time.
@@ -42,14 +44,14 @@ def _cases() -> list[dict]:
              {"case": "benchmark-2%", "model": "three_plate", "measured": "data/effects/point_mass.csv",
               "node": effects["node"], "mass_kg": effects["value"]}]
     cases += [{"case": name, "model": t["model"], "measured": f"data/far_off/{t['file']}", "node": t["node"],
-               "mass_kg": t["mass_kg"]} for name, t in truth.items()]
+               "mass_kg": t.get("mass_kg", t.get("k_N_per_m")), "effect": t["effect"]} for name, t in truth.items()]
     return cases
 
 
 def make() -> None:
     """Write the generated cases' data and truths (data/far_off/)."""
     from fe_core.benchmark import ALPHA_ACTUAL, three_plate
-    from fe_core.closure.effects import Applied, PointMass, extended_frf
+    from fe_core.closure.effects import Applied, GroundedSpring, PointMass, extended_frf
     from flows.problem import load_model
     from tasks.io.measured import MeasuredFRF, read_measured, write_measured
 
@@ -72,6 +74,18 @@ def make() -> None:
                                                amplitude=u, source=f"{ref} + {mass:.4g} kg at node {node}, direct"))
         truth[name] = {"file": file, "model": ref, "alpha": [float(a) for a in alpha], "effect": "point_mass",
                        "node": node, "mass_kg": mass, "share_of_mass": share, "noise": NOISE, "seed": seed}
+    # A stiff mount: a spring to ground along y (the bending direction the sensors see) at node 208, 3e5 N/m.
+    k, seed = 3e5, 24
+    spring = GroundedSpring(beam, component=1)
+    spring.kind = "grounded_spring_y"
+    Z = extended_frf(beam, skfem["alpha"], beam_lines, [Applied(spring, "node 208", np.array([k]))], method="direct")
+    u = np.abs(Z) * (1.0 + NOISE * np.random.default_rng(seed).standard_normal(Z.shape))
+    write_measured(OUT / "cantilever-spring.csv", MeasuredFRF(
+        frequencies_hz=beam_lines, sensors=list(range(1, u.shape[1] + 1)), amplitude=u,
+        source=f"{CANTILEVER} + spring to ground along y, {k:.3g} N/m at node 208, direct"))
+    truth["cantilever-spring"] = {"file": "cantilever-spring.csv", "model": CANTILEVER, "alpha": skfem["alpha"],
+                                  "effect": "grounded_spring_y", "node": 208, "k_N_per_m": k, "noise": NOISE,
+                                  "seed": seed}
     (OUT / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
 
 
@@ -94,6 +108,7 @@ def run_case(case: dict, work: Path) -> dict:
             "update FE runs": summary["fe_evaluations"], "update FE-run equivalents": summary["fe_equivalents"],
             "verdict": closure.get("verdict"),
             "effect": f"{first.get('type')} at {first.get('location')} ({first.get('value', np.nan):.4g})" if first else "-",
+            "kind right": bool(first) and first.get("type") == case.get("effect", "point_mass"),
             "node right": bool(first) and first.get("location") == f"node {case['node']}",
             "size error": abs(float(value) - case["mass_kg"]) / case["mass_kg"] if first else np.nan,
             "wall s": round(wall, 1)}
