@@ -55,6 +55,8 @@ def run_summary(problem, config, store: RunStore, iterations: int, outcome: dict
     }
     if "polish" in outcome:
         summary["polish"] = outcome["polish"]
+    if "evidence" in outcome:
+        summary["evidence"] = outcome["evidence"]
     if config.true_parameters is not None:
         truth = np.asarray(config.true_parameters, float)
         summary["parameter_errors"] = {n: float(abs(float(best[n]) - t)) for n, t in zip(names, truth)}

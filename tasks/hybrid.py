@@ -39,9 +39,16 @@ HYBRID_STAGES = (LOCAL_STAGE, GLOBAL_STAGE, CHECK_STAGE)
 RERUNNABLE = (LOCAL_STAGE, GLOBAL_STAGE, CHECK_STAGE)
 
 
+#: A budget that follows the evidence: a phase still running when ``max_fe_evaluations`` is spent goes on while its
+#: rounds improve its best error (:meth:`mrgp_core.strategies.ledger.Ledger.admit`), up to this factor times the
+#: budget (600 FE-run equivalents for the plain command's 240; docs/closure-far-off.md).
+CAP_FACTOR = 2.5
+
+
 def hybrid_options(config) -> HybridOptions:
     """The strategy's settings from the run's config (keys documented in flows/config.py)."""
-    return HybridOptions(target=config.polish_target, noise=config.noise, max_cost=float(config.max_fe_evaluations),
+    budget = float(config.max_fe_evaluations)
+    return HybridOptions(target=config.polish_target, noise=config.noise, max_cost=budget, cap=CAP_FACTOR * budget,
                          jacobian_cost=JACOBIAN_COST, space_filling=config.s, candidates=config.w,
                          starts=config.starts, trainer=config.trainer, seed=config.seed)
 
@@ -50,7 +57,9 @@ def _phase_ledger(store: RunStore, problem, config, iteration: int) -> Ledger:
     options = hybrid_options(config)
     residual, _ = fitted(problem.data)
     used = record.spent(store, iteration - 1)
-    ledger = Ledger(residual, options.max_cost - used["cost"], options.jacobian_cost)
+    ledger = Ledger(residual, options.max_cost - used["cost"], options.jacobian_cost,
+                    cap=None if options.cap is None else options.cap - used["cost"],
+                    improve_rounds=options.improve_rounds, improve_rtol=options.improve_rtol)
     runs = record.fe_runs(store, iteration - 1)
     if len(runs):
         data = problem.data
@@ -104,7 +113,7 @@ def _fe_stage(root: str, problem, config, iteration: int, stage: str, phase_of, 
         status = minima[0].status if minima else "budget"
     except BudgetSpent:
         minima, status = [], "budget"
-    info = {"status": status, "minima": [_minimum_info(mn) for mn in minima],
+    info = {"status": status, "minima": [_minimum_info(mn) for mn in minima], "extended_rounds": ledger.extended,
             "best_error": min([h[2] for h in ledger.history] or [float("inf")]), "seconds": time.perf_counter() - t0}
     info = runner.write(info)
     log.info("iteration %d, stage %s: %s after %d FE runs (%d with Jacobian) in %d rounds, best overall error "

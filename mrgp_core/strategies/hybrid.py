@@ -116,13 +116,18 @@ class Hybrid:
     """
 
     def __init__(self, x0: np.ndarray, residual, layout, lower: np.ndarray, upper: np.ndarray,
-                 options: HybridOptions = HybridOptions()):
+                 options: HybridOptions = HybridOptions(), screen=None):
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+        # Wrong basin or missing effect (issue 28): ``screen({label: x}) -> [fe_core.closure.evidence.Screen]`` on
+        # the complete lines; None: no evidence (the cycles go on while the check finds structure).
+        self.screen, self.screens, self.evidence = screen, [], None
+        self.x0 = np.clip(np.asarray(x0, float), self.lower, self.upper)
         self.residual = residual if isinstance(residual, Residual) else Residual(residual)
         self.layout = layout if isinstance(layout, Layout) else Layout.grid(layout, self.residual.u.size
                                                                             // len(layout))
         self.options = options
-        self.ledger = Ledger(self.residual, options.max_cost, options.jacobian_cost)
+        self.ledger = Ledger(self.residual, options.max_cost, options.jacobian_cost, cap=options.cap,
+                             improve_rounds=options.improve_rounds, improve_rtol=options.improve_rtol)
         self.minima: list[Minimum] = []
         self.checks: list = []
         self.status = "budget"
@@ -175,11 +180,42 @@ class Hybrid:
             self.status = "target" if best.status == "target" else "floor"
             self._done = True
             return True
+        if self._weigh(best):
+            self.status = "effect"
+            self._done = True
+            return True
         self.cycle += 1
+        self.ledger.phase_start = self.ledger.rounds
         self._label = f"global-{self.cycle}"
         self._phase = global_phase(self.ledger, self.lower, self.upper, [m.x for m in self.minima], self.options,
                                    self.cycle)
         return False
+
+    def _weigh(self, best) -> bool:
+        """The evidence (as the flow's stages ``evidence`` and ``weigh``, :mod:`tasks.evidence`): screens after the
+        local fit; after the first global round, a screen at the best basin and the decision. True: closure."""
+        if self.screen is None:
+            return False
+        if self.cycle == 0:
+            self.screens = list(self.screen({"nominal": self.x0, "local fit": best.x}))
+            return False
+        if self.cycle != 1 or not self.screens:
+            return False
+        from fe_core.closure.evidence import weigh
+
+        rss, basin = min(((self._log_rss(m.Z), m) for m, _ in self.checks), key=lambda t: t[0])
+        if not any(np.max(np.abs(np.asarray(s.alpha) - basin.x)) <= 1e-9 for s in self.screens):
+            self.screens += list(self.screen({"best basin": basin.x}))
+        self.evidence = weigh(self.screens, rss)
+        return self.evidence.choice == "closure"
+
+    def _log_rss(self, Z) -> float:
+        """Sum of squares of ``ln(|Z| / u)`` on the lines where every channel is kept (the screens' measure)."""
+        p, n = len(self.layout.freqs_hz), int(self.layout.channel.max()) + 1
+        grid = np.full((p, n), np.nan)
+        grid[self.layout.line, self.layout.channel] = np.log(np.abs(np.asarray(Z)) / self.residual.u)
+        complete = np.all(np.isfinite(grid), axis=1)
+        return float(np.sum(grid[complete] ** 2))
 
     # -- the strategy interface ------------------------------------------------------------------------
     def propose(self) -> Batch:
@@ -195,15 +231,16 @@ class Hybrid:
         if not self._done:
             return StopDecision(False, False, "continue")
         reason = {"target": "a Gauss-Newton run reached the target", "floor": "the residual is noise",
-                  "budget": "the budget is spent or no start was left"}[self.status]
-        return StopDecision(True, self.status != "budget", reason)
+                  "budget": "the budget is spent or no start was left",
+                  "effect": "a missing effect explains the residual far better than any basin found"}[self.status]
+        return StopDecision(True, self.status in ("target", "floor"), reason)
 
     def result(self) -> "HybridResult":
         x, error = self.ledger.best()
         led = self.ledger
         return HybridResult(x=x, error=error, status=self.status, evaluations=led.evaluations,
                             jacobians=led.jacobians, rounds=led.rounds, cost=led.cost, minima=self.minima,
-                            checks=self.checks, history=led.history)
+                            checks=self.checks, history=led.history, evidence=self.evidence)
 
 
 @dataclass(frozen=True)
@@ -211,7 +248,7 @@ class HybridResult:
     """Outcome of :func:`hybrid`.
 
     x, error : best point and its overall error (Eq. 6b); status : "target", "floor" (the check found
-    noise) or "budget"; evaluations, jacobians, rounds, cost (FE-run equivalents); minima : where
+    noise), "effect" (the evidence: a missing effect, :mod:`fe_core.closure.evidence`) or "budget"; evaluations, jacobians, rounds, cost (FE-run equivalents); minima : where
     Gauss-Newton runs ended; checks : (minimum, Check) in order; history : see :class:`Ledger`.
     """
 
@@ -225,6 +262,7 @@ class HybridResult:
     minima: list
     checks: list
     history: list
+    evidence: object = None
 
 
 def hybrid(evaluate: Evaluate, x0: np.ndarray, residual, layout, lower: np.ndarray, upper: np.ndarray,

@@ -45,6 +45,10 @@ class HybridOptions:
     noise_ratio : ... unless its rms is within this factor of the noise: with thousands of values the test
         rejects a misfit far below the noise (hammer.uff: rms 1.34 % against an estimated 1.10 %, p = 1e-173);
     max_cost : budget in FE-run equivalents (an FE run 1, one with its Jacobian ``jacobian_cost``);
+    cap : a budget that follows the evidence: a phase running when ``max_cost`` is reached goes on, up to
+        ``cap`` FE-run equivalents, while its rounds still improve its best error by ``improve_rtol`` (relative)
+        over ``improve_rounds`` rounds (:meth:`.ledger.Ledger.admit`); None: stop at ``max_cost``. The flow's
+        cap is ``CAP_FACTOR`` times its budget (``tasks.hybrid``; measured in docs/closure-far-off.md);
     radius : first trust-region radius (max-norm); shrink, expand : its factors after a rejected and a good
         step (:class:`TrustRegionGN`); model : Gauss-Newton local model;
     stall_window, stall_rtol : a run has converged when its objective improved by less than
@@ -69,6 +73,9 @@ class HybridOptions:
     noise_ratio: float = 1.5
     significance: float = 0.01
     max_cost: float = 300.0
+    cap: float | None = None
+    improve_rounds: int = 2
+    improve_rtol: float = 0.05
     jacobian_cost: float = 2.5
     radius: float = 0.2
     shrink: float = 0.5

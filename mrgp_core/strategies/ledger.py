@@ -30,6 +30,12 @@ class Ledger:
 
     ``history`` holds ``(round, x, error, with_jacobian, phase)`` in evaluation order; ``responses`` the
     ``(x, Z)`` of every successful FE run (the global phase's emulator learns from them).
+
+    A budget that follows the evidence: past ``max_cost`` a round is still admitted, up to ``cap`` (None: no
+    extension), while the current phase's rounds still improve, i.e. the best error of the phase's last
+    ``improve_rounds`` rounds is at least ``improve_rtol`` (relative) below the best before them
+    (:meth:`improving`). ``phase_start`` is the round after which the current phase began; ``extended`` counts
+    the rounds admitted past ``max_cost``.
     """
 
     residual: Residual
@@ -41,6 +47,11 @@ class Ledger:
     spent: float = 0.0
     history: list = field(default_factory=list)
     responses: list = field(default_factory=list)
+    cap: float | None = None
+    improve_rounds: int = 2
+    improve_rtol: float = 0.05
+    phase_start: int = 0
+    extended: int = 0
 
     @property
     def cost(self) -> float:
@@ -51,9 +62,28 @@ class Ledger:
         return sum(self.jacobian_cost if j else 1.0 for j in jacobian)
 
     def admit(self, jacobian: Sequence[bool]) -> None:
-        """Raise :class:`BudgetSpent` when a round of these runs would exceed the budget."""
-        if self.cost + self.round_cost(jacobian) > self.max_cost + 1e-9:
+        """Raise :class:`BudgetSpent` when a round of these runs would exceed the budget (past ``max_cost``: the
+        cap, or a phase whose rounds no longer improve)."""
+        after = self.cost + self.round_cost(jacobian)
+        if after <= self.max_cost + 1e-9:
+            return
+        if self.cap is None or after > self.cap + 1e-9 or not self.improving():
             raise BudgetSpent
+        self.extended += 1
+
+    def improving(self) -> bool:
+        """The current phase's last ``improve_rounds`` rounds lowered its best error by at least ``improve_rtol``
+        (relative) against its best before them (False with fewer rounds than that plus one)."""
+        rows = [(r, e) for r, _, e, _, _ in self.history if r > self.phase_start]
+        if not rows:
+            return False
+        last = max(r for r, _ in rows)
+        before = [e for r, e in rows if r <= last - self.improve_rounds]
+        recent = [e for r, e in rows if r > last - self.improve_rounds]
+        if not before or not recent:
+            return False
+        old, new = min(before), min(recent)
+        return bool(np.isfinite(old) and new < (1.0 - self.improve_rtol) * old)
 
     def record(self, points: Sequence, jacobian: Sequence[bool], results: Sequence,
                phase: str) -> list[tuple[np.ndarray, np.ndarray | None]]:
