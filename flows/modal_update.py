@@ -316,4 +316,12 @@ def print_summary(summary: dict) -> None:
               f"{', '.join(summary['not_determined'])}")
     if summary["mode_swaps"]:
         print(f"  mode swaps tracked: {'; '.join(summary['mode_swaps'])}")
+    if "closure" in summary:
+        c = summary["closure"]
+        line = f"  closure on the modal residual: {c['verdict']} (chi2 {c['before']['chi2']:.1f} for {c['before']['dof']} dof"
+        if c["chosen"] is not None:
+            ch = c["chosen"]
+            line += (f"; {ch['effect']} at {ch['location']} {ch['value']:.4g} {ch['unit']} (sd {ch['sd']:.2g}): chi2 "
+                     f"{ch['chi2']:.1f}")
+        print(line + ")")
     print(f"  written to {summary['folder']} (summary.json, report.html)")
