@@ -13,32 +13,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.make import modal_example as example
-from fe_core.benchmark import ALPHA_ACTUAL, three_plate
+from benchmarks.make.modal_point_mass import MASS_KG, modes_with_mass
 from fe_core.closure.effects import PointMass
 from fe_core.modal_update import ModalResidual, fit_modes
 from fe_core.modal_update.closure import modal_closure
-from fe_core.modal_update.nelson import eigen_derivatives_at
+from fe_core.modal_update.nelson import eigen_derivatives, eigen_derivatives_at
 from fe_core.solvers.modal import eigenmodes
 from flows.problem import load_model
 from tasks.modal_data import match_modes
 
 MODEL = "data/examples/modal/model.toml"
-MASS_KG = 0.15
-WHERE = (0.48225, 0.02, 0.01)  # on the top surface of segment 6, off the test points
-
-
-def _data_with_mass():
-    spec = three_plate()
-    node = spec.mesh.nearest_node(WHERE, atol=None)
-    effect = PointMass(spec, nodes=[node])
-    alpha = np.asarray(ALPHA_ACTUAL, float)
-    K = spec.stiffness(alpha)
-    M = spec.mass() + effect.terms(alpha, f"node {node}", np.array([MASS_KG])).mass
-    freqs, vecs = eigenmodes(K, M, 6)
-    nodes = [spec.mesh.nearest_node(p) for p in example.test_points()]
-    shapes = np.array([[vecs[spec.free_dofs.searchsorted(3 * n + 2), k] for n in nodes] for k in range(6)])
-    return spec.mesh.nodes[node], example.noisy(freqs, shapes, seed=5)
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +37,10 @@ def test_the_effect_jacobian_of_eigenvalues_matches_finite_differences(model):
     K, M = model.stiffness(np.zeros(6)), model.mass()
     freqs, vecs = eigenmodes(K, M, 6)
     lam = (2 * np.pi * freqs) ** 2
-    dlam, _ = eigen_derivatives_at(K, M, lam, vecs, [(None, dM)], model.outputs, range(6))
+    dlam, dpsi = eigen_derivatives_at(K, M, lam, vecs, [(None, dM)], model.outputs, range(6))
+    _, dphi = eigen_derivatives(K, M, lam, vecs, [(None, dM)])  # Nelson's full solve: the adjoint's reference
+    assert np.allclose(dpsi, np.einsum("nt,mnp->mtp", model.outputs.toarray(), dphi), rtol=0,
+                       atol=1e-8 * np.abs(dpsi).max())
     h = 1e-3  # kg: the second-order term is ~h * |d2 lambda| << h * |d lambda|
     f2, _ = eigenmodes(K, M + h * dM, 6)
     fd = ((2 * np.pi * f2) ** 2 - lam) / h
@@ -62,9 +49,9 @@ def test_the_effect_jacobian_of_eigenvalues_matches_finite_differences(model):
 
 
 def test_a_point_mass_missing_from_the_model_is_named_near_its_node(model):
-    where, (f, s) = _data_with_mass()
-    data = match_modes(example.as_modes(f, s), model)
-    residual = ModalResidual(model, data.outputs, f, data.modes.shapes, 0.002, 0.02, 12, 0.6)
+    where, modes = modes_with_mass()  # benchmarks/make/modal_point_mass.py
+    data = match_modes(modes, model)
+    residual = ModalResidual(model, data.outputs, modes.frequencies_hz, modes.shapes, 0.002, 0.02, 12, 0.6)
     lower, upper = np.full(6, -0.95), np.full(6, 1.0)
     residual.set_active(np.zeros(6))
     fit = fit_modes(residual, lower, upper, n_starts=1)

@@ -45,6 +45,7 @@ def test_a_second_call_reads_the_stages_back_and_changed_inputs_are_refused(tmp_
     assert again["parameters"] == first["parameters"] and again["closure"] == first["closure"]
     assert (root / "modal_runs.jsonl").read_text() == runs
     assert "resumed" in json.loads((root / "manifest.json").read_text())
+    assert "Closure on the modal residual: noise" in (root / "report.html").read_text()
     capsys.readouterr()
 
     measured.write_text(measured.read_text().replace("measured modes", "measured modez", 1))  # other content
