@@ -10,13 +10,21 @@ import pytest
 from flows import update
 from tasks.runstore import RunStore
 
-pytestmark = pytest.mark.usefixtures("prefect_harness")
 
 MODEL = "data/examples/modal/model.toml"
 STAGES = ("identifiable", "correlation_before", "fit", "correlation_after", "closure")
 
 
-def test_a_second_call_reads_the_stages_back_and_changed_inputs_are_refused(tmp_path, monkeypatch, capsys):
+def _api(url: str, path: str, body: dict) -> list:
+    import httpx
+
+    response = httpx.post(f"{url}{path}", json=body, timeout=30)
+    response.raise_for_status()
+    return response.json()
+
+
+def test_a_second_call_reads_the_stages_back_and_changed_inputs_are_refused(tmp_path, monkeypatch, capsys,
+                                                                           prefect_harness):
     measured = tmp_path / "modes.uff"
     measured.write_bytes(open("data/examples/modal/modes.uff", "rb").read())
     argv = ["--model", MODEL, "--measured", str(measured), "--runs-dir", str(tmp_path / "runs"), "--run-id", "r",
@@ -27,6 +35,11 @@ def test_a_second_call_reads_the_stages_back_and_changed_inputs_are_refused(tmp_
     store = RunStore(root)
     assert all(store.is_finished(1, stage) for stage in STAGES)
     runs = (root / "modal_runs.jsonl").read_text()
+    # the run in Prefect's API (what the UI shows): the flow run and one task run per computed stage
+    flow_runs = _api(prefect_harness, "/flow_runs/filter", {"flow_runs": {"name": {"any_": ["modal-r"]}}})
+    assert [f["state_type"] for f in flow_runs] == ["COMPLETED"]
+    tasks = _api(prefect_harness, "/task_runs/filter", {"flow_runs": {"id": {"any_": [flow_runs[0]["id"]]}}})
+    assert sorted(t["name"] for t in tasks) == sorted(["correlation_before", "fit", "correlation_after", "closure"])
     assert len(runs.splitlines()) == first["fe_runs"] > 0
     # the clean benchmark data (0.2 % / 2 % noise, stated): the closure finds noise and names no effect
     assert first["closure"]["verdict"] == "noise" and first["closure"]["chosen"] is None
@@ -56,3 +69,15 @@ def test_a_second_call_reads_the_stages_back_and_changed_inputs_are_refused(tmp_
     assert update.main(argv[:-1] + ["0.03"]) == 2
     err = capsys.readouterr().err
     assert "setting sigma_s (0.02 then, 0.03 now)" in err
+    # an interrupted run (the closure's record missing): only the closure is computed again, the fit read back
+    monkeypatch.undo()
+    import tasks.modal
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("the fit again on resume")
+
+    monkeypatch.setattr(tasks.modal, "fit_modes", no_fit)
+    (root / "iteration=1" / "stage=closure" / "_stage.json").unlink()
+    assert update.main(argv) == 0
+    assert json.loads((root / "summary.json").read_text())["closure"]["verdict"] == "noise"
+    assert store.is_finished(1, "closure")
