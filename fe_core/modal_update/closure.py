@@ -9,7 +9,8 @@ mass; :mod:`fe_core.closure.effects`) traced from what the modal update left.
    With ``r`` the residual and ``Q`` an orthonormal basis of the parameters' Jacobian (the parameters are
    refitted with the effect), the candidate explains ``||P r||^2 - min_{d in bounds} ||P (r + j d)||^2``,
    ``P = I - Q Q^T`` (``linear_drop``, in chi-square units).
-2. **Check**: the best ``n_check`` candidates are fitted in full (parameters and the effect's value,
+2. **Check**: the best ``n_check`` candidates (and the best of another kind screened at least half as
+   good, :func:`pick`) are fitted in full (parameters and the effect's value,
    trust-region least squares with exact Jacobians from ``[theta, linear value]``).
 3. **Decide**: the residual is weighted by the measurement's standard deviations, so ``chi^2`` is the
    test: ``structured`` when ``P(chi^2_{n-k} > chi^2) < level``. An effect is added when it lowers the
@@ -135,6 +136,20 @@ def check_candidate(residual: ModalResidual, theta, lower, upper, candidate: dic
             "sd": float(fit.sd[-1] * ext.scale), "fe_runs": ext.n_evaluations, "implausible": at_bound}
 
 
+def pick(screened: list[dict], n_check: int) -> list[dict]:
+    """The candidates fitted in full: the ``n_check`` best screened, and the best of each other kind whose
+    linearised drop is at least half the best's (so that a rival kind is checked, not only neighbours)."""
+    chosen = list(screened[:n_check])
+    if not screened:
+        return chosen
+    kinds = {c["effect"] for c in chosen}
+    for c in screened:
+        if c["effect"] not in kinds and c["linear_drop"] >= 0.5 * screened[0]["linear_drop"] > 0:
+            chosen.append(c)
+            kinds.add(c["effect"])
+    return chosen
+
+
 def modal_closure(residual: ModalResidual, theta, lower, upper, stated: bool = True,
                   effects=("point_mass", "grounded_spring", "segment_mass"), n_check: int = 2,
                   n_report: int = 10) -> dict:
@@ -151,7 +166,7 @@ def modal_closure(residual: ModalResidual, theta, lower, upper, stated: bool = T
     bic0 = base["chi2"] + k * np.log(n)
     checked, chosen, after = [], None, None
     if before["structured"]:
-        for c in screened[:n_check]:
+        for c in pick(screened, n_check):
             c = check_candidate(residual, theta, lower, upper, c, by_kind[c["effect"]])
             c["delta_bic"] = float(c["chi2"] + (k + 1) * np.log(n) + 2 * np.log(c["n_locations"]) - bic0)
             checked.append(c)
