@@ -25,9 +25,15 @@ from pathlib import Path
 
 import numpy as np
 
-from flows.config import ConfigError, load_config
+from prefect import flow
 
-__all__ = ["route", "main", "run_modal_update"]
+from flows.config import ConfigError, load_config
+from tasks.modal_stages import MODAL_STAGES
+
+__all__ = ["route", "main", "run_modal_update", "modal_flow", "CLOSURE_EFFECTS"]
+
+#: The effects the closure on modal residuals screens (fe_core.closure.effects names); --no-closure: none.
+CLOSURE_EFFECTS = ("point_mass", "grounded_spring", "segment_mass")
 
 DEFAULT_SIGMA_F = 0.002
 DEFAULT_SIGMA_S = 0.02
@@ -53,6 +59,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--identify-modes", metavar="LO-HI", help="FRF data: identify the modes between LO and HI Hz "
                    "with sdypy-EMA (LSCF/LSFD) and update on them")
     p.add_argument("--pol-order", type=int, default=40, help="highest LSCF polynomial order (default 40)")
+    p.add_argument("--no-closure", action="store_true", help="no closure on the modal residual after the update")
     p.add_argument("--true-parameters", metavar="P1,P2,...", help="known parameters (synthetic data): the "
                                                                   "summary says which lie in their intervals")
     return p
@@ -99,7 +106,8 @@ def main(argv: list[str]) -> int:
 
             band = parse_windows(args.identify_modes)[0]
         summary = run_modal_update(config, args.starts, args.frequency_sigma, args.shape_sigma, args.no_shapes,
-                                   args.mac_threshold, truth, band, args.pol_order)
+                                   args.mac_threshold, truth, band, args.pol_order,
+                                   None if args.no_closure else CLOSURE_EFFECTS)
     except FileNotFoundError as exc:
         print(f"error: {exc.filename}: no such file", file=sys.stderr)
         return 2
@@ -111,9 +119,12 @@ def main(argv: list[str]) -> int:
 
 
 def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=False, threshold=0.6,
-                     true_parameters=None, identify_band=None, pol_order=40) -> dict:
-    from flows.problem import load_model
-    from tasks import modal
+                     true_parameters=None, identify_band=None, pol_order=40, effects=CLOSURE_EFFECTS) -> dict:
+    """Resolve the modal run (model, data, checks: nothing written when refused), then :func:`modal_flow`."""
+    from flows import preflight
+    from flows.problem import RESUMABLE_CHANGES, input_checksums, load_model
+    from tasks import modal, modal_stages
+    from tasks.runstore import RunStore
 
     stated = sigma_f is not None or sigma_s is not None
     sigma_f = DEFAULT_SIGMA_F if sigma_f is None else sigma_f
@@ -124,6 +135,17 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
     upper = np.full(model.n_parameters, config.upper)
     if true_parameters is not None and len(true_parameters) != len(names):
         raise ConfigError(f"--true-parameters: {len(names)} values needed ({', '.join(names)})")
+    if config.run_id is None:
+        config = config.replace(run_id=f"modal-{dt.datetime.now(dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')}")
+    settings = {"kind": "modal update", "starts": starts, "sigma_f": sigma_f, "sigma_s": sigma_s,
+                "stated": stated, "mac_threshold": threshold, "identify_modes": identify_band,
+                "pol_order": pol_order, "closure_effects": None if effects is None else list(effects)}
+    folder = config.resolve(config.runs_dir) / config.run_id
+    inputs = input_checksums(config, ref)
+    resuming = (folder / "manifest.json").exists()
+    if resuming:
+        preflight.check_resume(config, folder, RESUMABLE_CHANGES, inputs)
+        _check_settings(folder, settings)
     measured = config.resolve(config.measured)
     identified, stabilisation, seconds_identify = None, None, 0.0
     if identify_band is not None:
@@ -134,67 +156,133 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
         identified, stabilisation = identify_modes(read_measured(measured), identify_band[0], identify_band[1],
                                                    pol_order)
         seconds_identify = time.perf_counter() - t0
-    data, n_model = modal.load_modal_data(measured, model, float(upper.max()), identified)
+    # a resumed run with the same inputs (checked above) passed the band check when it started
+    data, n_model = modal.load_modal_data(measured, model, float(upper.max()), identified, check=not resuming)
     residual = modal.modal_residual(data, model, n_model, sigma_f, sigma_s, threshold)
-    identifiable = modal.check_identifiable(residual, names, str(measured))
-    run_id = config.run_id or f"modal-{dt.datetime.now(dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')}"
-    folder = config.resolve(config.runs_dir) / run_id
-    if (folder / "summary.json").exists():
-        raise ConfigError(f"{folder}: a finished modal run; choose a new --run-id")
+    store = RunStore(folder)
+    notes = modal_stages.identifiable_notes(store, residual, names, str(measured))
+    manifest = {"run_id": config.run_id, "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+                "record_version": preflight.RECORD_VERSION, "config": config.to_dict(), "modal": settings,
+                "stages": list(modal_stages.MODAL_STAGES), **inputs}
+    if resuming:
+        manifest = {**store.read_manifest(), "resumed": manifest["created"]}
     folder.mkdir(parents=True, exist_ok=True)
+    store.write_manifest(manifest)
+    notes = modal_stages.record_identifiable(store, notes)
+    job = ModalJob(config, model, data, residual, n_model, names, lower, upper, stated, settings, notes)
+    summary = modal_flow(job, true_parameters, identified, stabilisation, seconds_identify)
+    return summary
+
+
+class ModalJob:
+    """What the flow of one modal run works on (resolved by :func:`run_modal_update`)."""
+
+    def __init__(self, config, model, data, residual, n_model, names, lower, upper, stated, settings, notes):
+        self.config, self.model, self.data, self.residual = config, model, data, residual
+        self.n_model, self.names, self.lower, self.upper = n_model, names, lower, upper
+        self.stated, self.settings, self.notes = stated, settings, notes
+
+    def __repr__(self) -> str:  # how the flow's parameter shows in the Prefect UI
+        return f"ModalJob({self.config.run_id}: {self.config.measured} on {self.config.model})"
+
+
+def _check_settings(folder: Path, settings: dict) -> None:
+    """A modal run resumes only with the settings it was started with (as check_resume for the config)."""
+    import json
+
+    manifest = folder / "manifest.json"
+    old = json.loads(manifest.read_text()).get("modal")
+    if old is None:
+        raise ConfigError(f"{manifest}: run {folder.name!r} is not a modal update; choose a new --run-id")
+    now = json.loads(json.dumps(settings))
+    changed = [f"setting {k} ({old.get(k)!r} then, {now[k]!r} now)" for k in now if old.get(k) != now[k]]
+    if changed:
+        raise ConfigError(f"{manifest}: run {folder.name!r} was started with other inputs: {'; '.join(changed)}. "
+                          f"Its stored results belong to those; resume with the same inputs, or start a new run "
+                          f"with another --run-id (e.g. {folder.name}-2)")
+
+
+@flow(name="modal-update", flow_run_name="modal-{job.config.run_id}", log_prints=True)
+def modal_flow(job: "ModalJob", true_parameters=None, identified=None, stabilisation=None,
+               seconds_identify: float = 0.0) -> dict:
+    """The stages of one modal run (:mod:`tasks.modal_stages`), then its summary and report."""
+    from tasks import modal, modal_stages
+
+    config, model, data, residual, names = job.config, job.model, job.data, job.residual, job.names
+    folder = config.resolve(config.runs_dir) / config.run_id
+    root = str(folder)
+    threshold = job.settings["mac_threshold"]
     if identified is not None:
         from tasks.io.measured.modes import write_uff55
 
         write_uff55(folder / "identified_modes.uff", identified)
-    before = modal.correlate(data, model, np.zeros(len(names)), n_model, threshold)
+    before = modal_stages.correlation_task(root, "correlation_before", data, model, np.zeros(len(names)),
+                                           job.n_model, threshold)
     modal.write_json(folder / "correlation_before.json", before)
     modal.mac_figure(before, folder / "mac_before.png", "MAC before the update (nominal model)")
-    t0 = time.perf_counter()
-    fit = modal.run_fit(residual, lower, upper, starts, config.seed, stated, folder)
-    seconds = time.perf_counter() - t0
-    after = modal.correlate(data, model, fit.theta, n_model, threshold)
+    fit = modal_stages.fit_task(root, residual, job.lower, job.upper, job.settings["starts"], config.seed, job.stated)
+    theta = np.asarray(fit["theta"], float)
+    after = modal_stages.correlation_task(root, "correlation_after", data, model, theta, job.n_model, threshold)
     modal.write_json(folder / "correlation_after.json", after)
     modal.mac_figure(after, folder / "mac_after.png", "MAC after the update")
-    modal.shapes_figure(data, model, fit.theta, after, folder / "shapes_after.png")
-    final = fit.final
-    m = data.modes
-    paired = [{"test": m.names[t], "model": f"model mode {j + 1}", "f_test_hz": float(m.frequencies_hz[t]),
-               "f_model_hz": float(f), "mac": float(v)}
-              for t, j, f, v in zip(final["pairing"].test, final["pairing"].model, final["f_model"], final["mac"])]
-    missing = [name for k, name in enumerate(m.names) if k not in set(final["pairing"].test.tolist())]
-    numbers = [int(n.split()[-1]) for n in m.names if n.split()[-1].isdigit()]
-    gaps = sorted(set(range(1, max(numbers) + 1)) - set(numbers)) if numbers else []
-    summary = {
-        "kind": "modal update", "run_id": run_id, "folder": str(folder), "model": config.model,
-        "measured": config.measured, "residual": "paired frequencies (f_model - f_test) / (sigma_f f_test) and "
-        "shape differences u - MSF psi of unit-norm measured shapes (|.|^2 = 1 - MAC) / (sigma_s / sqrt(n_dofs))",
-        "sigma_f": sigma_f, "sigma_s": sigma_s, "uncertainties": "stated" if stated else "estimated from the residual",
-        "parameters": {n: {"value": float(v), "sd": float(s), "lower95": float(lo), "upper95": float(hi)}
-                       for n, v, s, lo, hi in zip(names, fit.theta, fit.sd, fit.lower95, fit.upper95)},
-        "covariance": fit.covariance.tolist(), "chi2": fit.chi2, "n_residuals": fit.n_residuals,
-        "n_parameters": len(names), "scale2": fit.scale2, "paired_modes": paired,
-        "unpaired_measured": sorted(set(missing + final["unpaired"]), key=m.names.index),
-        "left_out": [m.names[k] for k in range(m.n_modes) if k not in set(residual.active.tolist())],
-        "missing_mode_numbers": [f"mode {k}" for k in gaps],
-        "fe_runs": fit.n_fe_runs, "jacobians": fit.n_jacobians, "seconds": seconds, "starts": fit.starts,
-        "mode_swaps": residual.swaps, "n_test_dofs": len(m.dofs), "notes": m.notes + identifiable,
-    }
+    if not (folder / "shapes_after.png").exists():  # drawn from the model's modes at theta (an eigen-solve)
+        modal.shapes_figure(data, model, theta, after, folder / "shapes_after.png")
+    closure = None
+    if job.settings["closure_effects"]:
+        closure = modal_stages.closure_task(root, residual, theta, job.lower, job.upper, job.stated,
+                                            job.settings["closure_effects"], fit["active"])
+    summary = modal_summary(job, fit, closure, true_parameters)
     if identified is not None:
-        summary.update(identified_from=config.measured, identification_band_hz=list(identify_band),
+        summary.update(identified_from=config.measured, identification_band_hz=list(job.settings["identify_modes"]),
                        stabilisation=stabilisation, seconds_identification=seconds_identify)
-    wide = [n for n, lo, hi, a, b in zip(names, fit.lower95, fit.upper95, lower, upper) if hi - lo > b - a]
-    if wide:  # e.g. frequencies alone on a symmetric structure: mirror segments trade off
-        summary["not_determined"] = wide
-        summary["notes"] = summary["notes"] + [f"not determined by these data (95 % interval wider than the search "
-                                               f"box): {', '.join(wide)}"]
-    if true_parameters is not None:
-        t = np.asarray(true_parameters, float)
-        summary["true_parameters"] = dict(zip(names, t.tolist()))
-        summary["inside95"] = dict(zip(names, ((fit.lower95 <= t) & (t <= fit.upper95)).tolist()))
     modal.write_json(folder / "summary.json", summary)
     from tasks.modal_report import write_report
 
     write_report(folder, summary)
+    return summary
+
+
+def modal_summary(job, fit: dict, closure: dict | None, true_parameters) -> dict:
+    """``summary.json`` of a modal run from its stages' results."""
+    config, names, m, residual = job.config, job.names, job.data.modes, job.residual
+    folder = config.resolve(config.runs_dir) / config.run_id
+    sd, lo95, hi95 = (np.asarray(fit[k], float) for k in ("sd", "lower95", "upper95"))
+    pairing = fit["pairing"]
+    paired = [{"test": m.names[t], "model": f"model mode {j + 1}", "f_test_hz": float(m.frequencies_hz[t]),
+               "f_model_hz": float(f), "mac": float(v)}
+              for t, j, f, v in zip(pairing["test"], pairing["model"], pairing["f_model"], pairing["mac"])]
+    missing = [name for k, name in enumerate(m.names) if k not in set(pairing["test"])]
+    numbers = [int(n.split()[-1]) for n in m.names if n.split()[-1].isdigit()]
+    gaps = sorted(set(range(1, max(numbers) + 1)) - set(numbers)) if numbers else []
+    s = job.settings
+    summary = {
+        "kind": "modal update", "run_id": config.run_id, "folder": str(folder), "model": config.model,
+        "measured": config.measured, "residual": "paired frequencies (f_model - f_test) / (sigma_f f_test) and "
+        "shape differences u - MSF psi of unit-norm measured shapes (|.|^2 = 1 - MAC) / (sigma_s / sqrt(n_dofs))",
+        "sigma_f": s["sigma_f"], "sigma_s": s["sigma_s"],
+        "uncertainties": "stated" if job.stated else "estimated from the residual",
+        "parameters": {n: {"value": float(v), "sd": float(d), "lower95": float(a), "upper95": float(b)}
+                       for n, v, d, a, b in zip(names, fit["theta"], sd, lo95, hi95)},
+        "covariance": fit["covariance"], "chi2": fit["chi2"], "n_residuals": fit["n_residuals"],
+        "n_parameters": len(names), "scale2": fit["scale2"], "paired_modes": paired,
+        "unpaired_measured": sorted(set(missing + list(fit["unpaired"])), key=m.names.index),
+        "left_out": [m.names[k] for k in range(m.n_modes) if k not in set(fit["active"])],
+        "missing_mode_numbers": [f"mode {k}" for k in gaps],
+        "fe_runs": fit["fe_runs"], "jacobians": fit["jacobians"], "seconds": fit["seconds"], "starts": fit["starts"],
+        "mode_swaps": fit["swaps"], "n_test_dofs": len(m.dofs), "notes": list(m.notes) + list(job.notes),
+        "stages": list(MODAL_STAGES),
+    }
+    wide = [n for n, a, b, lo, hi in zip(names, lo95, hi95, job.lower, job.upper) if b - a > hi - lo]
+    if wide:  # e.g. frequencies alone on a symmetric structure: mirror segments trade off
+        summary["not_determined"] = wide
+        summary["notes"] = summary["notes"] + [f"not determined by these data (95 % interval wider than the search "
+                                               f"box): {', '.join(wide)}"]
+    if closure is not None:
+        summary["closure"] = closure
+    if true_parameters is not None:
+        t = np.asarray(true_parameters, float)
+        summary["true_parameters"] = dict(zip(names, t.tolist()))
+        summary["inside95"] = dict(zip(names, ((lo95 <= t) & (t <= hi95)).tolist()))
     return summary
 
 
@@ -228,4 +316,12 @@ def print_summary(summary: dict) -> None:
               f"{', '.join(summary['not_determined'])}")
     if summary["mode_swaps"]:
         print(f"  mode swaps tracked: {'; '.join(summary['mode_swaps'])}")
+    if "closure" in summary:
+        c = summary["closure"]
+        line = f"  closure on the modal residual: {c['verdict']} (chi2 {c['before']['chi2']:.1f} for {c['before']['dof']} dof"
+        if c["chosen"] is not None:
+            ch = c["chosen"]
+            line += (f"; {ch['effect']} at {ch['location']} {ch['value']:.4g} {ch['unit']} (sd {ch['sd']:.2g}): chi2 "
+                     f"{ch['chi2']:.1f}")
+        print(line + ")")
     print(f"  written to {summary['folder']} (summary.json, report.html)")

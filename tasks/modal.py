@@ -24,13 +24,14 @@ __all__ = ["load_modal_data", "correlate", "mac_figure", "modal_residual", "chec
 N_EXTRA_MODES = 6
 
 
-def load_modal_data(measured_path, model, upper: float, modes=None):
-    """Read (unless ``modes`` are given), match and band-check a modal file: :class:`tasks.modal_data.ModalData`
-    and ``n_model``."""
+def load_modal_data(measured_path, model, upper: float, modes=None, check: bool = True):
+    """Read (unless ``modes`` are given), match and band-check (unless not ``check``: an eigen-solve) a modal
+    file: :class:`tasks.modal_data.ModalData` and ``n_model``."""
     modes = read_modes(measured_path) if modes is None else modes
     data = match_modes(modes, model)
     n_model = min(modes.n_modes + N_EXTRA_MODES, model.n_dofs - 1)
-    check_band(modes, band_limit(model, n_model, upper), n_model)
+    if check:
+        check_band(modes, band_limit(model, n_model, upper), n_model)
     return data, n_model
 
 

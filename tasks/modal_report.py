@@ -15,6 +15,28 @@ def _table(header: list[str], rows: list[list]) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
+def _closure(c: dict | None) -> str:
+    """The closure's section: its verdict, the tests before and after, the best candidates."""
+    if c is None:
+        return ""
+    before = c["before"]
+    text = (f"<h2>Closure on the modal residual: {html.escape(c['verdict'])}</h2><p>after the update chi-square "
+            f"{before['chi2']:.1f} for {before['dof']} degrees of freedom (p = {before['p_value']:.3g}; "
+            f"{'structure' if before['structured'] else 'noise'} at the {c['level']} level, uncertainties "
+            f"{html.escape(c['uncertainties'])}); {c['n_screened']} candidates screened "
+            f"({html.escape(', '.join(c['effects']))}), {c['fe_runs']} FE runs.</p>")
+    if c["chosen"] is not None:
+        ch, after = c["chosen"], c["after"]
+        text += (f"<p>Added: {html.escape(ch['effect'])} at {html.escape(ch['location'])}, {ch['value']:.4g} "
+                 f"{html.escape(ch['unit'])} (sd {ch['sd']:.2g}): chi-square {after['chi2']:.1f} for {after['dof']} "
+                 f"degrees of freedom (p = {after['p_value']:.3g}).</p>")
+    rows = [[x["effect"], x["location"], "" if x.get("position_m") is None else
+             ", ".join(f"{1000 * v:.1f}" for v in x["position_m"]), f"{x['value']:.4g} {x['unit']}",
+             f"{x['linear_drop']:.1f}", "" if x.get("chi2") is None else f"{x['chi2']:.1f}"]
+            for x in c["candidates"]]
+    return text + _table(["effect", "location", "x, y, z mm", "value", "linearised chi2 drop", "chi2 checked"], rows)
+
+
 def write_report(folder: Path, summary: dict) -> Path:
     """Write ``<folder>/report.html``; returns its path."""
     folder = Path(folder)
@@ -47,7 +69,8 @@ def write_report(folder: Path, summary: dict) -> Path:
             + _table(["parameter", "value", "sd", "95 %"] + (["truth"] if "inside95" in summary else []), params)
             + "<h2>Paired modes</h2>"
             + _table(["measured", "f Hz", "model", "f Hz", "difference %", "MAC"], pairs)
-            + f"<p>Residual: {html.escape(summary['residual'])}</p>" + pictures + "</body></html>\n")
+            + f"<p>Residual: {html.escape(summary['residual'])}</p>" + _closure(summary.get("closure"))
+            + pictures + "</body></html>\n")
     path = folder / "report.html"
     path.write_text(text)
     return path

@@ -53,14 +53,16 @@ def laplace_intervals(J: np.ndarray, r: np.ndarray, theta: np.ndarray, stated: b
 
 
 def fit_modes(residual, lower, upper, n_starts: int = 3, seed: int = 0, stated: bool = True,
-              max_nfev: int = 50) -> ModalFit:
-    """Fit the model's parameters to measured modes (see the module docstring)."""
+              max_nfev: int = 50, x0=None) -> ModalFit:
+    """Fit the model's parameters to measured modes (see the module docstring); ``x0``: the first start
+    (default the nominal model)."""
     from scipy.optimize import least_squares
     from scipy.stats import qmc
 
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
     p = lower.size
-    starts = [np.clip(np.zeros(p), lower + 1e-9, upper - 1e-9)]
+    first = np.zeros(p) if x0 is None else np.asarray(x0, float)  # the nominal model, or a given start
+    starts = [np.clip(first, lower + 1e-9, upper - 1e-9)]
     if n_starts > 1:
         unit = qmc.LatinHypercube(d=p, seed=seed).random(n_starts - 1)
         # the inner half of the box: far corners of a wide box make modes too unlike the measured ones to pair

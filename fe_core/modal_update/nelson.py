@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["eigen_derivatives", "parameter_matrices"]
+__all__ = ["eigen_derivatives", "eigen_derivatives_at", "parameter_matrices"]
 
 
 def parameter_matrices(model) -> list[tuple[sp.spmatrix | None, sp.spmatrix | None]]:
@@ -81,9 +81,57 @@ def eigen_derivatives(K, M, lam, phi, dmats, modes=None) -> tuple[np.ndarray, np
         keep[k] = 0.0
         D = sp.diags(keep)
         unit = sp.csc_matrix(([1.0], ([k], [k])), shape=(n, n))
-        A = D @ (K - lam_r * M) @ D + unit
+        lu = spla.splu(sp.csc_matrix(D @ (K - lam_r * M) @ D + unit))
         rhs[k, :] = 0.0
-        sol = spla.splu(sp.csc_matrix(A)).solve(rhs)
+        sol = lu.solve(rhs)
         c = -(Mv @ sol) - 0.5 * dmv
         dphi[a] = sol + np.outer(v, c)
     return dlam, dphi
+
+
+def eigen_derivatives_at(K, M, lam, phi, dmats, outputs, modes, factors: dict | None = None
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """As :func:`eigen_derivatives`, but the shape derivatives only as read by ``outputs`` (n, n_read):
+    ``dpsi = outputs^T d phi``, by the adjoint of Nelson's solve.
+
+    Nelson's matrix ``A`` (``K - lambda M`` with row and column ``k`` replaced by the unit vector) is
+    symmetric, so ``outputs^T A^-1 rhs = X^T rhs`` with ``A X = outputs``, and ``phi^T M A^-1 rhs = y^T rhs``
+    with ``A y = M phi``: one solve of ``n_read + 1`` right-hand sides per mode serves any number of
+    parameters (the closure's candidate effects), kept in ``factors`` across calls on the same K, M.
+
+    Returns ``dlam`` (len(modes), p) and ``dpsi`` (len(modes), n_read, p).
+    """
+    K, M = sp.csc_matrix(K), sp.csc_matrix(M)
+    Lt = sp.csc_matrix(outputs)
+    n, p = K.shape[0], len(dmats)
+    factors = {} if factors is None else factors
+    dlam = np.zeros((len(modes), p))
+    dpsi = np.zeros((len(modes), Lt.shape[1], p))
+    for a, r in enumerate(modes):
+        lam_r, v = float(lam[r]), phi[:, r]
+        Mv = M @ v
+        if r not in factors:
+            k = int(np.argmax(np.abs(v)))
+            keep = np.ones(n)
+            keep[k] = 0.0
+            D = sp.diags(keep)
+            unit = sp.csc_matrix(([1.0], ([k], [k])), shape=(n, n))
+            lu = spla.splu(sp.csc_matrix(D @ (K - lam_r * M) @ D + unit))
+            sol = lu.solve(np.column_stack([Lt.toarray(), Mv]))
+            sol[k, :] = 0.0  # Nelson zeroes the right-hand side's row k: X^T rhs then skips it
+            factors[r] = sol
+        sol = factors[r]
+        F = np.zeros((n, p), order="F")
+        dmv = np.zeros(p)
+        for i, (dK, dM) in enumerate(dmats):
+            if dK is not None:
+                F[:, i] -= dK @ v
+            if dM is not None:
+                dMv = dM @ v
+                F[:, i] += lam_r * dMv
+                dmv[i] = v @ dMv
+        dlam[a] = -(v @ F)
+        proj = sol.T @ F + np.outer(sol.T @ Mv, dlam[a])  # (n_read + 1, p): [X y]^T (F + M phi dlam)
+        c = -proj[-1] - 0.5 * dmv
+        dpsi[a] = proj[:-1] + np.outer(Lt.T @ v, c)
+    return dlam, dpsi

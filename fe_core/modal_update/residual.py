@@ -92,13 +92,17 @@ class ModalResidual:
 
     def modes_at(self, theta):
         """(freqs Hz (n_model,), shapes at the test DOFs (n_model, n_dofs), full vectors, lam, K, M)."""
-        alpha, gamma = self.model.factors(theta)
-        K, M = self.model.stiffness(alpha), self.model.mass(gamma)
+        K, M = self.matrices(theta)
         freqs, vecs = eigenmodes(K, M, self.n_model)
         self.history.append({"run": len(self.history) + 1, "theta": np.asarray(theta, float).tolist(),
                              "frequencies_hz": freqs.tolist()})
         self.n_evaluations = len(self.history)
         return freqs, (self.L.T @ vecs).T, vecs, (2 * np.pi * freqs) ** 2, K, M
+
+    def matrices(self, theta):
+        """(K, M) of the model at ``theta``."""
+        alpha, gamma = self.model.factors(theta)
+        return self.model.stiffness(alpha), self.model.mass(gamma)
 
     def pairing(self, psi):
         return pair_modes(mac_matrix(self.u_test, psi), self.threshold, self.names,
@@ -143,23 +147,29 @@ class ModalResidual:
         if jacobian:
             self.n_jacobians += 1
             dlam, dphi = eigen_derivatives(K, M, lam, vecs, self.dmats, pairing.model)
-            blocks = []
-            for a, (t, m) in enumerate(zip(pairing.test, pairing.model)):
-                df = dlam[a] / (8 * np.pi ** 2 * freqs[m])
-                blocks.append(df[None, :] / (self.sigma_f * self.f_test[t]))
-                if self.sigma_u is not None:
-                    p = psi[m]
-                    u = self.u_test[t]
-                    dp = self.L.T @ dphi[a]  # (n_dofs, n_par)
-                    pp, pu = p @ p, p @ u
-                    d = -(np.outer(p, u @ dp) + dp * pu) / pp + np.outer(p, 2 * pu * (p @ dp)) / pp ** 2
-                    blocks.append(d / self.sigma_u)
-            J = np.vstack(blocks)
+            J = self.jacobian(freqs, psi, pairing, dlam, dphi)
         out = {"r": np.asarray(res), "J": J, "pairing": pairing, "f_model_all": freqs,
                "f_model": freqs[pairing.model], "mac": pairing.mac,
                "unpaired": [self.names[k] for k in pairing.unpaired_test]}
         self._cache[(key, jacobian)] = out
         return out
+
+    def jacobian(self, freqs, psi, pairing, dlam, dphi, at_test: bool = False) -> np.ndarray:
+        """The residual's derivatives (n_res, p) from the paired modes' eigenvalue and shape derivatives
+        (``dlam`` (n_pairs, p), ``dphi`` (n_pairs, n_free, p), :func:`eigen_derivatives`; with ``at_test``
+        already read at the test DOFs, (n_pairs, n_dofs, p)), in the rows of :meth:`evaluate`."""
+        blocks = []
+        for a, (t, m) in enumerate(zip(pairing.test, pairing.model)):
+            df = dlam[a] / (8 * np.pi ** 2 * freqs[m])
+            blocks.append(df[None, :] / (self.sigma_f * self.f_test[t]))
+            if self.sigma_u is not None:
+                p = psi[m]
+                u = self.u_test[t]
+                dp = dphi[a] if at_test else self.L.T @ dphi[a]  # (n_dofs, n_par)
+                pp, pu = p @ p, p @ u
+                d = -(np.outer(p, u @ dp) + dp * pu) / pp + np.outer(p, 2 * pu * (p @ dp)) / pp ** 2
+                blocks.append(d / self.sigma_u)
+        return np.vstack(blocks)
 
 
 def identifiability(dfreq: np.ndarray, names: list[str], rtol: float = 1e-3) -> list[str]:

@@ -1,0 +1,190 @@
+"""The closure on modal residuals: effects the model lacks (a point mass, a grounded spring, a segment's
+mass; :mod:`fe_core.closure.effects`) traced from what the modal update left.
+
+1. **Screen** (linearised, every candidate effect x location at the updated point ``theta``): an effect
+   value ``d`` moves the paired eigenvalues by ``d lambda = phi^T (dK - lambda dM) phi`` (mass-normalised
+   ``phi``; ``dK``, ``dM`` the effect's terms at a unit value, :meth:`Effect.derivative`) and the shapes by
+   Nelson's ``d phi`` at the test DOFs (:func:`fe_core.modal_update.nelson.eigen_derivatives_at`, one
+   adjoint solve per mode for all candidates); through :meth:`ModalResidual.jacobian` these give the column ``j`` of the weighted residual.
+   With ``r`` the residual and ``Q`` an orthonormal basis of the parameters' Jacobian (the parameters are
+   refitted with the effect), the candidate explains ``||P r||^2 - min_{d in bounds} ||P (r + j d)||^2``,
+   ``P = I - Q Q^T`` (``linear_drop``, in chi-square units).
+2. **Check**: the best ``n_check`` candidates (and the best of another kind screened at least half as
+   good, :func:`pick`) are fitted in full (parameters and the effect's value,
+   trust-region least squares with exact Jacobians from ``[theta, linear value]``).
+3. **Decide**: the residual is weighted by the measurement's standard deviations, so ``chi^2`` is the
+   test: ``structured`` when ``P(chi^2_{n-k} > chi^2) < level``. An effect is added when it lowers the
+   extended BIC ``chi^2 + k ln n + 2 ln L`` (``L`` its candidate locations: choosing the best of many
+   nodes is a fit too) and its fit does not end on a plausibility bound. The verdict: ``noise`` (the
+   residual after the update is noise: nothing to explain, no effect named), ``explained`` (an effect
+   added, noise after it), ``partly explained`` (an effect added, structure remains), ``not explained``
+   (structure, and no candidate of the library lowers the extended BIC).
+
+One-parameter effects only (all of the default library's).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from .fit import fit_modes
+from .nelson import eigen_derivatives_at, parameter_matrices
+from .residual import ModalResidual
+
+__all__ = ["modal_closure", "screen_effects", "ExtendedModalResidual", "LEVEL"]
+
+#: Significance level of the chi-square test of "structure".
+LEVEL = 0.01
+#: Candidates per batch of the derivative solves (bounds the memory of the shape derivatives).
+CHUNK = 600
+
+
+def _chi2_test(chi2: float, n: int, k: int) -> dict:
+    dof = max(n - k, 1)
+    p = float(stats.chi2.sf(chi2, dof))
+    return {"chi2": float(chi2), "dof": dof, "p_value": p, "structured": p < LEVEL}
+
+
+def _unit_terms(effect, alpha, location):
+    t = effect.derivative(alpha, location, 0)
+    return t.stiffness, t.mass
+
+
+def screen_effects(residual: ModalResidual, theta, library) -> tuple[list[dict], dict]:
+    """Linearised screen of every (effect, location) at ``theta`` (module docstring, step 1).
+
+    Returns the candidates (dicts, best drop first) and the base: ``r``, ``chi2``, ``n``, ``k``.
+    """
+    theta = np.asarray(theta, float)
+    out = residual.evaluate(theta)
+    r, J, pairing = out["r"], out["J"], out["pairing"]
+    key = tuple(theta.tolist())
+    if key not in residual._modes:  # the evaluation was cached; its modes were not kept
+        residual._modes = {key: residual.modes_at(theta)}
+    freqs, psi, vecs, lam, K, M = residual._modes[key]
+    q, _ = np.linalg.qr(J)
+    r_perp = r - q @ (q.T @ r)
+    rss0 = float(r_perp @ r_perp)
+    alpha, _ = residual.model.factors(theta)
+    candidates, factors = [], {}
+    for effect in library:
+        if effect.n_parameters != 1:
+            continue
+        locations = effect.locations()
+        for start in range(0, len(locations), CHUNK):
+            chunk = locations[start:start + CHUNK]
+            dmats = [_unit_terms(effect, alpha, loc) for loc in chunk]
+            dlam, dpsi = eigen_derivatives_at(K, M, lam, vecs, dmats, residual.L, pairing.model, factors)
+            scale = np.array([effect.scale_at(loc)[0] for loc in chunk])
+            cols = residual.jacobian(freqs, psi, pairing, dlam, dpsi, at_test=True) * scale[None, :]  # per scale unit
+            cols = cols - q @ (q.T @ cols)
+            jj = np.einsum("nl,nl->l", cols, cols)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                d = np.where(jj > 0, -(cols.T @ r_perp) / jj, 0.0)
+            bounds = [effect.bounds_at(loc) for loc in chunk]
+            lo = np.array([b[0][0] for b in bounds]) / scale
+            hi = np.array([b[1][0] for b in bounds]) / scale
+            d = np.clip(d, lo, hi)
+            res = r_perp[:, None] + cols * d[None, :]
+            rss = np.einsum("nl,nl->l", res, res)
+            for k, loc in enumerate(chunk):
+                candidates.append({"effect": effect.kind, "location": loc, "n_locations": len(locations),
+                                   "value": float(d[k] * scale[k]), "unit": effect.units[0],
+                                   "linear_drop": float(rss0 - rss[k]), "position_m": _position(effect, loc)})
+    candidates.sort(key=lambda c: -c["linear_drop"])
+    return candidates, {"r": r, "chi2": float(r @ r), "n": int(r.size), "k": int(J.shape[1]), "rss_perp": rss0}
+
+
+def _position(effect, location):
+    p = effect.position(location)
+    return None if p is None else [float(v) for v in p]
+
+
+class ExtendedModalResidual(ModalResidual):
+    """The modal residual of the model with one effect added: parameters ``[theta, d / scale]``."""
+
+    def __init__(self, base: ModalResidual, effect, location: str):
+        super().__init__(base.model, base.L, base.f_test, base.u_test, base.sigma_f, base.sigma_s, base.n_model,
+                         base.threshold, base.names)
+        self.active = base.active.copy()
+        self.n_base = base.model.n_parameters
+        self.scale = float(effect.scale_at(location)[0])
+        alpha0 = np.zeros(base.model.n_segments)
+        dK, dM = _unit_terms(effect, alpha0, location)
+        self.dK = None if dK is None else dK * self.scale
+        self.dM = None if dM is None else dM * self.scale
+        self.dmats = parameter_matrices(base.model) + [(self.dK, self.dM)]
+
+    def matrices(self, theta):
+        theta = np.asarray(theta, float)
+        K, M = super().matrices(theta[:self.n_base])
+        v = float(theta[self.n_base])
+        return (K if self.dK is None else K + v * self.dK), (M if self.dM is None else M + v * self.dM)
+
+
+def check_candidate(residual: ModalResidual, theta, lower, upper, candidate: dict, effect) -> dict:
+    """Full fit of the parameters and one candidate's value (module docstring, step 2)."""
+    ext = ExtendedModalResidual(residual, effect, candidate["location"])
+    lo, hi = effect.bounds_at(candidate["location"])
+    lo_e, hi_e = float(lo[0]) / ext.scale, min(float(hi[0]) / ext.scale, 1e6)
+    x0 = np.append(np.asarray(theta, float), np.clip(candidate["value"] / ext.scale, lo_e, hi_e))
+    fit = fit_modes(ext, np.append(lower, lo_e), np.append(upper, hi_e), n_starts=1, x0=x0, stated=True)
+    value = float(fit.theta[-1] * ext.scale)
+    at_bound = bool(np.isfinite(hi[0]) and value >= float(hi[0]) * (1 - 1e-3))
+    return {**candidate, "value": value, "theta": fit.theta[:-1].tolist(), "chi2": float(fit.chi2),
+            "sd": float(fit.sd[-1] * ext.scale), "fe_runs": ext.n_evaluations, "implausible": at_bound}
+
+
+def pick(screened: list[dict], n_check: int) -> list[dict]:
+    """The candidates fitted in full: the ``n_check`` best screened, and the best of each other kind whose
+    linearised drop is at least half the best's (so that a rival kind is checked, not only neighbours)."""
+    chosen = list(screened[:n_check])
+    if not screened:
+        return chosen
+    kinds = {c["effect"] for c in chosen}
+    for c in screened:
+        if c["effect"] not in kinds and c["linear_drop"] >= 0.5 * screened[0]["linear_drop"] > 0:
+            chosen.append(c)
+            kinds.add(c["effect"])
+    return chosen
+
+
+def modal_closure(residual: ModalResidual, theta, lower, upper, stated: bool = True,
+                  effects=("point_mass", "grounded_spring", "segment_mass"), n_check: int = 2,
+                  n_report: int = 10) -> dict:
+    """Screen, check and decide (module docstring); a JSON-ready dict with the verdict, the chosen effect (or
+    None), the chi-square tests before and after, and the best candidates."""
+    from ..closure.effects import build_library
+
+    library = build_library(residual.model, list(effects))
+    by_kind = {e.kind: e for e in library}
+    runs0 = residual.n_evaluations
+    screened, base = screen_effects(residual, theta, library)
+    n, k = base["n"], base["k"]
+    before = _chi2_test(base["chi2"], n, k)
+    bic0 = base["chi2"] + k * np.log(n)
+    checked, chosen, after = [], None, None
+    if before["structured"]:
+        for c in pick(screened, n_check):
+            c = check_candidate(residual, theta, lower, upper, c, by_kind[c["effect"]])
+            c["delta_bic"] = float(c["chi2"] + (k + 1) * np.log(n) + 2 * np.log(c["n_locations"]) - bic0)
+            checked.append(c)
+        plausible = [c for c in checked if not c["implausible"] and c["delta_bic"] < 0]
+        if plausible:
+            chosen = min(plausible, key=lambda c: c["delta_bic"])
+            after = _chi2_test(chosen["chi2"], n, k + 1)
+    if not before["structured"]:
+        verdict = "noise"
+    elif chosen is None:
+        verdict = "not explained"
+    else:
+        verdict = "partly explained" if after["structured"] else "explained"
+    keys = {(c["effect"], c["location"]) for c in checked}
+    table = checked + [dict(c, chi2=None, delta_bic=None) for c in screened if (c["effect"], c["location"])
+                       not in keys][:max(n_report - len(checked), 0)]
+    return {"verdict": verdict, "effects": list(effects), "before": before, "after": after,
+            "chosen": chosen, "candidates": table, "n_screened": len(screened),
+            "fe_runs": residual.n_evaluations - runs0 + sum(c["fe_runs"] for c in checked),
+            "uncertainties": "stated" if stated else "the default uncertainties (sigma_f 0.002, sigma_s 0.02) "
+                             "taken as stated for the test", "level": LEVEL}

@@ -1,0 +1,104 @@
+"""Prefect tasks of the modal update (:mod:`flows.modal_update`), one core call each, every result stored.
+
+Stages (``MODAL_STAGES``), all ``iteration=1`` of the run folder (:class:`tasks.runstore.RunStore`)::
+
+    identifiable -> correlation_before -> fit -> correlation_after -> closure
+
+Each writes one table ``<stage>.parquet`` and its record ``_stage.json`` whose ``info`` holds the stage's
+result (JSON); a resumed run (same inputs and settings, :func:`flows.preflight.check_resume`) reads a
+finished stage back instead of computing it (no FE run). A stage recomputed with another result removes
+the records of the stages after it (:func:`tasks.common.finish`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pandas as pd
+from prefect import task
+from prefect.cache_policies import NO_CACHE
+
+from tasks import modal
+from tasks.common import done, finish, logger
+from tasks.runstore import RunStore
+
+__all__ = ["MODAL_STAGES", "identifiable_notes", "record_identifiable", "correlation_task", "fit_task",
+           "closure_task"]
+
+MODAL_STAGES = ("identifiable", "correlation_before", "fit", "correlation_after", "closure")
+ITERATION = 1
+
+
+def _store(store: RunStore, stage: str, table: pd.DataFrame, info: dict) -> dict:
+    store.write_table(ITERATION, stage, stage, table)
+    finish(store, ITERATION, stage, [stage], info, MODAL_STAGES)
+    return store.stage_info(ITERATION, stage)  # as a resume reads it (JSON types)
+
+
+def identifiable_notes(store: RunStore, residual, names: list[str], source: str) -> list[str] | None:
+    """The identifiability check's notes read back from a finished stage, else computed (raises
+    :class:`~tasks.io.measured.MeasuredDataError` when refused; nothing is written here, so a refused run
+    leaves no folder)."""
+    if store.is_finished(ITERATION, "identifiable"):
+        return None
+    return modal.check_identifiable(residual, names, source)
+
+
+def record_identifiable(store: RunStore, notes: list[str] | None) -> list[str]:
+    if notes is None:
+        logger().info("stage identifiable: finished earlier, read back")
+        return store.stage_info(ITERATION, "identifiable")["notes"]
+    return _store(store, "identifiable", pd.DataFrame({"note": pd.Series(notes, dtype=str)}), {"notes": notes})["notes"]
+
+
+@task(name="correlation", task_run_name="{stage}", cache_policy=NO_CACHE)
+def correlation_task(root: str, stage: str, data, model, theta, n_model: int, threshold: float) -> dict:
+    """FE modes at ``theta`` against the measured ones (:func:`tasks.modal.correlate`)."""
+    store = RunStore(root)
+    if done(store, ITERATION, stage):
+        return store.stage_info(ITERATION, stage)
+    result = modal.correlate(data, model, np.asarray(theta, float), n_model, threshold)
+    pairs = pd.DataFrame(result["pairs"], columns=["test", "model", "f_test_hz", "f_model_hz", "difference", "mac"])
+    return _store(store, stage, pairs, result)
+
+
+@task(name="fit", task_run_name="fit", cache_policy=NO_CACHE)
+def fit_task(root: str, residual, lower, upper, starts: int, seed: int, stated: bool) -> dict:
+    """The modal update's fit (:func:`tasks.modal.run_fit`: every FE run to ``modal_runs.jsonl``)."""
+    store = RunStore(root)
+    if done(store, ITERATION, "fit"):
+        return store.stage_info(ITERATION, "fit")
+    t0 = time.perf_counter()
+    fit = modal.run_fit(residual, np.asarray(lower, float), np.asarray(upper, float), starts, seed, stated,
+                        store.root)
+    final = fit.final
+    info = {"theta": fit.theta, "sd": fit.sd, "lower95": fit.lower95, "upper95": fit.upper95,
+            "covariance": fit.covariance, "chi2": fit.chi2, "n_residuals": fit.n_residuals, "scale2": fit.scale2,
+            "starts": fit.starts, "fe_runs": fit.n_fe_runs, "jacobians": fit.n_jacobians,
+            "seconds": time.perf_counter() - t0, "swaps": list(residual.swaps), "active": residual.active,
+            "pairing": {"test": final["pairing"].test, "model": final["pairing"].model,
+                        "f_model": final["f_model"], "mac": final["mac"]},
+            "unpaired": final["unpaired"]}
+    table = pd.DataFrame({"theta": fit.theta, "sd": fit.sd, "lower95": fit.lower95, "upper95": fit.upper95})
+    return _store(store, "fit", table, info)
+
+
+@task(name="closure", task_run_name="closure", cache_policy=NO_CACHE)
+def closure_task(root: str, residual, theta, lower, upper, stated: bool, effects, active) -> dict:
+    """Effects the model lacks, screened and checked on the modal residual
+    (:func:`fe_core.modal_update.closure.modal_closure`)."""
+    from fe_core.modal_update.closure import modal_closure
+
+    store = RunStore(root)
+    if done(store, ITERATION, "closure"):
+        return store.stage_info(ITERATION, "closure")
+    t0 = time.perf_counter()
+    residual.active = np.asarray(active, int)  # the measured modes the fit used (read back on a resume)
+    result = modal_closure(residual, np.asarray(theta, float), np.asarray(lower, float), np.asarray(upper, float),
+                           stated=stated, effects=effects)
+    result["seconds"] = time.perf_counter() - t0
+    table = pd.DataFrame(result["candidates"], columns=["effect", "location", "value", "unit", "linear_drop",
+                                                        "chi2", "delta_bic"]).astype({"chi2": float,
+                                                                                      "delta_bic": float})
+    return _store(store, "closure", table, result)
