@@ -44,4 +44,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    from benchmarks.make import parse_no_options
+
+    parse_no_options("benchmarks.make.modal_point_mass", __doc__)
     raise SystemExit(main())

@@ -27,16 +27,16 @@ def test_a_second_call_reads_the_stages_back_and_changed_inputs_are_refused(tmp_
                                                                            prefect_harness):
     measured = tmp_path / "modes.uff"
     measured.write_bytes(open("data/examples/modal/modes.uff", "rb").read())
-    argv = ["--model", MODEL, "--measured", str(measured), "--runs-dir", str(tmp_path / "runs"), "--run-id", "r",
+    argv = ["--model", MODEL, "--measured", str(measured), "--runs-dir", str(tmp_path / "runs"), "--run-id", "resumed",
             "--starts", "1", "--frequency-sigma", "0.002", "--shape-sigma", "0.02"]
     assert update.main(argv) == 0
-    root = tmp_path / "runs" / "r"
+    root = tmp_path / "runs" / "resumed"
     first = json.loads((root / "summary.json").read_text())
     store = RunStore(root)
     assert all(store.is_finished(1, stage) for stage in STAGES)
     runs = (root / "modal_runs.jsonl").read_text()
     # the run in Prefect's API (what the UI shows): the flow run and one task run per computed stage
-    flow_runs = _api(prefect_harness, "/flow_runs/filter", {"flow_runs": {"name": {"any_": ["modal-r"]}}})
+    flow_runs = _api(prefect_harness, "/flow_runs/filter", {"flow_runs": {"name": {"any_": ["modal-resumed"]}}})
     assert [f["state_type"] for f in flow_runs] == ["COMPLETED"]
     tasks = _api(prefect_harness, "/task_runs/filter", {"flow_runs": {"id": {"any_": [flow_runs[0]["id"]]}}})
     assert sorted(t["name"] for t in tasks) == sorted(["correlation_before", "fit", "correlation_after", "closure"])

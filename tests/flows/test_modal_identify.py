@@ -14,7 +14,7 @@ from flows.config import REPO
 from tasks.io.measured.modes import read_modes
 
 
-def test_hammer_frfs_give_two_modes_and_the_update_on_them_covers_the_actual_alpha(tmp_path):
+def test_hammer_frfs_give_two_modes_and_the_update_on_them_covers_the_actual_alpha(tmp_path, prefect_harness):
     argv = ["--model", "data/benchmark/model.toml", "--measured", "data/benchmark/hammer.uff", "--identify-modes",
             "20-400", "--starts", "1", "--runs-dir", str(tmp_path), "--run-id", "r",
             "--true-parameters=" + ",".join(str(v) for v in ALPHA_ACTUAL)]
