@@ -63,7 +63,8 @@ class _DeckLocator(_Locator):
 
 
 def _resolve_nsets(spec: _Spec, deck) -> None:
-    """Replace ``nset = "NAME"`` entries of sensors and excitations by the set's single node."""
+    """Replace ``nset = "NAME"`` entries of sensors and excitations by the set's single node; refuse node ids
+    absent from the deck (before any ccx run)."""
     data = copy.deepcopy(spec.data)
     for key in ("sensors", "excitations"):
         for t, tab in enumerate(data.get(key, []) if isinstance(data.get(key), list) else []):
@@ -71,6 +72,9 @@ def _resolve_nsets(spec: _Spec, deck) -> None:
             if isinstance(tab, dict) and isinstance(tab.get("dofs"), list):
                 entries += [(f"{key}[{t}].dofs[{e}]", d) for e, d in enumerate(tab["dofs"])]
             for where, entry in entries:
+                node = entry.get("node") if isinstance(entry, dict) else None
+                if isinstance(node, int) and not isinstance(node, bool) and node not in deck.nodes:
+                    raise spec.error(f"{where}.node", f"node {node} is not a node of the deck {deck.path}")
                 if not isinstance(entry, dict) or "nset" not in entry:
                     continue
                 name = entry.pop("nset")
