@@ -30,6 +30,7 @@ OUT = Path(__file__).resolve().parents[2] / "data" / "examples" / "shell_panel"
 ALPHA_TRUE = [-0.10, 0.15, 0.20, -0.15]
 SEGMENTS = ["ROOT_LOW", "ROOT_HIGH", "TIP_LOW", "TIP_HIGH"]
 NOISE, SEED = 0.01, 5
+MODEL_MESH, FINE_MESH = (12, 12), (24, 24)     # cells along the axis, around the arc
 DAMPING = (2.0, 2e-6)
 L, R, ARC = 0.5, 0.4, np.pi / 2
 E, NU, RHO, T = 70e9, 0.33, 2700.0, 0.003
@@ -139,7 +140,7 @@ direction = "z"
 
 def main(out: Path = OUT) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    coarse, cids = panel(12, 12)
+    coarse, cids = panel(*MODEL_MESH)
     (out / "panel.inp").write_text(coarse + "*STEP\n*FREQUENCY\n8\n*END STEP\n")
     segs = "".join(f'\n[[segments]]\nset = "{s}"\nbounds = [-0.5, 0.5]\n' for s in SEGMENTS)
     sens = "".join(f'\n[[sensors]]\nname = "{d} at {point(u, v)}"\nnode = {_node_at(cids, point(u, v))}\n'
@@ -147,8 +148,8 @@ def main(out: Path = OUT) -> None:
     (out / "model.toml").write_text(MODEL_TOML.format(a=DAMPING[0], b=DAMPING[1], segments=segs, sensors=sens))
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        fine, fids = panel(24, 24, factors=ALPHA_TRUE)
-        coarse_truth, _ = panel(12, 12, factors=ALPHA_TRUE)
+        fine, fids = panel(*FINE_MESH, factors=ALPHA_TRUE)
+        coarse_truth, _ = panel(*MODEL_MESH, factors=ALPHA_TRUE)
         f_fine = modes(fine, tmp)
         f_coarse = modes(coarse_truth, tmp)
         print("natural frequencies at the truth, fine mesh  :", np.round(f_fine, 2).tolist())
