@@ -35,7 +35,7 @@ def _model(folder, timeout=120.0) -> DeckFRF:
                    n_modes=20, timeout=timeout)
 
 
-def test_thicknesses_from_finite_differences_within_0_02_and_intervals_covering(tmp_path):
+def test_thicknesses_from_finite_differences_within_0_02_at_the_least_squares_optimum(tmp_path):
     model = _model(tmp_path)
     Z = model.run(TRUTH, tmp_path / "truth")
     rng = np.random.default_rng(3)
@@ -43,10 +43,13 @@ def test_thicknesses_from_finite_differences_within_0_02_and_intervals_covering(
     result = fd_gauss_newton(model, measured, np.zeros(4), -0.3, 0.3, tmp_path / "update", max_iterations=8)
     assert not result.failures
     assert np.max(np.abs(result.theta - TRUTH)) < 0.02, result.theta
-    # The least-squares optimum (residual 0.00913 < 0.01011 at the truth) is what this noise draw gives:
-    # alpha_4 is 2.9 standard deviations off (its 95 % interval misses the truth by 0.0004); at 99.7 % all cover
-    iv = laplace_intervals(result.residual, result.jacobian, result.theta, noise=0.01, level=0.997)
-    assert np.all((iv.low <= TRUTH) & (TRUTH <= iv.high)), (iv.low, iv.high)
+    # the search ends at the least-squares optimum: below the residual at the truth (0.00913 vs 0.01011 here)
+    at_truth = np.log(np.abs(Z)).ravel() - np.log(measured).ravel()
+    assert result.residual @ result.residual < at_truth @ at_truth
+    # Not asserted: coverage. In this noise draw alpha_4's optimum is 3.0 standard deviations (Laplace, noise
+    # 1 %) from the truth, so its 95 % interval misses it by 0.0004 (docs/solver-decks.md).
+    iv = laplace_intervals(result.residual, result.jacobian, result.theta, noise=0.01)
+    assert np.all(iv.high - iv.low < 0.005)
     # one parallel round of m + 1 runs per Jacobian, one run per trial step
     assert result.fe_runs >= 2 * 5 and result.rounds < result.fe_runs
 
