@@ -57,3 +57,38 @@ def test_route_a_recovers_the_segment_moduli_from_ccxs_finer_mesh():
     # the 1 % noise alone would allow +-0.001; what is left is the model mesh's discretisation (0.1 % in the
     # first natural frequencies, truth.json), which the intervals do not know of
     assert np.all(result.intervals.high - result.intervals.low < 0.005)
+
+
+def test_model_vtu_of_the_deck_has_its_shells_segments_and_ccxs_modes(tmp_path):
+    """The run's model.vtu for a deck: every S8R shell as a quad8 cell of its segment, modes at ccx's
+    natural frequencies (*FREQUENCY on the same deck), read back by meshio."""
+    import meshio
+
+    from fe_core.io.vtu import parse_mode_field
+    from fe_core.io.calculix import read_eigenfrequencies
+    from tasks.model_vtu import write_model_vtu
+
+    model = read_model(EXAMPLE / "model.toml")
+    alpha = [0.1, -0.1, 0.2, 0.0]
+    path = write_model_vtu(tmp_path, model, {f"alpha_{i + 1}": a for i, a in enumerate(alpha)}, n_modes=3)
+    grid = meshio.read(path)
+    deck = read_deck(EXAMPLE / "panel.inp")
+    assert [c.type for c in grid.cells] == ["quad8"] and len(grid.cells[0].data) == len(deck.elements) == 144
+    assert grid.points.shape == (len(deck.nodes), 3)
+    seg = grid.cell_data["segment"][0]
+    assert [int(np.sum(seg == k)) for k in range(4)] == [len(deck.elsets[s]) for s in
+                                                         ("ROOT_LOW", "ROOT_HIGH", "TIP_LOW", "TIP_HIGH")]
+    np.testing.assert_allclose(grid.cell_data["alpha"][0], np.array(alpha)[seg])
+    ours = sorted(parse_mode_field(name)[1] for name in grid.point_data)
+    # the deck with the factors as moduli: one material per section
+    cards = []
+    for k, (s, a) in enumerate(zip(("ROOT_LOW", "ROOT_HIGH", "TIP_LOW", "TIP_HIGH"), alpha)):
+        cards.append(f"*MATERIAL, NAME=M{k}\n*ELASTIC\n{7e10 * (1 + a)!r}, 0.33\n*DENSITY\n2700.")
+    params = {deck.section_of(s): {"MATERIAL": f"M{k}"} for k, s in
+              enumerate(("ROOT_LOW", "ROOT_HIGH", "TIP_LOW", "TIP_HIGH"))}
+    text = deck.text(params=params, extra="\n".join(cards), steps="*STEP\n*FREQUENCY\n3\n*END STEP\n")
+    (tmp_path / "f.inp").write_text(text)
+    run_ccx(tmp_path, "f", timeout=120)
+    np.testing.assert_allclose(ours, read_eigenfrequencies(tmp_path / "f.dat"), rtol=2e-6)
+    tip = sorted(deck.nodes).index(deck.nsets["TIP_CORNER"][0])
+    assert all(np.linalg.norm(v[tip]) > 0 for v in grid.point_data.values())   # the free corner moves

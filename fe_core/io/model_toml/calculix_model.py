@@ -32,6 +32,7 @@ from ...assembly import SegmentedMatrix
 from ...model import ParametricModel
 from ..calculix import CcxError, DeckError, Segment, read_deck, segment_matrices
 from ..calculix.results import ResultError
+from ..calculix.vtu import deck_view
 from .sensors import _Locator, _sensors_and_excitation
 from .spec import _get, _keys, _segment_parameters, _Spec, _tables
 
@@ -192,7 +193,7 @@ def _calculix_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
     table = np.column_stack([labels[:, 0], labels[:, 1] - 1])
     ux = (table[:, 1] == 0).astype(float)
     masses = [float(ux @ (M @ ux)) for M in M_seg]
-    return ParametricModel(
+    model = ParametricModel(
         mesh=None, free_dofs=np.arange(n),
         stiffness_segments=SegmentedMatrix.from_matrices(K_seg, K0),
         mass_segments=SegmentedMatrix.from_matrices(M_seg, M0),
@@ -201,3 +202,5 @@ def _calculix_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
         source=str(spec.path), remainder_mass=float(ux @ (M0 @ ux)), placements=placements, dof_table=table,
         mass_parameters=mass_parameters, **extra,
     )
+    model.deck_view = deck_view(deck, [seg.elset for seg in segments], labels)   # for model.vtu
+    return model
