@@ -18,7 +18,6 @@ half-band 0.85-1.0 and 1.0-1.15 times each natural frequency), with 1 % multipli
 from __future__ import annotations
 
 import json
-import sys
 import tempfile
 from pathlib import Path
 
@@ -174,4 +173,8 @@ def main(out: Path = OUT) -> None:
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]) if len(sys.argv) > 1 else OUT)
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("out", nargs="?", type=Path, default=OUT, help="folder to write (default: the example's)")
+    main(parser.parse_args().out)
