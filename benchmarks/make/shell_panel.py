@@ -120,7 +120,7 @@ def modes(model_cards: str, folder: Path, n: int = 8) -> np.ndarray:
     return read_eigenfrequencies(folder / "modes.dat")
 
 
-MODEL_TOML = """# A stiffened aluminium panel of S8R shells as a CalculiX deck (python -m benchmarks.make.shell_panel).
+MODEL_TOML = """# A cylindrical aluminium panel of S8R shells as a CalculiX deck (python -m benchmarks.make.shell_panel).
 # Route A: ccx exports each segment's stiffness and mass (m + 1 runs), the update runs in-process.
 units = "SI"
 solver = "calculix"
