@@ -67,13 +67,19 @@ def write_model_vtu(root: str | Path, model, parameters: dict, n_modes: int | No
     from fe_core.io.vtu import DEFAULT_MODES, model_vtu
 
     logger = run_logger()
-    if model.mesh is None:
+    view = getattr(model, "deck_view", None)   # a solver deck's mesh (fe_core.io.calculix.vtu)
+    if model.mesh is None and view is None:
         logger.info("%s not written: the model is given as matrices (no mesh to draw)", VTU_NAME)
         return None
     alpha, gamma = factors_from_parameters(parameters, model)
     t0 = time.perf_counter()
     try:
-        grid = model_vtu(model, alpha, gamma, DEFAULT_MODES if n_modes is None else n_modes)
+        if view is not None:
+            from fe_core.io.calculix.vtu import deck_vtu
+
+            grid = deck_vtu(model, view, alpha, gamma, DEFAULT_MODES if n_modes is None else n_modes)
+        else:
+            grid = model_vtu(model, alpha, gamma, DEFAULT_MODES if n_modes is None else n_modes)
     except (ArithmeticError, RuntimeError, np.linalg.LinAlgError, spla.ArpackError) as exc:
         logger.warning("%s not written: the modes of the updated model failed (%s: %s)", VTU_NAME,
                        type(exc).__name__, exc)

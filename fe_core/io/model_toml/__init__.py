@@ -60,6 +60,9 @@ A matrices model replaces ``mesh`` by::
 with supports as lists of node ids from the DOF table and sensors/excitations
 given by ``node`` (points need coordinates, which matrices do not carry).
 
+A CalculiX deck replaces ``mesh`` by ``solver = "calculix"`` and ``deck = "panel.inp"``
+(:mod:`.calculix_model`; docs/solver-decks.md).
+
 The package: :mod:`.spec` (loading, checks, shared tables), :mod:`.sensors` (sensors, excitations, test
 DOFs), :mod:`.mesh_model` and :mod:`.matrices_model` (the two builders); :func:`read_model_toml` here
 chooses between them.
@@ -100,4 +103,8 @@ def read_model_toml(path: str | Path) -> ParametricModel:
         raise spec.error("damping", f"Rayleigh coefficients must be >= 0, got a = {a}, b = {b}")
     if "mesh" in spec.data:
         return _mesh_model(spec, units, (a, b))
+    if "deck" in spec.data:
+        from .calculix_model import _calculix_model
+
+        return _calculix_model(spec, units, (a, b))
     return _matrices_model(spec, units, (a, b))

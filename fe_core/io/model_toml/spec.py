@@ -21,7 +21,8 @@ __all__ = ["ModelFileError", "model_files", "UNITS", "UPDATES"]
 UNITS = {"SI": (1.0, 1.0, 1.0), "mm-t-s": (1e-3, 1e6, 1e12)}
 
 _TOP_KEYS = {"units", "mesh", "matrices", "point_tolerance", "excitation", "damping", "elements", "materials",
-             "segments", "supports", "sensors", "excitations", "name", "description"}
+             "segments", "supports", "sensors", "excitations", "name", "description",
+             "solver", "deck", "solver_timeout", "include_paths"}
 
 
 class ModelFileError(ValueError):
@@ -99,8 +100,9 @@ def _load(path: Path) -> _Spec:
         raise ModelFileError(f"{path}: not valid TOML ({exc})") from None
     spec = _Spec(path, data)
     _keys(spec, data, _TOP_KEYS, "")
-    if ("mesh" in data) == ("matrices" in data):
-        raise spec.error("mesh", "give exactly one of 'mesh' (a mesh file) or a [matrices] table")
+    if sum(k in data for k in ("mesh", "matrices", "deck")) != 1:
+        raise spec.error("mesh", "give exactly one of 'mesh' (a mesh file), a [matrices] table or 'deck' (a "
+                                 "solver's input deck, with solver = \"calculix\")")
     return spec
 
 
@@ -110,8 +112,9 @@ def model_files(path: str | Path) -> list[Path]:
     spec = _load(path)
     out = [path]
     names = []
-    if isinstance(spec.data.get("mesh"), str):
-        names.append(spec.data["mesh"])
+    for key in ("mesh", "deck"):
+        if isinstance(spec.data.get(key), str):
+            names.append(spec.data[key])
     mat = spec.data.get("matrices")
     if isinstance(mat, dict):
         names += [v for v in mat.values() if isinstance(v, str)]
@@ -122,7 +125,22 @@ def model_files(path: str | Path) -> list[Path]:
         p = Path(name) if Path(name).is_absolute() else path.parent / name
         if p.exists():
             out.append(p)
+    if isinstance(spec.data.get("deck"), str) and len(out) > 1 and out[-1].suffix.lower() == ".inp":
+        out += _included(out[-1])
     return out
+
+
+def _included(deck: Path, depth: int = 0) -> list[Path]:
+    """The files a deck includes (``*INCLUDE, INPUT=...``), those that exist, recursively."""
+    found = []
+    for line in deck.read_text(errors="replace").splitlines():
+        text = line.strip()
+        if text.upper().startswith("*INCLUDE") and "=" in text and depth < 10:
+            p = Path(text.split("=", 1)[1].strip().strip("\"'"))
+            p = p if p.is_absolute() else deck.parent / p
+            if p.exists():
+                found += [p] + _included(p, depth + 1)
+    return found
 
 
 def _bounds(spec: _Spec, value: Any, key: str, segment: str, symbol: str) -> tuple[float, float]:
