@@ -88,7 +88,7 @@ def panel(nx: int, ny: int, factors=None) -> tuple[str, dict]:
 
 
 def point(u: float, v: float) -> tuple[float, float, float]:
-    return (round(L * u, 9), round(R * np.sin(ARC * v), 9), round(R * np.cos(ARC * v), 9))
+    return (round(L * u, 9), round(float(R * np.sin(ARC * v)), 9), round(float(R * np.cos(ARC * v)), 9))
 
 
 def _node_at(ids, p):

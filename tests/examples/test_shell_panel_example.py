@@ -92,3 +92,17 @@ def test_model_vtu_of_the_deck_has_its_shells_segments_and_ccxs_modes(tmp_path):
     np.testing.assert_allclose(ours, read_eigenfrequencies(tmp_path / "f.dat"), rtol=2e-6)
     tip = sorted(deck.nodes).index(deck.nsets["TIP_CORNER"][0])
     assert all(np.linalg.norm(v[tip]) > 0 for v in grid.point_data.values())   # the free corner moves
+
+
+def test_the_closure_effect_library_builds_on_a_deck_model():
+    """The hybrid's evidence screen and the closure build their effect library on any model; on a deck the
+    sensors read the mean of ccx's expanded shell nodes, which are no DOF-table node of their own (this
+    raised KeyError before, and the update on the example stopped in its evidence stage)."""
+    from fe_core.closure.effects import build_library
+
+    model = read_model(EXAMPLE / "model.toml")
+    library = build_library(model)
+    kinds = {effect.kind for effect in library}
+    assert "point_mass" in kinds and "sensor_mass" in kinds
+    point = next(effect for effect in library if effect.kind == "point_mass")
+    assert len(point.locations()) > 10

@@ -226,7 +226,8 @@ def node_rows(model: ParametricModel) -> tuple[np.ndarray, np.ndarray]:
 def _rows_of(model: ParametricModel, node: int) -> np.ndarray:
     """Free-DOF index of u_x, u_y, u_z of one node (negative if constrained or absent), shape (3,)."""
     _, rows = node_rows(model)
-    return rows[model._node_rows_cache[2][int(node)]]
+    i = model._node_rows_cache[2].get(int(node))
+    return rows[i] if i is not None else np.full(DOFS_PER_NODE, -2)  # a node the model's DOFs do not name
 
 
 def candidate_nodes(model: ParametricModel, node_set: str = "top", component: int | None = None) -> np.ndarray:
