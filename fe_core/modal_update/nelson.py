@@ -76,18 +76,25 @@ def eigen_derivatives(K, M, lam, phi, dmats, modes=None) -> tuple[np.ndarray, np
                 dmv[i] = v @ dMv
             dlam[a, i] = -(v @ f)  # phi^T (dK - lam dM) phi
             rhs[:, i] = f + dlam[a, i] * Mv
-        k = int(np.argmax(np.abs(v)))
-        keep = np.ones(n)
-        keep[k] = 0.0
-        D = sp.diags(keep)
-        unit = sp.csc_matrix(([1.0], ([k], [k])), shape=(n, n))
-        lu = spla.splu(sp.csc_matrix(D @ (K - lam_r * M) @ D + unit))
+        k, lu = _nelson_factor(K, M, lam_r, v)
         rhs[k, :] = 0.0
         sol = lu.solve(rhs)
         c = -(Mv @ sol) - 0.5 * dmv
         dphi[a] = sol + np.outer(v, c)
     return dlam, dphi
 
+
+
+def _nelson_factor(K, M, lam_r: float, v: np.ndarray):
+    """Nelson's matrix of one mode, factorised: ``K - lambda M`` with row and column ``k`` (the shape's
+    largest entry) replaced by the unit vector, which makes it regular. Returns ``(k, splu)``."""
+    n = K.shape[0]
+    k = int(np.argmax(np.abs(v)))
+    keep = np.ones(n)
+    keep[k] = 0.0
+    D = sp.diags(keep)
+    unit = sp.csc_matrix(([1.0], ([k], [k])), shape=(n, n))
+    return k, spla.splu(sp.csc_matrix(D @ (K - lam_r * M) @ D + unit))
 
 def eigen_derivatives_at(K, M, lam, phi, dmats, outputs, modes, factors: dict | None = None
                          ) -> tuple[np.ndarray, np.ndarray]:
@@ -111,12 +118,7 @@ def eigen_derivatives_at(K, M, lam, phi, dmats, outputs, modes, factors: dict | 
         lam_r, v = float(lam[r]), phi[:, r]
         Mv = M @ v
         if r not in factors:
-            k = int(np.argmax(np.abs(v)))
-            keep = np.ones(n)
-            keep[k] = 0.0
-            D = sp.diags(keep)
-            unit = sp.csc_matrix(([1.0], ([k], [k])), shape=(n, n))
-            lu = spla.splu(sp.csc_matrix(D @ (K - lam_r * M) @ D + unit))
+            k, lu = _nelson_factor(K, M, lam_r, v)
             sol = lu.solve(np.column_stack([Lt.toarray(), Mv]))
             sol[k, :] = 0.0  # Nelson zeroes the right-hand side's row k: X^T rhs then skips it
             factors[r] = sol
