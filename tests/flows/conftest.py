@@ -78,3 +78,31 @@ def two_iterations(prefect_harness):
         return store, cols
 
     return run
+
+
+@pytest.fixture(scope="session")
+def in_memory_fe():
+    """``in_memory_fe(problem)``: the FE runs of a strategy's batches in this process, as the flow's FE stage
+    makes them (an FRF, with its exact Jacobian where asked at the flow's cost), for the in-memory drivers
+    (``run_loop``) that the flow tests compare with the flow's own runs."""
+    from fe_core.solvers.sensitivity import frf_jacobian
+    from mrgp_core.strategies.base import Outcome
+    from tasks.fe_runs import JACOBIAN_COST
+
+    def evaluator(problem):
+        line, channel = problem.data.cells
+
+        def evaluate(batch):
+            out = []
+            for x, jac in zip(batch.points, batch.jacobian):
+                if jac:
+                    Z, dZ = frf_jacobian(problem.model, x, problem.freqs_hz, channels=problem.channels)
+                    out.append(Outcome(Z[line, channel], dZ[line, channel], JACOBIAN_COST))
+                else:
+                    Z = problem.model.parameter_frf(x, problem.freqs_hz, problem.channels)
+                    out.append(Outcome(Z[line, channel]))
+            return out
+
+        return evaluate
+
+    return evaluator

@@ -53,16 +53,14 @@ def test_an_undeclared_point_mass_ends_the_search_for_basins_with_the_mass_named
     assert store.is_finished(1, etasks.EVIDENCE_STAGE) and store.is_finished(2, etasks.WEIGH_STAGE)
 
 
-def test_the_strategy_in_memory_weighs_the_same_evidence_after_the_same_fe_runs(point_mass_run):
+def test_the_strategy_in_memory_weighs_the_same_evidence_after_the_same_fe_runs(point_mass_run, in_memory_fe):
     """One strategy, two drivers (as ``test_hybrid_flow.py``): :class:`mrgp_core.strategies.hybrid.Hybrid` with
     the screen makes the flow's FE runs and stops on the same evidence."""
     from fe_core.closure.evidence import screen_points
-    from fe_core.solvers.sensitivity import frf_jacobian
     from flows.rerun import run_problem
-    from mrgp_core.strategies.base import Outcome, run_loop
+    from mrgp_core.strategies.base import run_loop
     from mrgp_core.strategies.hybrid import Hybrid
     from tasks.common import fitted
-    from tasks.fe_runs import JACOBIAN_COST
     from tasks.hybrid import hybrid_options
     from tasks.record import history as run_history
 
@@ -70,17 +68,7 @@ def test_the_strategy_in_memory_weighs_the_same_evidence_after_the_same_fe_runs(
     config = UpdateConfig(run_id="pm", runs_dir=str(store.root.parent), measured=str(DATA / "measured_point_mass.csv"),
                           **SETTINGS)
     problem = run_problem(config)
-    line, channel = problem.data.cells
-
-    def evaluate(batch):
-        out = []
-        for x, jac in zip(batch.points, batch.jacobian):
-            if jac:
-                Z, dZ = frf_jacobian(problem.model, x, problem.freqs_hz, channels=problem.channels)
-                out.append(Outcome(Z[line, channel], dZ[line, channel], JACOBIAN_COST))
-            else:
-                out.append(Outcome(problem.model.parameter_frf(x, problem.freqs_hz, problem.channels)[line, channel]))
-        return out
+    evaluate = in_memory_fe(problem)
 
     inputs, why = etasks.screen_inputs(problem)
     assert not why

@@ -169,13 +169,12 @@ def test_the_intervals_cost_is_measured_in_fe_runs_of_the_hybrid_update(hybrid_r
     assert cost["share_of_update_fe_runs"] == pytest.approx(2.0 / summary["fe_equivalents"], rel=1e-2)
 
 
-def test_the_strategy_in_memory_makes_the_flows_fe_runs(hybrid_run, measured_file):
+def test_the_strategy_in_memory_makes_the_flows_fe_runs(hybrid_run, measured_file, in_memory_fe):
     """One strategy, two drivers: :class:`mrgp_core.strategies.hybrid.Hybrid` through ``run_loop`` with FE runs
     made here asks for the same points, in the same rounds, as the flow's stages did."""
     from tasks.record import history as run_history
     from flows.rerun import run_problem
-    from fe_core.solvers.sensitivity import frf_jacobian
-    from mrgp_core.strategies.base import Outcome, run_loop
+    from mrgp_core.strategies.base import run_loop
     from mrgp_core.strategies.hybrid import Hybrid
     from tasks.common import fitted
     from tasks.hybrid import hybrid_options
@@ -183,18 +182,7 @@ def test_the_strategy_in_memory_makes_the_flows_fe_runs(hybrid_run, measured_fil
     summary, store = hybrid_run
     config = UpdateConfig(run_id="hybrid", runs_dir=str(store.root.parent), measured=str(measured_file), **SETTINGS)
     problem = run_problem(config)
-    line, channel = problem.data.cells
-
-    def evaluate(batch):
-        out = []
-        for x, jac in zip(batch.points, batch.jacobian):
-            if jac:
-                Z, dZ = frf_jacobian(problem.model, x, problem.freqs_hz, channels=problem.channels)
-                out.append(Outcome(Z[line, channel], dZ[line, channel], JACOBIAN_COST))
-            else:
-                Z = problem.model.parameter_frf(x, problem.freqs_hz, problem.channels)
-                out.append(Outcome(Z[line, channel]))
-        return out
+    evaluate = in_memory_fe(problem)
 
     residual, layout = fitted(problem.data)
     strategy = Hybrid(problem.nominal, residual, layout, *problem.solver_box, hybrid_options(config))
