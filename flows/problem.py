@@ -100,6 +100,9 @@ def resolve(config: UpdateConfig) -> Problem:
             fe_backends.check_dask(config.dask_address)
         except fe_backends.FEBackendError as exc:
             raise ConfigError(str(exc)) from None
+    if black_box(model) and emulates_modes(config):
+        raise ConfigError(f"config: key 'emulate': the paper loop's modal emulator needs each FE run's modes, which "
+                          f"the black-box deck {config.model} does not give (route B): use --emulate errors")
     if black_box(model):  # its FE runs write their solver folders under the run folder
         ref = dataclasses.replace(ref, workdir=str(root / FE_FOLDER))
         model = model.with_workdir(ref.workdir)

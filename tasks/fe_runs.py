@@ -335,6 +335,7 @@ class FEStage:
                 sid, i = divmod(-key - 1, p.m + 1)
                 steps, got = parts[sid]
                 got[i] = result
+                kill_point(f"{self.stage}-fd-run/iteration={self.iteration}/sample={sid}/run={i}")
                 if len(got) < p.m + 1:
                     continue
                 result = fd_frame(sid, [got[k] for k in range(p.m + 1)], steps)

@@ -30,7 +30,7 @@ from .deck import Deck, NumberRef
 from .results import read_steady_state
 from .runner import CcxError, run_ccx
 
-__all__ = ["DeckFRF", "FailedRun", "fd_gauss_newton", "FDResult", "run_steady_state"]
+__all__ = ["DeckFRF", "FailedRun", "fd_gauss_newton", "FDResult", "run_steady_state", "run_in_folder"]
 
 
 @dataclass
@@ -88,17 +88,16 @@ def _complete(folder: Path, sha: str) -> bool:
         return False
 
 
-def run_steady_state(text: str, folder: str | Path, timeout: float, freqs_hz) -> dict:
-    """Run the deck ``text`` in ``folder`` (``deck.inp``) unless the folder is complete (its ``done.json``
-    names the deck's SHA-256 and ``deck.dat`` exists); returns ``{node: (p, 3) complex}`` of its steady-state
-    output at ``freqs_hz``. The folder is locked while ccx runs (two processes asking for the same deck wait
-    for one another); ``done.json`` is written last, atomically. Raises CcxError on a failed run."""
+def run_in_folder(text: str, folder: str | Path, timeout: float, check=None):
+    """Run the deck ``text`` in ``folder`` (``deck.inp``, ccx's ``deck.dat``) unless the folder is complete: its
+    ``done.json`` names the deck's SHA-256 and ``deck.dat`` exists. ``check(folder)`` reads the output (raising
+    on a bad one) before ``done.json`` is written, last and atomically; returns its value. The folder is locked
+    while it runs (two processes asking for the same deck wait for one another). Raises CcxError."""
     import fcntl
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     sha = hashlib.sha256(text.encode()).hexdigest()
-    freqs_hz = np.asarray(freqs_hz, float)
     with open(folder / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         complete = _complete(folder, sha)
@@ -106,14 +105,26 @@ def run_steady_state(text: str, folder: str | Path, timeout: float, freqs_hz) ->
             (folder / "done.json").unlink(missing_ok=True)
             (folder / "deck.inp").write_text(text)
             run_ccx(folder, "deck", timeout, expect=(".dat",))
-        freqs, disp = read_steady_state(folder / "deck.dat")
-        if freqs.size != freqs_hz.size or np.max(np.abs(freqs - freqs_hz) / freqs_hz) > 1e-6:
-            raise CcxError(f"{folder / 'deck.dat'}: {freqs.size} frequencies, expected {freqs_hz.size}")
+        value = check(folder) if check is not None else None
         if not complete:
             tmp = folder / f".done.{os.getpid()}"
             tmp.write_text(json.dumps({"deck_sha256": sha}))
             os.replace(tmp, folder / "done.json")
-    return disp
+    return value
+
+
+def run_steady_state(text: str, folder: str | Path, timeout: float, freqs_hz) -> dict:
+    """``{node: (p, 3) complex}``: the steady-state output at ``freqs_hz`` of the deck ``text`` run in
+    ``folder`` (:func:`run_in_folder`: a complete folder is read, not run). Raises CcxError."""
+    freqs_hz = np.asarray(freqs_hz, float)
+
+    def read(folder):
+        freqs, disp = read_steady_state(folder / "deck.dat")
+        if freqs.size != freqs_hz.size or np.max(np.abs(freqs - freqs_hz) / freqs_hz) > 1e-6:
+            raise CcxError(f"{folder / 'deck.dat'}: {freqs.size} frequencies, expected {freqs_hz.size}")
+        return disp
+
+    return run_in_folder(text, folder, timeout, read)
 
 
 @dataclass

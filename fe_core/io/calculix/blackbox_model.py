@@ -28,8 +28,8 @@ import scipy.sparse as sp
 
 from .deck import Deck, NumberRef
 from .results import ResultError, read_eigenfrequencies
-from .blackbox import run_steady_state
-from .runner import CcxError, run_ccx
+from .blackbox import run_in_folder, run_steady_state
+from .runner import CcxError
 
 __all__ = ["BlackBoxDeckModel", "FD_STEP", "default_workdir"]
 
@@ -50,7 +50,7 @@ class BlackBoxDeckModel:
 
     deck: Deck
     numbers: list                       # NumberRef per parameter
-    parameter_names: list
+    segment_names: list                 # the model file's parameter names (the runs' columns: alpha_i)
     parameter_bounds: np.ndarray        # (m, 2)
     node_ids: np.ndarray                # deck node id of DOF block k (DOF = 3 k + component)
     outputs: sp.csr_matrix              # (3 n_nodes, n_sensors)
@@ -79,6 +79,11 @@ class BlackBoxDeckModel:
         self.nominal = [self.deck.number(r) for r in self.numbers]
 
     # -- what the flows read ------------------------------------------------------------------------
+    @property
+    def parameter_names(self) -> list[str]:
+        """``alpha_1 .. alpha_m``, the run record's columns (the model file's names: ``segment_names``)."""
+        return [f"alpha_{i + 1}" for i in range(self.n_parameters)]
+
     @property
     def n_parameters(self) -> int:
         return len(self.numbers)
@@ -190,9 +195,5 @@ class BlackBoxDeckModel:
     def natural_frequencies(self, alpha, n_modes: int = 6, gamma=None) -> np.ndarray:
         """The lowest ``n_modes`` natural frequencies (Hz) from ccx's ``*FREQUENCY`` (its own folder)."""
         text = self._model_text(alpha, f"*STEP\n*FREQUENCY\n{int(n_modes)}\n*END STEP\n")
-        folder = self._folder(text)
-        folder.mkdir(parents=True, exist_ok=True)
-        if not (folder / "deck.dat").exists():
-            (folder / "deck.inp").write_text(text)
-            run_ccx(folder, "deck", self.timeout, expect=(".dat",))
-        return read_eigenfrequencies(folder / "deck.dat")[:n_modes]
+        freqs = run_in_folder(text, self._folder(text), self.timeout, lambda f: read_eigenfrequencies(f / "deck.dat"))
+        return freqs[:n_modes]

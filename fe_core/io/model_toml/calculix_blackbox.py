@@ -136,7 +136,7 @@ def _blackbox_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Bl
     outputs, load, snames, placements, exc_name, extra = _sensors_and_excitation(spec, locator, dof_of,
                                                                                  3 * node_ids.size)
     return BlackBoxDeckModel(
-        deck=deck, numbers=refs, parameter_names=names, parameter_bounds=bounds, node_ids=node_ids,
+        deck=deck, numbers=refs, segment_names=names, parameter_bounds=bounds, node_ids=node_ids,
         outputs=outputs.tocsr(), load=np.asarray(load, float), excitation_loads=extra["excitation_loads"],
         sensor_names=snames, excitation_name=exc_name, excitation_names=extra["excitation_names"],
         sensor_test_dofs=extra["sensor_test_dofs"], excitation_test_dofs=extra["excitation_test_dofs"],
