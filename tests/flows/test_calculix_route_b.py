@@ -84,6 +84,7 @@ def _summary(root: Path) -> dict:
     return {k: v for k, v in json.loads((root / "summary.json").read_text()).items() if k not in TIMING_KEYS}
 
 
+@pytest.mark.slow
 def test_a_black_box_update_converges_records_its_runs_and_resumes_after_a_crash(tiny, tmp_path, prefect_harness,
                                                                                   monkeypatch):
     runs = tmp_path / "runs"
