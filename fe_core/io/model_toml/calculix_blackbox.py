@@ -106,8 +106,8 @@ def _parameters(spec: _Spec, deck) -> tuple[list[NumberRef], list[str], np.ndarr
         name = _get(spec, tab, "name", where, (str,), f"{card[1:].lower().replace(' ', '_')}_{i + 1}")
         if name in names:
             raise spec.error(f"{where}.name", f"parameter name {name!r} is used twice")
-        b = _get(spec, tab, "bounds", where, (list,), [-np.inf, np.inf])
-        if not (len(b) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in b)
+        b = _get(spec, tab, "bounds", where, (list,), [-np.inf, np.inf])   # none: the run's lower/upper
+        if "bounds" in tab and not (len(b) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in b)
                 and -1.0 < b[0] < b[1]):
             raise spec.error(f"{where}.bounds", f"must be [low, high] with -1 < low < high, got {b!r}")
         refs.append(ref)
