@@ -119,8 +119,13 @@ def dfols_row(model_path: Path, measured: Path, folder: Path) -> dict:
     sol = dfols.solve(residual, np.zeros(4), bounds=(-0.3 * np.ones(4), 0.3 * np.ones(4)), rhobeg=0.05,
                       rhoend=1e-5, maxfun=200)
     wall = time.perf_counter() - t0
-    return {"method": "DFO-LS, sequential (outside the flows)", "fe_runs": count[0], "rounds": count[0],
-            "wall": wall, "fe_wall": wall, "error": float(np.max(np.abs(sol.x - TRUTH))), "converged": True}
+    at_truth = residual(TRUTH)
+    count[0] -= 1
+    # its own stop ("rho has reached rhoend") is no floor test: compare its sum of squares with the truth's
+    return {"method": f"DFO-LS, sequential (outside the flows; sum r^2 {sol.obj:.3g}, at the truth "
+                      f"{at_truth @ at_truth:.3g})", "fe_runs": count[0], "rounds": count[0], "wall": wall,
+            "fe_wall": wall, "error": float(np.max(np.abs(sol.x - TRUTH))),
+            "converged": bool(sol.obj <= 1.1 * (at_truth @ at_truth))}
 
 
 def main(out: Path | None = None) -> None:
@@ -138,7 +143,7 @@ def main(out: Path | None = None) -> None:
             with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
                 rows.append(flow_row(model, measured, runs, strategy, "dask", 2, cluster.scheduler_address))
         rows.append(dfols_row(model, measured, tmp / "dfols"))
-    lines = ["| method | FE runs | rounds | wall s | FE-stage s | max factor error | converged |",
+    lines = ["| method | FE runs | rounds | wall s | FE-stage s | max factor error | at the floor |",
              "|---|---|---|---|---|---|---|"]
     lines += [f"| {r['method']} | {r['fe_runs']} | {r['rounds']} | {r['wall']:.1f} | {r['fe_wall']:.1f} | "
               f"{r['error']:.4f} | {'yes' if r['converged'] else 'no'} |" for r in rows]
