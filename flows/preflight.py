@@ -116,7 +116,10 @@ def check_band(config: UpdateConfig, measured, model) -> None:
     below the lowest one divided by ``BAND_FACTOR``.
     """
     n = min(6, model.n_dofs - 1)
-    freqs = model.natural_frequencies(np.zeros(model.n_segments), n_modes=n)
+    try:
+        freqs = model.natural_frequencies(np.zeros(model.n_segments), n_modes=n)
+    except RuntimeError as exc:  # a black-box solver deck that its solver rejects (CcxError quotes its *ERROR lines)
+        raise ConfigError(f"{config.model}: key 'deck': the nominal deck's modes: {exc}") from None
     lo, hi = float(np.min(measured.frequencies_hz)), float(np.max(measured.frequencies_hz))
     if lo > BAND_FACTOR * freqs[-1] or hi < freqs[0] / BAND_FACTOR:
         raise ConfigError(

@@ -9,6 +9,7 @@ key; nothing has been written into the run folder then.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 
 import numpy as np
@@ -17,7 +18,7 @@ from flows import preflight
 from flows.config import ConfigError, UpdateConfig
 from tasks import fe_backends
 from tasks.io.measured import MeasuredDataError, read_measured
-from tasks.problem import Problem, read_model_ref, search_box
+from tasks.problem import FE_FOLDER, Problem, black_box, read_model_ref, search_box
 from tasks.update_data import UpdateData, update_data
 
 __all__ = ["resolve", "load_model", "prepare_data", "n_modes", "emulates_modes", "input_checksums",
@@ -99,6 +100,12 @@ def resolve(config: UpdateConfig) -> Problem:
             fe_backends.check_dask(config.dask_address)
         except fe_backends.FEBackendError as exc:
             raise ConfigError(str(exc)) from None
+    if black_box(model) and emulates_modes(config):
+        raise ConfigError(f"config: key 'emulate': the paper loop's modal emulator needs each FE run's modes, which "
+                          f"the black-box deck {config.model} does not give (route B): use --emulate errors")
+    if black_box(model):  # its FE runs write their solver folders under the run folder
+        ref = dataclasses.replace(ref, workdir=str(root / FE_FOLDER))
+        model = model.with_workdir(ref.workdir)
     lower, upper = search_box(model, config.lower, config.upper)
     modes = n_modes(model, data.frequencies_hz) if emulates_modes(config) else 0
     return Problem(model, ref, data, lower, upper, modes, inputs)

@@ -14,6 +14,7 @@ The run's problem (model, measured data, box) is resolved once from its manifest
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 from pathlib import Path
 
@@ -26,7 +27,7 @@ from tasks import hybrid as hybrid_tasks
 from tasks import paper as paper_tasks
 from tasks.intervals import INTERVALS_STAGE, intervals_task
 from tasks.io.measured import read_measured
-from tasks.problem import Problem, search_box
+from tasks.problem import FE_FOLDER, Problem, black_box, search_box
 from tasks.runstore import RunStore
 
 __all__ = ["rerun_stage", "rerunnable", "run_problem"]
@@ -49,6 +50,9 @@ def run_problem(config: UpdateConfig, manifest: dict | None = None, where: Path 
             raise ConfigError(f"{where}: {'; '.join(changed)}: the run's stored results belong to the files as they "
                               "were; restore them, or start a new run with another --run-id")
     data = problems.prepare_data(config, read_measured(config.resolve(config.measured)), model)
+    if where is not None and black_box(model):  # a black-box deck's solver folders: the run's own (reused)
+        ref = dataclasses.replace(ref, workdir=str(Path(where).parent / FE_FOLDER))  # where: its manifest.json
+        model = model.with_workdir(ref.workdir)
     lower, upper = search_box(model, config.lower, config.upper)
     modes = problems.n_modes(model, data.frequencies_hz) if problems.emulates_modes(config) else 0
     return Problem(model, ref, data, lower, upper, modes, inputs)

@@ -266,8 +266,9 @@ def interval_sentences(summary: dict) -> list[str]:
     """How the intervals were made, and a sentence per parameter the data do not pin down or that meets a bound."""
     d = summary["interval_details"]
     cost = summary["interval_cost"]
-    spent = (f"{cost['jacobians']} exact Jacobian" + (" (with its FRF)" if cost["jacobians"] == 1
-                                                       else "s (with their FRFs)"))
+    kind = cost.get("jacobian_kind", "exact")  # a black-box deck's: forward differences, m + 1 solver runs each
+    spent = (f"{cost['jacobians']} {kind} Jacobian" + (" (with its FRF)" if cost["jacobians"] == 1
+                                                      else "s (with their FRFs)"))
     if cost.get("fe_runs"):
         spent += f" and {cost['fe_runs']} FE runs"
     against = cost_against_update(summary)

@@ -25,6 +25,7 @@ from prefect.cache_policies import NO_CACHE
 from fe_core.closure.evidence import Screen, log_rss, screen_points, weigh, weigh_round
 from tasks import record
 from tasks.common import done, logger
+from tasks.problem import black_box
 from tasks.runstore import RunStore
 
 __all__ = ["EVIDENCE_STAGE", "WEIGH_STAGE", "evidence_task", "weigh_task", "screen_inputs"]
@@ -35,6 +36,8 @@ EVIDENCE_STAGE, WEIGH_STAGE = "evidence", "weigh"
 def screen_inputs(problem):
     """(model seen through the channels, frequencies, amplitudes) on the complete lines, or a reason why not."""
     data = problem.data
+    if black_box(problem.model):
+        return None, "not screened: the effects are terms of K and M, which a black-box solver deck does not expose"
     if problem.m != problem.model.n_segments:
         return None, "the run updates mass factors; the effect screen refits stiffness factors only"
     try:

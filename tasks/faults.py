@@ -16,6 +16,9 @@ Point names (``<run>`` is the run folder's absolute path)::
     stage-finished/iteration=K/stage=S             a stage's record is written (between stages)
     fe-result-written/iteration=K/sample=ID        an FE result is on disk, its log line is not
     fe-logged/iteration=K/sample=ID                an FE result and its log line are written
+    local-fd-run/iteration=K/sample=ID/run=I       one of the m + 1 solver runs of a black-box model's
+                                                    forward-difference Jacobian is done (its solver folder is
+                                                    complete), the request's result is not written yet
 
 Examples: ``MRGP_KILL_AT='stage-finished/iteration=2/stage=train'``,
 ``MRGP_KILL_AT='before-rename:*/stage=fe/sample=*.parquet@3'``.

@@ -34,10 +34,11 @@ from tasks.faults import kill_point
 from tasks.common import finish
 from tasks.fe_backends import run_unordered
 from tasks.record import RESPONSE_COLUMNS, RUN_COLUMNS, grid
+from tasks.problem import black_box
 from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes
 
 __all__ = ["evaluate_sample", "evaluate_sample_jacobian", "FEStage", "JACOBIAN_COST", "FE_LOG", "append_log",
-           "read_fe_log", "FE_DELAY_ENV", "modal_columns"]
+           "read_fe_log", "FE_DELAY_ENV", "modal_columns", "fd_frame"]
 
 #: Environment variable: seconds each FE run sleeps (only for interruption tests).
 FE_DELAY_ENV = "MRGP_FE_DELAY_SECONDS"
@@ -106,7 +107,7 @@ def evaluate_sample(ref, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray
             if not (np.all(np.isfinite(omega2)) and np.all(np.isfinite(participation))):
                 raise FloatingPointError("the modes have non-finite values")
         status, message = "ok", ""
-    except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
+    except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:  # a solver's CcxError too
         Z = np.full((p, n), np.nan + 1j * np.nan)
         omega2, participation = np.full(modes, np.nan), np.full((modes, n), np.nan)
         status, message = "failed", f"{type(exc).__name__}: {exc}"
@@ -148,6 +149,25 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
         df[f"dreal_{i + 1}"] = dZ[:, :, i].real.ravel()
         df[f"dimag_{i + 1}"] = dZ[:, :, i].imag.ravel()
     return df
+
+
+def fd_frame(sid: int, frames: list[pd.DataFrame], steps) -> pd.DataFrame:
+    """One FE result with its forward-difference derivative from the m + 1 runs ``frames`` (the point, then
+    each parameter stepped by ``steps[i]``): the columns of :func:`evaluate_sample_jacobian`; ``cost`` m + 1,
+    ``seconds`` their sum; failed (NaN everywhere, the first failure's message) when any run failed."""
+    base = frames[0].copy()
+    base["sample_id"] = sid
+    Z = [f["real"].to_numpy() + 1j * f["imag"].to_numpy() for f in frames]
+    failed = [f for f in frames if f["status"].iloc[0] != "ok"]
+    base["seconds"] = float(sum(f["seconds"].iloc[0] for f in frames))
+    base["cost"] = float(len(frames))
+    if failed:
+        base["real"], base["imag"] = np.nan, np.nan
+        base["status"], base["message"] = "failed", failed[0]["message"].iloc[0]
+    for i, h in enumerate(steps):
+        d = (Z[i + 1] - Z[0]) / h if not failed else np.full(len(base), np.nan + 0j)
+        base[f"dreal_{i + 1}"], base[f"dimag_{i + 1}"] = d.real, d.imag
+    return base
 
 
 def modal_columns(modes: int) -> tuple[str, ...]:
@@ -292,15 +312,33 @@ class FEStage:
 
     def _evaluate(self, todo: list, total: int) -> None:
         p = self.problem
-        jobs = {sid: (delayed(evaluate_sample_jacobian)(p.ref, sid, x, p.freqs_hz, p.channels) if jac else
-                      delayed(evaluate_sample)(p.ref, sid, x, p.freqs_hz, p.channels, self.modes))
-                for sid, x, jac in todo}
+        fd = black_box(p.model)  # no solver Jacobians: a Jacobian request is m + 1 runs in the same round
+        jobs, parts = {}, {}
+        for sid, x, jac in todo:
+            if jac and fd:
+                points, steps = p.model.fd_points(x, p.solver_box[1])
+                parts[sid] = (steps, {})
+                for i, xi in enumerate(points):  # sub-runs under negative ids: -(sid (m + 1) + i + 1)
+                    key = -(sid * (p.m + 1) + i + 1)
+                    jobs[key] = delayed(evaluate_sample)(p.ref, key, xi, p.freqs_hz, p.channels, 0)
+            else:
+                jobs[sid] = (delayed(evaluate_sample_jacobian)(p.ref, sid, x, p.freqs_hz, p.channels) if jac else
+                             delayed(evaluate_sample)(p.ref, sid, x, p.freqs_hz, p.channels, self.modes))
         params = {sid: x for sid, x, _ in todo}
         done = total - len(todo)
         s = self.settings
         for result in run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=s.fe_backend,
                                     n_jobs=s.n_jobs, dask_address=s.dask_address,
                                     label=f"iteration {self.iteration}, stage {self.stage}", logger=self.logger):
+            key = int(result["sample_id"].iloc[0])
+            if key < 0:  # one run of a forward-difference Jacobian: the request is done with its m + 1 runs
+                sid, i = divmod(-key - 1, p.m + 1)
+                steps, got = parts[sid]
+                got[i] = result
+                kill_point(f"{self.stage}-fd-run/iteration={self.iteration}/sample={sid}/run={i}")
+                if len(got) < p.m + 1:
+                    continue
+                result = fd_frame(sid, [got[k] for k in range(p.m + 1)], steps)
             sid = int(result["sample_id"].iloc[0])
             for j, c in enumerate(p.names):  # the parameters travel with the result, so it cannot be mismatched
                 result[c] = params[sid][j]

@@ -27,6 +27,7 @@ from mrgp_core.strategies.ledger import drive
 from tasks import record
 from tasks.common import done, fitted, heartbeat, logger
 from tasks.fe_runs import JACOBIAN_COST, FEStage
+from tasks.problem import black_box
 from tasks.runstore import RunStore
 
 __all__ = ["HYBRID_STAGES", "LOCAL_STAGE", "GLOBAL_STAGE", "CHECK_STAGE", "hybrid_options", "local_task",
@@ -45,16 +46,18 @@ RERUNNABLE = (LOCAL_STAGE, GLOBAL_STAGE, CHECK_STAGE)
 CAP_FACTOR = 2.5
 
 
-def hybrid_options(config) -> HybridOptions:
-    """The strategy's settings from the run's config (keys documented in flows/config.py)."""
+def hybrid_options(config, problem=None) -> HybridOptions:
+    """The strategy's settings from the run's config (keys documented in flows/config.py); a black-box model's
+    Jacobian costs its m + 1 forward-difference runs."""
     budget = float(config.max_fe_evaluations)
+    cost = problem.model.jacobian_cost if problem is not None and black_box(problem.model) else JACOBIAN_COST
     return HybridOptions(target=config.polish_target, noise=config.noise, max_cost=budget, cap=CAP_FACTOR * budget,
-                         jacobian_cost=JACOBIAN_COST, space_filling=config.s, candidates=config.w,
+                         jacobian_cost=cost, space_filling=config.s, candidates=config.w,
                          starts=config.starts, trainer=config.trainer, seed=config.seed)
 
 
 def _phase_ledger(store: RunStore, problem, config, iteration: int) -> Ledger:
-    options = hybrid_options(config)
+    options = hybrid_options(config, problem)
     residual, _ = fitted(problem.data)
     used = record.spent(store, iteration - 1)
     ledger = Ledger(residual, options.max_cost - used["cost"], options.jacobian_cost,
@@ -87,7 +90,7 @@ def _fe_stage(root: str, problem, config, iteration: int, stage: str, phase_of, 
     log = logger()
     if done(store, iteration, out):
         return store.stage_info(iteration, out)
-    options = hybrid_options(config)
+    options = hybrid_options(config, problem)
     lower, upper = problem.solver_box
     ledger = _phase_ledger(store, problem, config, iteration)
     runner = FEStage(store, problem, config, iteration, out, log)

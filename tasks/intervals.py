@@ -33,6 +33,7 @@ from fe_core.inference.residual import analyse_residual
 from fe_core.inference.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
 from tasks.common import beating
 from tasks.common import logger as run_logger
+from tasks.problem import black_box
 from tasks.runstore import RunStore
 
 __all__ = ["INTERVALS_STAGE", "POSTERIOR_TABLE", "intervals_task"]
@@ -123,6 +124,9 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
                                                    else None),
                               "check_fe_runs": check.fe_runs if check is not None else 0,
                               "posterior_fe_runs": post.fe_runs if post else 0}}
+    if black_box(full_model):  # each Jacobian is m + 1 solver runs (in threads, one solver process each)
+        info["interval_cost"].update(jacobian_kind="forward-difference",
+                                     solver_runs=refined.jacobians * (len(cols) + 1) + fe_runs)
     store.finish(iteration, output_stage, names, info)
     logger.info("iteration %d, stage intervals: %s; %s noise %.3g %%, %d exact Jacobians with their FRF and %d FE "
                 "runs (%.2f s)", iteration, fields["interval_method"], iv.noise_source, 100 * iv.noise_sigma,

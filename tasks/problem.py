@@ -18,11 +18,13 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["ModelRef", "Problem", "MODEL_SHORTCUTS", "DOMAIN_MARGIN", "model_path", "model_checksum",
-           "read_model_ref", "worker_model", "search_box"]
+           "read_model_ref", "worker_model", "search_box", "FE_FOLDER", "black_box"]
 
 REPO = Path(__file__).resolve().parents[1]
 #: Model names and the model files they stand for.
 MODEL_SHORTCUTS = {"three_plate": "data/benchmark/model.toml"}
+#: The run's folder of a black-box model's FE runs (one folder per solver run, named by its deck's hash).
+FE_FOLDER = "fe"
 #: The FE model refuses alpha = -1 (zero stiffness): local solvers and fixed points stay this far inside.
 DOMAIN_MARGIN = 1e-3
 
@@ -48,12 +50,15 @@ def model_checksum(path: Path) -> str:
 class ModelRef:
     """Where a worker finds the run's model: the model file and the checksum of its contents.
 
-    ``name`` is what the run's config says (``three_plate`` or a path), kept for the records.
+    ``name`` is what the run's config says (``three_plate`` or a path), kept for the records. ``workdir``: where
+    a black-box model (a solver deck run per FE run, ``exact_jacobians = False``) writes its FE runs' folders,
+    the run's ``fe/`` folder ("" for in-process models).
     """
 
     name: str
     path: str
     checksum: str
+    workdir: str = ""
 
     def load(self):
         """The model (built once per process for this checksum)."""
@@ -77,7 +82,10 @@ def worker_model(ref: ModelRef):
         while len(_MODELS) >= _CACHE_SIZE:
             del _MODELS[next(iter(_MODELS))]
         _MODELS[key] = read_model(Path(ref.path))
-    return _MODELS[key]
+    model = _MODELS[key]
+    if ref.workdir and hasattr(model, "with_workdir"):  # a black-box model: FE runs under the run folder
+        return model.with_workdir(ref.workdir)
+    return model
 
 
 def read_model_ref(name: str):
@@ -88,6 +96,11 @@ def read_model_ref(name: str):
     path = model_path(name)
     ref = ModelRef(name, str(path), model_checksum(path) if path.exists() else "")
     return worker_model(ref), ref
+
+
+def black_box(model) -> bool:
+    """A model without solver Jacobians (route B: a solver deck run per FE run); derivatives by differences."""
+    return getattr(model, "exact_jacobians", True) is False
 
 
 def search_box(model, lower: float, upper: float) -> tuple[np.ndarray, np.ndarray]:

@@ -168,6 +168,10 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
     """
     if method not in JACOBIAN_METHODS:
         raise ValueError(f"unknown Jacobian method {method!r}; choose one of {JACOBIAN_METHODS}")
+    if getattr(model, "exact_jacobians", True) is False:  # a black-box solver: forward differences (its own)
+        if return_info:
+            raise ValueError("a black-box model's Jacobian is a forward difference: no derivative info")
+        return model.frf_jacobian(alpha, freqs_hz, channels=channels)
     alpha, gamma = model.factors(alpha)
     freqs = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
     if freqs.ndim != 1 or freqs.size == 0 or np.any(~np.isfinite(freqs)) or np.any(freqs <= 0):

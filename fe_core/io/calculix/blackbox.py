@@ -30,7 +30,7 @@ from .deck import Deck, NumberRef
 from .results import read_steady_state
 from .runner import CcxError, run_ccx
 
-__all__ = ["DeckFRF", "FailedRun", "fd_gauss_newton", "FDResult"]
+__all__ = ["DeckFRF", "FailedRun", "fd_gauss_newton", "FDResult", "run_steady_state", "run_in_folder"]
 
 
 @dataclass
@@ -75,26 +75,56 @@ class DeckFRF:
 
     def run(self, theta, folder: str | Path) -> np.ndarray:
         """The complex FRF, shape (p, n); reuses a complete folder. Raises CcxError on a failed run."""
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
-        text = self.text(theta)
-        sha = hashlib.sha256(text.encode()).hexdigest()
-        done = folder / "done.json"
-        complete = (done.exists() and (folder / "deck.dat").exists()
-                    and json.loads(done.read_text()).get("deck_sha256") == sha)
+        disp = run_steady_state(self.text(theta), folder, self.timeout, self.freqs_hz)
+        return np.column_stack([disp[n][:, c] for n, c in self.sensors])
+
+
+def _complete(folder: Path, sha: str) -> bool:
+    done = folder / "done.json"
+    try:
+        return (done.exists() and (folder / "deck.dat").exists()
+                and json.loads(done.read_text()).get("deck_sha256") == sha)
+    except ValueError:            # a done.json cut short: not complete
+        return False
+
+
+def run_in_folder(text: str, folder: str | Path, timeout: float, check=None):
+    """Run the deck ``text`` in ``folder`` (``deck.inp``, ccx's ``deck.dat``) unless the folder is complete: its
+    ``done.json`` names the deck's SHA-256 and ``deck.dat`` exists. ``check(folder)`` reads the output (raising
+    on a bad one) before ``done.json`` is written, last and atomically; returns its value. The folder is locked
+    while it runs (two processes asking for the same deck wait for one another). Raises CcxError."""
+    import fcntl
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    sha = hashlib.sha256(text.encode()).hexdigest()
+    with open(folder / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        complete = _complete(folder, sha)
         if not complete:
-            done.unlink(missing_ok=True)
+            (folder / "done.json").unlink(missing_ok=True)
             (folder / "deck.inp").write_text(text)
-            run_ccx(folder, "deck", self.timeout, expect=(".dat",))
-        freqs, disp = read_steady_state(folder / "deck.dat")
-        if freqs.size != self.freqs_hz.size or np.max(np.abs(freqs - self.freqs_hz) / self.freqs_hz) > 1e-6:
-            raise CcxError(f"{folder / 'deck.dat'}: {freqs.size} frequencies, expected {self.freqs_hz.size}")
-        Z = np.column_stack([disp[n][:, c] for n, c in self.sensors])
+            run_ccx(folder, "deck", timeout, expect=(".dat",))
+        value = check(folder) if check is not None else None
         if not complete:
             tmp = folder / f".done.{os.getpid()}"
-            tmp.write_text(json.dumps({"deck_sha256": sha, "theta": [float(t) for t in theta]}))
-            os.replace(tmp, done)
-        return Z
+            tmp.write_text(json.dumps({"deck_sha256": sha}))
+            os.replace(tmp, folder / "done.json")
+    return value
+
+
+def run_steady_state(text: str, folder: str | Path, timeout: float, freqs_hz) -> dict:
+    """``{node: (p, 3) complex}``: the steady-state output at ``freqs_hz`` of the deck ``text`` run in
+    ``folder`` (:func:`run_in_folder`: a complete folder is read, not run). Raises CcxError."""
+    freqs_hz = np.asarray(freqs_hz, float)
+
+    def read(folder):
+        freqs, disp = read_steady_state(folder / "deck.dat")
+        if freqs.size != freqs_hz.size or np.max(np.abs(freqs - freqs_hz) / freqs_hz) > 1e-6:
+            raise CcxError(f"{folder / 'deck.dat'}: {freqs.size} frequencies, expected {freqs_hz.size}")
+        return disp
+
+    return run_in_folder(text, folder, timeout, read)
 
 
 @dataclass

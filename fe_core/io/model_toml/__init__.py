@@ -103,6 +103,10 @@ def read_model_toml(path: str | Path) -> ParametricModel:
         raise spec.error("damping", f"Rayleigh coefficients must be >= 0, got a = {a}, b = {b}")
     if "mesh" in spec.data:
         return _mesh_model(spec, units, (a, b))
+    if "deck" in spec.data and "parameters" in spec.data:
+        from .calculix_blackbox import _blackbox_model   # route B: factors on numbers of the deck
+
+        return _blackbox_model(spec, units, (a, b))
     if "deck" in spec.data:
         from .calculix_model import _calculix_model
 

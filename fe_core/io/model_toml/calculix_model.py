@@ -133,7 +133,8 @@ def _check_restrained(spec: _Spec, K, deck_path) -> None:
                                  "restrained (add *BOUNDARY cards) or has a mechanism")
 
 
-def _calculix_model(spec: _Spec, units: str, damping: tuple[float, float]) -> ParametricModel:
+def _read_deck_settings(spec: _Spec, units: str):
+    """(deck, solver_timeout) of a ``solver = "calculix"`` model file, checked (routes A and B)."""
     if units != "SI":
         raise spec.error("units", "a deck is taken in its own units; give its numbers in SI (N, m, kg, s)")
     solver = _get(spec, spec.data, "solver", "", (str,))
@@ -155,6 +156,11 @@ def _calculix_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
         deck = read_deck(deck_path, allowed)
     except DeckError as exc:
         raise spec.error("deck", str(exc)) from None
+    return deck, timeout
+
+
+def _calculix_model(spec: _Spec, units: str, damping: tuple[float, float]) -> ParametricModel:
+    deck, timeout = _read_deck_settings(spec, units)
     segments, tables = _segments(spec, deck)
     _resolve_nsets(spec, deck)
     names = [s.name for s in segments]

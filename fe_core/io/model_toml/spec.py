@@ -22,7 +22,7 @@ UNITS = {"SI": (1.0, 1.0, 1.0), "mm-t-s": (1e-3, 1e6, 1e12)}
 
 _TOP_KEYS = {"units", "mesh", "matrices", "point_tolerance", "excitation", "damping", "elements", "materials",
              "segments", "supports", "sensors", "excitations", "name", "description",
-             "solver", "deck", "solver_timeout", "include_paths"}
+             "solver", "deck", "solver_timeout", "include_paths", "parameters", "n_modes"}
 
 
 class ModelFileError(ValueError):
