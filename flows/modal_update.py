@@ -349,8 +349,8 @@ def print_summary(summary: dict) -> None:
         c = summary["closure"]
         line = f"  closure on the modal residual: {c['verdict']} (chi2 {c['before']['chi2']:.1f} for {c['before']['dof']} dof"
         if c["chosen"] is not None:
-            ch = c["chosen"]
-            line += (f"; {ch['effect']} at {ch['location']} {ch['value']:.4g} {ch['unit']} (sd {ch['sd']:.2g}): chi2 "
-                     f"{ch['chi2']:.1f}")
-        print(line + ")")
+            line += "; " + " + ".join(f"{ch['effect']} at {ch['location']} {ch['value']:.4g} {ch['unit']} "
+                                      f"(sd {ch['sd']:.2g})" for ch in c.get("added") or [c["chosen"]])
+            line += f": chi2 {c['after']['chi2']:.1f} for {c['after']['dof']} dof"
+        print(line + f"; {c['fe_runs']} FE runs)")
     print(f"  written to {summary['folder']} (summary.json, report.html)")

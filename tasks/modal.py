@@ -131,12 +131,20 @@ def run_fit(residual: ModalResidual, lower, upper, n_starts, seed, stated, folde
 
 def write_runs(residual: ModalResidual, folder: Path) -> None:
     """Every FE run of ``residual`` so far (parameters, frequencies, and the stage that asked for it) to
-    ``<folder>/modal_runs.jsonl``."""
+    ``<folder>/modal_runs.jsonl``; the runs logged there before by stages this process did not run (a resumed
+    run reads them back) are kept, first."""
     from tasks.runstore import atomic_write_bytes
 
-    Path(folder).mkdir(parents=True, exist_ok=True)
-    text = "".join(json.dumps(h) + "\n" for h in residual.history)
-    atomic_write_bytes(Path(folder) / "modal_runs.jsonl", text.encode())
+    path = Path(folder) / "modal_runs.jsonl"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ours = {h.get("stage") for h in residual.history}
+    kept = []
+    if path.exists():
+        kept = [h for h in (json.loads(line) for line in path.read_text().splitlines() if line.strip())
+                if h.get("stage") not in ours]
+    runs = [dict(h, run=i + 1) for i, h in enumerate(kept + list(residual.history))]
+    text = "".join(json.dumps(h) + "\n" for h in runs)
+    atomic_write_bytes(path, text.encode())
 
 
 def write_json(path: Path, obj) -> None:

@@ -26,10 +26,13 @@ def _closure(c: dict | None) -> str:
             f"{html.escape(c['uncertainties'])}); {c['n_screened']} candidates screened "
             f"({html.escape(', '.join(c['effects']))}), {c['fe_runs']} FE runs.</p>")
     if c["chosen"] is not None:
-        ch, after = c["chosen"], c["after"]
-        text += (f"<p>Added: {html.escape(ch['effect'])} at {html.escape(ch['location'])}, {ch['value']:.4g} "
-                 f"{html.escape(ch['unit'])} (sd {ch['sd']:.2g}): chi-square {after['chi2']:.1f} for {after['dof']} "
-                 f"degrees of freedom (p = {after['p_value']:.3g}).</p>")
+        after = c["after"]
+        added = c.get("added") or [c["chosen"]]
+        text += (f"<p>Added (forward selection, values of the last joint fit): "
+                 + "; ".join(f"{html.escape(ch['effect'])} at {html.escape(ch['location'])}, {ch['value']:.4g} "
+                             f"{html.escape(ch['unit'])} (sd {ch['sd']:.2g})" for ch in added)
+                 + f": chi-square {after['chi2']:.1f} for {after['dof']} degrees of freedom "
+                 f"(p = {after['p_value']:.3g}).</p>")
     rows = [[x["effect"], x["location"], "" if x.get("position_m") is None else
              ", ".join(f"{1000 * v:.1f}" for v in x["position_m"]), f"{x['value']:.4g} {x['unit']}",
              f"{x['linear_drop']:.1f}", "" if x.get("chi2") is None else f"{x['chi2']:.1f}"]

@@ -102,9 +102,10 @@ def closure_task(root: str, residual, theta, lower, upper, stated: bool, effects
     result = modal_closure(residual, np.asarray(theta, float), np.asarray(lower, float), np.asarray(upper, float),
                            stated=stated, effects=effects)
     result["seconds"] = time.perf_counter() - t0
-    table = pd.DataFrame(result["candidates"], columns=["effect", "location", "value", "unit", "linear_drop",
-                                                        "chi2", "delta_bic"]).astype({"chi2": float,
-                                                                                      "delta_bic": float})
+    modal.write_runs(residual, store.root)  # the closure's FE runs (stages closure-<step>) with the others
+    table = pd.DataFrame(result["candidates"], columns=["step", "effect", "location", "value", "unit",
+                                                        "linear_drop", "chi2", "delta_bic"]).astype(
+        {"chi2": float, "delta_bic": float})
     return _store(store, "closure", table, result)
 
 
