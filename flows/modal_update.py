@@ -134,6 +134,10 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
     stated = sigma_f is not None or sigma_s is not None
     sigma_f = DEFAULT_SIGMA_F if sigma_f is None else sigma_f
     sigma_s = None if no_shapes else (DEFAULT_SIGMA_S if sigma_s is None else sigma_s)
+    if config.strategy == "conventional":
+        raise ConfigError(f"{config.measured}: key 'strategy': 'conventional' (the paper's one-MRGP baseline) is "
+                          "not offered for modal data; use 'hybrid' (local fits) or 'adaptive'/'paper' (the "
+                          "paper's loop)")
     model, ref = load_model(config.model)
     names = model.parameter_names
     lower = np.maximum(np.full(model.n_parameters, config.lower), -0.95)
@@ -142,8 +146,9 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
         raise ConfigError(f"--true-parameters: {len(names)} values needed ({', '.join(names)})")
     if config.run_id is None:
         config = config.replace(run_id=f"modal-{dt.datetime.now(dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')}")
-    paper = config.strategy in ("adaptive", "conventional")
-    settings = {"kind": "modal update", "strategy": "paper" if paper else "gauss-newton", "starts": 1 if paper else starts, "sigma_f": sigma_f, "sigma_s": sigma_s,
+    paper = config.strategy == "adaptive"
+    settings = {"kind": "modal update", "strategy": "paper" if paper else "gauss-newton",
+                "starts": 1 if paper else starts, "sigma_f": sigma_f, "sigma_s": sigma_s,
                 "stated": stated, "mac_threshold": threshold, "identify_modes": identify_band,
                 "pol_order": pol_order, "closure_effects": None if effects is None else list(effects)}
     folder = config.resolve(config.runs_dir) / config.run_id
