@@ -52,6 +52,11 @@ def write_report(folder: Path, summary: dict) -> Path:
     lines = [f"{summary['fe_runs']} FE runs ({summary['jacobians']} with Nelson derivatives), "
              f"{summary['seconds']:.1f} s; chi-square {summary['chi2']:.1f} for {summary['n_residuals']} residuals, "
              f"uncertainties {summary['uncertainties']} (sigma_f {summary['sigma_f']}, sigma_s {summary['sigma_s']})"]
+    if "paper_loop" in summary:
+        pl = summary["paper_loop"]
+        lines.append(f"paper loop (MRGP over the modal residuals): {pl['reason']}; {pl['iterations']} iterations, "
+                     f"{pl['fe_runs']} FE runs, {pl['seconds']:.1f} s, best mean |r| {pl['best_error']:.3f} "
+                     f"(noise threshold {pl['threshold']:.3f}); then the local fit from its best FE run")
     for key, label in (("missing_mode_numbers", "missing from the measured modes"),
                        ("left_out", "left out (unpaired at the nominal model)"), ("mode_swaps", "mode swaps tracked")):
         if summary.get(key):
