@@ -148,7 +148,10 @@ def paper_task(root: str, residual, lower, upper, options) -> dict:
             "fe_runs": int(sum(len(h[1]) for h in loop.history)), "fe_runs_computed": int(sum(computed)),
             "per_iteration": [{"iteration": k, "fe_runs": len(X), "best_error": float(np.min(E)) if len(E) else None}
                               for k, X, E in loop.history],
-            "converged": decision.converged, "reason": decision.reason, "seconds": time.perf_counter() - t0}
+            "converged": decision.converged, "seconds": time.perf_counter() - t0,
+            # the loop's rule words errors as percentages (relative FRF errors); a modal residual is in sd units
+            "reason": (f"at the noise (best mean |r| {e:.3f} <= {loop.options.threshold:.3f})" if decision.converged
+                       else decision.reason)}
     logger().info("paper loop on the modal residual: %s after %d iterations, %d FE runs, best mean |r| %.3f",
                   decision.reason, loop.iteration, info["fe_runs"], e)
     return info
