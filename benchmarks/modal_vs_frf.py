@@ -8,7 +8,11 @@ from the SPEC's actual structure) with ``data/benchmark/model.toml``:
 * FRF: ``python -m flows.update`` with its defaults (the hybrid: Gauss-Newton on the complex FRF residual,
   its check, intervals);
 * modal: ``python -m flows.update --identify-modes 20-400`` (sdypy-EMA LSCF/LSFD: 2 modes at 6 test DOFs,
-  then the modal update from ``--starts`` points (default 1, the nominal model), uncertainties estimated from the residual).
+  then the modal update from ``--starts`` points (default 1, the nominal model), uncertainties estimated from the residual);
+* modal, paper loop: the same with ``--strategy paper`` (the MRGP over the modal residuals, then the local fit
+  from its best FE run).
+
+``--only frf,modal,paper`` runs some of the three (default all).
 
 Prints and writes (``<out>/modal_vs_frf.json``) per path: FE runs (FRF: the run's FE evaluations, and its
 FE-run equivalents counting the Jacobians' cost; modal: eigen-solves and Nelson Jacobians), wall time, the
@@ -48,10 +52,24 @@ def main(argv=None) -> int:
     p.add_argument("--runs-dir", default="data/runs/modal-vs-frf")
     p.add_argument("--starts", type=int, default=1, help="local fits of the modal update (default 1: the nominal "
                                                          "start, as the FRF hybrid's first cycle)")
+    p.add_argument("--only", default="frf,modal,paper", help="paths to run, of frf, modal, paper (default all)")
     args = p.parse_args(argv)
+    only = set(args.only.split(","))
     stamp = str(int(time.time()))
     root = Path(args.runs_dir)
     out = {}
+    if "frf" in only:
+        out["frf"] = _frf(root, stamp)
+    for key, extra in (("modal", []), ("paper", ["--strategy", "paper"])):
+        if key in only:
+            out["modal" if key == "modal" else "modal_paper"] = _modal(root, f"{key}-{stamp}", args.starts, extra)
+    print(json.dumps(out, indent=1))
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "modal_vs_frf.json").write_text(json.dumps(out, indent=1))
+    return 0
+
+
+def _frf(root: Path, stamp: str) -> dict:
     seconds = _run(["--model", MODEL, "--measured", HAMMER, "--runs-dir", str(root), "--run-id", f"frf-{stamp}"])
     s = json.loads((root / f"frf-{stamp}" / "summary.json").read_text())
     names = list(s["parameters"])
@@ -62,20 +80,24 @@ def main(argv=None) -> int:
     if s.get("intervals"):
         lo, hi = np.array([s["intervals"][n] for n in names], float).T
         frf["inside95"] = int(np.sum((lo <= ALPHA_ACTUAL) & (ALPHA_ACTUAL <= hi)))
-    out["frf"] = frf
-    seconds = _run(["--model", MODEL, "--measured", HAMMER, "--identify-modes", "20-400", "--starts", str(args.starts),
-                    "--runs-dir", str(root),
-                    "--run-id", f"modal-{stamp}", TRUE])
-    m = json.loads((root / f"modal-{stamp}" / "summary.json").read_text())
+    return frf
+
+
+def _modal(root: Path, run_id: str, starts: int, extra: list) -> dict:
+    seconds = _run(["--model", MODEL, "--measured", HAMMER, "--identify-modes", "20-400", "--starts", str(starts),
+                    "--runs-dir", str(root), "--run-id", run_id, TRUE, *extra])
+    m = json.loads((root / run_id / "summary.json").read_text())
     theta = np.array([v["value"] for v in m["parameters"].values()])
-    out["modal"] = {"wall_seconds_cli": seconds, "fe_runs": m["fe_runs"], "jacobians": m["jacobians"],
-                    "seconds_update": m["seconds"], "seconds_identification": m["seconds_identification"],
-                    "max_abs_error": float(np.max(np.abs(theta - ALPHA_ACTUAL))),
-                    "inside95": int(sum(m["inside95"].values())), "modes": len(m["paired_modes"])}
-    print(json.dumps(out, indent=1))
-    root.mkdir(parents=True, exist_ok=True)
-    (root / "modal_vs_frf.json").write_text(json.dumps(out, indent=1))
-    return 0
+    row = {"wall_seconds_cli": seconds, "fe_runs": m["fe_runs"], "jacobians": m["jacobians"],
+           "seconds_update": m["seconds"], "seconds_identification": m["seconds_identification"],
+           "max_abs_error": float(np.max(np.abs(theta - ALPHA_ACTUAL))),
+           "inside95": int(sum(m["inside95"].values())), "modes": len(m["paired_modes"])}
+    if "paper_loop" in m:
+        pl = m["paper_loop"]
+        row.update(paper_fe_runs=pl["fe_runs"], paper_iterations=pl["iterations"], paper_seconds=pl["seconds"],
+                   paper_reason=pl["reason"], fit_fe_runs=m["fe_runs_fit"])
+        row["seconds_update"] += pl["seconds"]
+    return row
 
 
 if __name__ == "__main__":

@@ -38,7 +38,7 @@ CLOSURE_EFFECTS = ("point_mass", "grounded_spring", "segment_mass")
 DEFAULT_SIGMA_F = 0.002
 DEFAULT_SIGMA_S = 0.02
 #: Flags of the FRF path that mean nothing for modal data (ignored with a warning).
-_FRF_ONLY = ("--strategy", "--trainer", "--lines", "--line-windows", "--residuals", "--emulate", "--polish")
+_FRF_ONLY = ("--trainer", "--lines", "--line-windows", "--residuals", "--emulate", "--polish")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -50,6 +50,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--run-id", metavar="ID")
     p.add_argument("--runs-dir", metavar="PATH")
     p.add_argument("--seed", type=int)
+    p.add_argument("--strategy", choices=("hybrid", "adaptive", "paper"),
+                   help="hybrid (default): local least squares with Nelson Jacobians from --starts points; "
+                        "adaptive (or paper): the paper's MRGP loop over the modal residuals, then that fit "
+                        "from its best FE run")
     p.add_argument("--starts", type=int, default=3, help="local fits: the nominal model plus N-1 Latin points "
                                                          "(default 3)")
     p.add_argument("--frequency-sigma", type=float, metavar="S", help="relative std of a measured frequency")
@@ -97,8 +101,9 @@ def main(argv: list[str]) -> int:
             why = "applies to FRF data" if name in _FRF_ONLY else "is not an option of the modal update"
             print(f"warning: {name} {why}, ignored for modal data (docs/modal-data.md)", file=sys.stderr)
     try:
+        strategy = "adaptive" if args.strategy == "paper" else args.strategy
         config = load_config(args.config, measured=args.measured, model=args.model, run_id=args.run_id,
-                             runs_dir=args.runs_dir, seed=args.seed)
+                             runs_dir=args.runs_dir, seed=args.seed, strategy=strategy)
         truth = None if args.true_parameters is None else [float(v) for v in args.true_parameters.split(",")]
         band = None
         if args.identify_modes is not None:
@@ -129,6 +134,10 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
     stated = sigma_f is not None or sigma_s is not None
     sigma_f = DEFAULT_SIGMA_F if sigma_f is None else sigma_f
     sigma_s = None if no_shapes else (DEFAULT_SIGMA_S if sigma_s is None else sigma_s)
+    if config.strategy == "conventional":
+        raise ConfigError(f"{config.measured}: key 'strategy': 'conventional' (the paper's one-MRGP baseline) is "
+                          "not offered for modal data; use 'hybrid' (local fits) or 'adaptive'/'paper' (the "
+                          "paper's loop)")
     model, ref = load_model(config.model)
     names = model.parameter_names
     lower = np.maximum(np.full(model.n_parameters, config.lower), -0.95)
@@ -137,7 +146,9 @@ def run_modal_update(config, starts=3, sigma_f=None, sigma_s=None, no_shapes=Fal
         raise ConfigError(f"--true-parameters: {len(names)} values needed ({', '.join(names)})")
     if config.run_id is None:
         config = config.replace(run_id=f"modal-{dt.datetime.now(dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')}")
-    settings = {"kind": "modal update", "starts": starts, "sigma_f": sigma_f, "sigma_s": sigma_s,
+    paper = config.strategy == "adaptive"
+    settings = {"kind": "modal update", "strategy": "paper" if paper else "gauss-newton",
+                "starts": 1 if paper else starts, "sigma_f": sigma_f, "sigma_s": sigma_s,
                 "stated": stated, "mac_threshold": threshold, "identify_modes": identify_band,
                 "pol_order": pol_order, "closure_effects": None if effects is None else list(effects)}
     folder = config.resolve(config.runs_dir) / config.run_id
@@ -220,7 +231,12 @@ def modal_flow(job: "ModalJob", true_parameters=None, identified=None, stabilisa
                                            job.n_model, threshold)
     modal.write_json(folder / "correlation_before.json", before)
     modal.mac_figure(before, folder / "mac_before.png", "MAC before the update (nominal model)")
-    fit = modal_stages.fit_task(root, residual, job.lower, job.upper, job.settings["starts"], config.seed, job.stated)
+    x0, paper = None, None
+    if job.settings.get("strategy") == "paper":
+        paper = modal_stages.paper_task(root, residual, job.lower, job.upper, paper_options(config))
+        x0 = paper["best"]
+    fit = modal_stages.fit_task(root, residual, job.lower, job.upper, job.settings["starts"], config.seed, job.stated,
+                                x0)
     theta = np.asarray(fit["theta"], float)
     after = modal_stages.correlation_task(root, "correlation_after", data, model, theta, job.n_model, threshold)
     modal.write_json(folder / "correlation_after.json", after)
@@ -232,6 +248,9 @@ def modal_flow(job: "ModalJob", true_parameters=None, identified=None, stabilisa
         closure = modal_stages.closure_task(root, residual, theta, job.lower, job.upper, job.stated,
                                             job.settings["closure_effects"], fit["active"])
     summary = modal_summary(job, fit, closure, true_parameters)
+    if paper is not None:
+        summary["paper_loop"] = paper
+        summary["fe_runs_fit"] = fit["fe_runs"] - paper["fe_runs_computed"]
     if identified is not None:
         summary.update(identified_from=config.measured, identification_band_hz=list(job.settings["identify_modes"]),
                        stabilisation=stabilisation, seconds_identification=seconds_identify)
@@ -240,6 +259,16 @@ def modal_flow(job: "ModalJob", true_parameters=None, identified=None, stabilisa
 
     write_report(folder, summary)
     return summary
+
+
+def paper_options(config):
+    """The paper loop's settings from the config (Table 2: q, s, z, w, budgets, trainer, outputs, seed)."""
+    from mrgp_core.strategies.paper import PaperOptions
+
+    return PaperOptions(q=config.q, s=config.s, z=config.z, w=config.w, max_iterations=config.max_iterations,
+                        max_fe=config.max_fe_evaluations, min_distance_factor=config.min_distance_factor,
+                        std_floor=config.std_floor, trainer=config.trainer, outputs=config.outputs,
+                        emulate="errors", seed=config.seed)
 
 
 def modal_summary(job, fit: dict, closure: dict | None, true_parameters) -> dict:
@@ -291,6 +320,11 @@ def print_summary(summary: dict) -> None:
           f"{summary['n_test_dofs']} test DOFs; {summary['fe_runs']} FE runs ({summary['jacobians']} with Nelson "
           f"derivatives), {summary['seconds']:.1f} s; chi2 {summary['chi2']:.1f} for {summary['n_residuals']} "
           f"residuals ({summary['uncertainties']})")
+    if "paper_loop" in summary:
+        pl = summary["paper_loop"]
+        print(f"  paper loop (MRGP over the modal residuals): {pl['reason']}; {pl['iterations']} iterations, "
+              f"{pl['fe_runs']} FE runs in {pl['seconds']:.1f} s, best mean |r| {pl['best_error']:.3f} (noise threshold "
+              f"{pl['threshold']:.3f}); then the local fit from its best: {summary['fe_runs_fit']} FE runs")
     if "stabilisation" in summary:
         st = summary["stabilisation"]
         print(f"  modes identified from {summary['identified_from']} ({summary['seconds_identification']:.1f} s): "
@@ -320,8 +354,8 @@ def print_summary(summary: dict) -> None:
         c = summary["closure"]
         line = f"  closure on the modal residual: {c['verdict']} (chi2 {c['before']['chi2']:.1f} for {c['before']['dof']} dof"
         if c["chosen"] is not None:
-            ch = c["chosen"]
-            line += (f"; {ch['effect']} at {ch['location']} {ch['value']:.4g} {ch['unit']} (sd {ch['sd']:.2g}): chi2 "
-                     f"{ch['chi2']:.1f}")
-        print(line + ")")
+            line += "; " + " + ".join(f"{ch['effect']} at {ch['location']} {ch['value']:.4g} {ch['unit']} "
+                                      f"(sd {ch['sd']:.2g})" for ch in c.get("added") or [c["chosen"]])
+            line += f": chi2 {c['after']['chi2']:.1f} for {c['after']['dof']} dof"
+        print(line + f"; {c['fe_runs']} FE runs)")
     print(f"  written to {summary['folder']} (summary.json, report.html)")

@@ -118,18 +118,33 @@ def check_identifiable(residual: ModalResidual, names: list[str], source: str) -
         + ("; unpaired: " + "; ".join(pairing.messages) if pairing.messages else ""))
 
 
-def run_fit(residual: ModalResidual, lower, upper, n_starts, seed, stated, folder: Path):
-    """The fit; every FE run of the residual (eigen-solve: parameters, frequencies) goes to
-    ``<folder>/modal_runs.jsonl``, the checks' runs before it included."""
+def run_fit(residual: ModalResidual, lower, upper, n_starts, seed, stated, folder: Path, x0=None):
+    """The fit (first start ``x0``, default the nominal model); every FE run of the residual (eigen-solve:
+    parameters, frequencies) goes to ``<folder>/modal_runs.jsonl``, the checks' runs before it included."""
     folder.mkdir(parents=True, exist_ok=True)
     residual.set_active(np.zeros(lower.size))
     try:
-        return fit_modes(residual, lower, upper, n_starts=n_starts, seed=seed, stated=stated)
+        return fit_modes(residual, lower, upper, n_starts=n_starts, seed=seed, stated=stated, x0=x0)
     finally:
-        text = "".join(json.dumps(h) + "\n" for h in residual.history)
-        from tasks.runstore import atomic_write_bytes
+        write_runs(residual, folder)
 
-        atomic_write_bytes(folder / "modal_runs.jsonl", text.encode())
+
+def write_runs(residual: ModalResidual, folder: Path) -> None:
+    """Every FE run of ``residual`` so far (parameters, frequencies, and the stage that asked for it) to
+    ``<folder>/modal_runs.jsonl``; the runs logged there before by stages this process did not run (a resumed
+    run reads them back) are kept, first."""
+    from tasks.runstore import atomic_write_bytes
+
+    path = Path(folder) / "modal_runs.jsonl"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ours = {h.get("stage") for h in residual.history}
+    kept = []
+    if path.exists():
+        kept = [h for h in (json.loads(line) for line in path.read_text().splitlines() if line.strip())
+                if h.get("stage") not in ours]
+    runs = [dict(h, run=i + 1) for i, h in enumerate(kept + list(residual.history))]
+    text = "".join(json.dumps(h) + "\n" for h in runs)
+    atomic_write_bytes(path, text.encode())
 
 
 def write_json(path: Path, obj) -> None:

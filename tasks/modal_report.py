@@ -26,10 +26,13 @@ def _closure(c: dict | None) -> str:
             f"{html.escape(c['uncertainties'])}); {c['n_screened']} candidates screened "
             f"({html.escape(', '.join(c['effects']))}), {c['fe_runs']} FE runs.</p>")
     if c["chosen"] is not None:
-        ch, after = c["chosen"], c["after"]
-        text += (f"<p>Added: {html.escape(ch['effect'])} at {html.escape(ch['location'])}, {ch['value']:.4g} "
-                 f"{html.escape(ch['unit'])} (sd {ch['sd']:.2g}): chi-square {after['chi2']:.1f} for {after['dof']} "
-                 f"degrees of freedom (p = {after['p_value']:.3g}).</p>")
+        after = c["after"]
+        added = c.get("added") or [c["chosen"]]
+        text += (f"<p>Added (forward selection, values of the last joint fit): "
+                 + "; ".join(f"{html.escape(ch['effect'])} at {html.escape(ch['location'])}, {ch['value']:.4g} "
+                             f"{html.escape(ch['unit'])} (sd {ch['sd']:.2g})" for ch in added)
+                 + f": chi-square {after['chi2']:.1f} for {after['dof']} degrees of freedom "
+                 f"(p = {after['p_value']:.3g}).</p>")
     rows = [[x["effect"], x["location"], "" if x.get("position_m") is None else
              ", ".join(f"{1000 * v:.1f}" for v in x["position_m"]), f"{x['value']:.4g} {x['unit']}",
              f"{x['linear_drop']:.1f}", "" if x.get("chi2") is None else f"{x['chi2']:.1f}"]
@@ -49,6 +52,11 @@ def write_report(folder: Path, summary: dict) -> Path:
     lines = [f"{summary['fe_runs']} FE runs ({summary['jacobians']} with Nelson derivatives), "
              f"{summary['seconds']:.1f} s; chi-square {summary['chi2']:.1f} for {summary['n_residuals']} residuals, "
              f"uncertainties {summary['uncertainties']} (sigma_f {summary['sigma_f']}, sigma_s {summary['sigma_s']})"]
+    if "paper_loop" in summary:
+        pl = summary["paper_loop"]
+        lines.append(f"paper loop (MRGP over the modal residuals): {pl['reason']}; {pl['iterations']} iterations, "
+                     f"{pl['fe_runs']} FE runs, {pl['seconds']:.1f} s, best mean |r| {pl['best_error']:.3f} "
+                     f"(noise threshold {pl['threshold']:.3f}); then the local fit from its best FE run")
     for key, label in (("missing_mode_numbers", "missing from the measured modes"),
                        ("left_out", "left out (unpaired at the nominal model)"), ("mode_swaps", "mode swaps tracked")):
         if summary.get(key):

@@ -2,7 +2,10 @@
 
 Stages (``MODAL_STAGES``), all ``iteration=1`` of the run folder (:class:`tasks.runstore.RunStore`)::
 
-    identifiable -> correlation_before -> fit -> correlation_after -> closure
+    identifiable -> correlation_before -> [paper-1 .. paper-K] -> fit -> correlation_after -> closure
+
+The ``paper-<k>`` stages (``--strategy adaptive``/``paper`` only) are the paper loop's iterations, one each:
+its FE runs (parameters and residual vectors) and what the loop decided; a resumed run replays them.
 
 Each writes one table ``<stage>.parquet`` and its record ``_stage.json`` whose ``info`` holds the stage's
 result (JSON); a resumed run (same inputs and settings, :func:`flows.preflight.check_resume`) reads a
@@ -24,7 +27,7 @@ from tasks.common import done, finish, logger
 from tasks.runstore import RunStore
 
 __all__ = ["MODAL_STAGES", "identifiable_notes", "record_identifiable", "correlation_task", "fit_task",
-           "closure_task"]
+           "closure_task", "paper_task"]
 
 MODAL_STAGES = ("identifiable", "correlation_before", "fit", "correlation_after", "closure")
 ITERATION = 1
@@ -64,14 +67,15 @@ def correlation_task(root: str, stage: str, data, model, theta, n_model: int, th
 
 
 @task(name="fit", task_run_name="fit", cache_policy=NO_CACHE)
-def fit_task(root: str, residual, lower, upper, starts: int, seed: int, stated: bool) -> dict:
-    """The modal update's fit (:func:`tasks.modal.run_fit`: every FE run to ``modal_runs.jsonl``)."""
+def fit_task(root: str, residual, lower, upper, starts: int, seed: int, stated: bool, x0=None) -> dict:
+    """The modal update's fit (:func:`tasks.modal.run_fit`: every FE run to ``modal_runs.jsonl``); ``x0``
+    the first start (the paper loop's best FE run; default the nominal model)."""
     store = RunStore(root)
     if done(store, ITERATION, "fit"):
         return store.stage_info(ITERATION, "fit")
     t0 = time.perf_counter()
     fit = modal.run_fit(residual, np.asarray(lower, float), np.asarray(upper, float), starts, seed, stated,
-                        store.root)
+                        store.root, x0)
     final = fit.final
     info = {"theta": fit.theta, "sd": fit.sd, "lower95": fit.lower95, "upper95": fit.upper95,
             "covariance": fit.covariance, "chi2": fit.chi2, "n_residuals": fit.n_residuals, "scale2": fit.scale2,
@@ -98,7 +102,56 @@ def closure_task(root: str, residual, theta, lower, upper, stated: bool, effects
     result = modal_closure(residual, np.asarray(theta, float), np.asarray(lower, float), np.asarray(upper, float),
                            stated=stated, effects=effects)
     result["seconds"] = time.perf_counter() - t0
-    table = pd.DataFrame(result["candidates"], columns=["effect", "location", "value", "unit", "linear_drop",
-                                                        "chi2", "delta_bic"]).astype({"chi2": float,
-                                                                                      "delta_bic": float})
+    modal.write_runs(residual, store.root)  # the closure's FE runs (stages closure-<step>) with the others
+    table = pd.DataFrame(result["candidates"], columns=["step", "effect", "location", "value", "unit",
+                                                        "linear_drop", "chi2", "delta_bic"]).astype(
+        {"chi2": float, "delta_bic": float})
     return _store(store, "closure", table, result)
+
+
+@task(name="paper", task_run_name="paper", cache_policy=NO_CACHE)
+def paper_task(root: str, residual, lower, upper, options) -> dict:
+    """The paper's MRGP loop on the modal residual (:func:`fe_core.modal_update.paper.run_modal_paper`), each
+    iteration stored as stage ``paper-<k>`` (its FE runs' parameters and residual rows) and replayed on a
+    resume; every FE run computed goes to ``modal_runs.jsonl``."""
+    from fe_core.modal_update.paper import run_modal_paper
+
+    store = RunStore(root)
+    t0 = time.perf_counter()
+    residual.set_active(np.zeros(len(lower)))
+    computed = []
+
+    def replay(k, points):
+        stage = f"paper-{k}"
+        if not done(store, ITERATION, stage):
+            return None
+        table = store.read_table(ITERATION, stage, "paper")
+        X = table[[c for c in table.columns if c.startswith("x")]].to_numpy()
+        if X.shape != points.shape or not np.allclose(X, points, rtol=0, atol=1e-12):
+            return None  # another loop's samples (settings are checked before): recompute
+        return table[[c for c in table.columns if c.startswith("r")]].to_numpy()
+
+    def on_round(k, points, rows):
+        computed.append(len(points))
+        table = pd.concat([pd.DataFrame(points, columns=[f"x{i}" for i in range(points.shape[1])]),
+                           pd.DataFrame(rows, columns=[f"r{i}" for i in range(rows.shape[1])])], axis=1)
+        store.write_table(ITERATION, f"paper-{k}", "paper", table)
+        errors = np.mean(np.abs(rows), axis=1)
+        store.finish(ITERATION, f"paper-{k}", ["paper"], {"fe_runs": len(points),
+                                                           "best_error": float(np.nanmin(errors))})
+        modal.write_runs(residual, store.root)
+
+    loop = run_modal_paper(residual, lower, upper, options, replay, on_round)
+    x, e = loop.best()
+    decision = loop.stop()
+    info = {"best": x, "best_error": e, "threshold": loop.options.threshold, "iterations": loop.iteration,
+            "fe_runs": int(sum(len(h[1]) for h in loop.history)), "fe_runs_computed": int(sum(computed)),
+            "per_iteration": [{"iteration": k, "fe_runs": len(X), "best_error": float(np.min(E)) if len(E) else None}
+                              for k, X, E in loop.history],
+            "converged": decision.converged, "seconds": time.perf_counter() - t0,
+            # the loop's rule words errors as percentages (relative FRF errors); a modal residual is in sd units
+            "reason": (f"at the noise (best mean |r| {e:.3f} <= {loop.options.threshold:.3f})" if decision.converged
+                       else decision.reason)}
+    logger().info("paper loop on the modal residual: %s after %d iterations, %d FE runs, best mean |r| %.3f",
+                  decision.reason, loop.iteration, info["fe_runs"], e)
+    return info

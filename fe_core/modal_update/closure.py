@@ -12,15 +12,22 @@ mass; :mod:`fe_core.closure.effects`) traced from what the modal update left.
 2. **Check**: the best ``n_check`` candidates (and the best of another kind screened at least half as
    good, :func:`pick`) are fitted in full (parameters and the effect's value,
    trust-region least squares with exact Jacobians from ``[theta, linear value]``).
-3. **Decide**: the residual is weighted by the measurement's standard deviations, so ``chi^2`` is the
-   test: ``structured`` when ``P(chi^2_{n-k} > chi^2) < level``. An effect is added when it lowers the
-   extended BIC ``chi^2 + k ln n + 2 ln L`` (``L`` its candidate locations: choosing the best of many
-   nodes is a fit too) and its fit does not end on a plausibility bound. The verdict: ``noise`` (the
-   residual after the update is noise: nothing to explain, no effect named), ``explained`` (an effect
-   added, noise after it), ``partly explained`` (an effect added, structure remains), ``not explained``
-   (structure, and no candidate of the library lowers the extended BIC).
+3. **Decide** (forward selection, the FRF closure's rule, :mod:`fe_core.closure.selection`): the residual is
+   weighted by the measurement's standard deviations, so ``chi^2`` is the test: ``structured`` when
+   ``P(chi^2_{n-k} > chi^2) < level``. While it is structured, the checked candidate that lowers the extended
+   BIC ``chi^2 + k ln n + 2 sum_j ln L_j`` most (``k`` parameters and effect values, ``L_j`` the candidate
+   locations of each effect: choosing the best of many nodes is a fit too) is added if its fit (and every
+   effect's value in it) does not end on a plausibility bound; the next round screens and checks with the
+   effects so far in the model (:class:`ExtendedModalResidual`), each check a joint refit of the factors, the
+   effects so far and the new one. It stops at the noise, when nothing lowers the extended BIC, or at
+   ``max_effects``. No swaps (the FRF closure's replacement passes) yet. The verdict: ``noise`` (the
+   residual after the update is noise: no effect named), ``explained`` (effects added, noise after them),
+   ``partly explained`` (effects added, structure remains), ``not explained`` (structure, and no candidate
+   of the library lowers the extended BIC).
 
-One-parameter effects only (all of the default library's).
+Every FE run (screens and checks) goes to the residual's ``history`` with its stage
+(``closure-<round>: screen`` or ``closure-<round>: <effect> at <location>``), which the flow writes to
+``modal_runs.jsonl``. One-parameter effects only (all of the default library's).
 """
 
 from __future__ import annotations
@@ -66,7 +73,7 @@ def screen_effects(residual: ModalResidual, theta, library) -> tuple[list[dict],
     q, _ = np.linalg.qr(J)
     r_perp = r - q @ (q.T @ r)
     rss0 = float(r_perp @ r_perp)
-    alpha, _ = residual.model.factors(theta)
+    alpha, _ = residual.model.factors(theta[:residual.model.n_parameters])
     candidates, factors = [], {}
     for effect in library:
         if effect.n_parameters != 1:
@@ -102,38 +109,58 @@ def _position(effect, location):
 
 
 class ExtendedModalResidual(ModalResidual):
-    """The modal residual of the model with one effect added: parameters ``[theta, d / scale]``."""
+    """The modal residual of the model with effects added: parameters ``[theta, d_1 / scale_1, ...]``, one
+    value per (effect, location) of ``added``. Its FE runs go to ``base``'s history (one log per run)."""
 
-    def __init__(self, base: ModalResidual, effect, location: str):
+    def __init__(self, base: ModalResidual, added, label: str = "closure"):
         super().__init__(base.model, base.L, base.f_test, base.u_test, base.sigma_f, base.sigma_s, base.n_model,
                          base.threshold, base.names)
         self.active = base.active.copy()
+        self.history = base.history  # one log of every FE run of the run (modal_runs.jsonl)
+        self.label = label
         self.n_base = base.model.n_parameters
-        self.scale = float(effect.scale_at(location)[0])
         alpha0 = np.zeros(base.model.n_segments)
-        dK, dM = _unit_terms(effect, alpha0, location)
-        self.dK = None if dK is None else dK * self.scale
-        self.dM = None if dM is None else dM * self.scale
-        self.dmats = parameter_matrices(base.model) + [(self.dK, self.dM)]
+        self.terms, self.scales = [], []
+        for effect, location in added:
+            scale = float(effect.scale_at(location)[0])
+            dK, dM = _unit_terms(effect, alpha0, location)
+            self.terms.append((None if dK is None else dK * scale, None if dM is None else dM * scale))
+            self.scales.append(scale)
+        self.scale = self.scales[-1] if self.scales else 1.0
+        self.dmats = parameter_matrices(base.model) + list(self.terms)
 
     def matrices(self, theta):
         theta = np.asarray(theta, float)
         K, M = super().matrices(theta[:self.n_base])
-        v = float(theta[self.n_base])
-        return (K if self.dK is None else K + v * self.dK), (M if self.dM is None else M + v * self.dM)
+        for v, (dK, dM) in zip(theta[self.n_base:], self.terms):
+            K = K if dK is None else K + float(v) * dK
+            M = M if dM is None else M + float(v) * dM
+        return K, M
 
 
-def check_candidate(residual: ModalResidual, theta, lower, upper, candidate: dict, effect) -> dict:
-    """Full fit of the parameters and one candidate's value (module docstring, step 2)."""
-    ext = ExtendedModalResidual(residual, effect, candidate["location"])
+def check_candidate(residual: ModalResidual, theta, lower, upper, candidate: dict, effect, added=(),
+                    step: int = 1) -> dict:
+    """Full joint fit of the parameters, the effects ``added`` so far (``theta``, ``lower``, ``upper`` hold
+    their scaled values after the parameters) and one candidate's value (module docstring, step 2)."""
+    added = list(added)
+    ext = ExtendedModalResidual(residual, added + [(effect, candidate["location"])],
+                                f"closure-{step}: {effect.kind} at {candidate['location']}")
+    runs0 = len(residual.history)
     lo, hi = effect.bounds_at(candidate["location"])
     lo_e, hi_e = float(lo[0]) / ext.scale, min(float(hi[0]) / ext.scale, 1e6)
     x0 = np.append(np.asarray(theta, float), np.clip(candidate["value"] / ext.scale, lo_e, hi_e))
     fit = fit_modes(ext, np.append(lower, lo_e), np.append(upper, hi_e), n_starts=1, x0=x0, stated=True)
-    value = float(fit.theta[-1] * ext.scale)
-    at_bound = bool(np.isfinite(hi[0]) and value >= float(hi[0]) * (1 - 1e-3))
-    return {**candidate, "value": value, "theta": fit.theta[:-1].tolist(), "chi2": float(fit.chi2),
-            "sd": float(fit.sd[-1] * ext.scale), "fe_runs": ext.n_evaluations, "implausible": at_bound}
+    n_base = residual.model.n_parameters
+    values = fit.theta[n_base:] * np.array(ext.scales)
+    sds = fit.sd[n_base:] * np.array(ext.scales)
+    at_bound = []
+    for (e, loc), v in zip(added + [(effect, candidate["location"])], values):
+        upper_e = float(e.bounds_at(loc)[1][0])
+        at_bound.append(bool(np.isfinite(upper_e) and v >= upper_e * (1 - 1e-3)))
+    return {**candidate, "value": float(values[-1]), "theta": fit.theta[:n_base].tolist(),
+            "theta_full": fit.theta.tolist(), "values": values.tolist(), "sds": sds.tolist(),
+            "chi2": float(fit.chi2), "sd": float(sds[-1]), "fe_runs": len(residual.history) - runs0,
+            "implausible": any(at_bound)}
 
 
 def pick(screened: list[dict], n_check: int) -> list[dict]:
@@ -152,39 +179,74 @@ def pick(screened: list[dict], n_check: int) -> list[dict]:
 
 def modal_closure(residual: ModalResidual, theta, lower, upper, stated: bool = True,
                   effects=("point_mass", "grounded_spring", "segment_mass"), n_check: int = 2,
-                  n_report: int = 10) -> dict:
-    """Screen, check and decide (module docstring); a JSON-ready dict with the verdict, the chosen effect (or
-    None), the chi-square tests before and after, and the best candidates."""
+                  n_report: int = 10, max_effects: int = 3) -> dict:
+    """Forward selection (module docstring): screen, check, add while the extended BIC improves and the
+    residual is structured; a JSON-ready dict with the verdict, the effects added (``added``, their values
+    from the last joint fit; ``chosen`` the first), the chi-square tests before and after, every round's
+    candidates and the FE runs."""
     from ..closure.effects import build_library
 
     library = build_library(residual.model, list(effects))
     by_kind = {e.kind: e for e in library}
-    runs0 = residual.n_evaluations
-    screened, base = screen_effects(residual, theta, library)
-    n, k = base["n"], base["k"]
-    before = _chi2_test(base["chi2"], n, k)
-    bic0 = base["chi2"] + k * np.log(n)
-    checked, chosen, after = [], None, None
-    if before["structured"]:
+    runs0 = len(residual.history)
+    theta = np.asarray(theta, float)
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    current, theta_full, lo_full, hi_full = residual, theta, lower, upper
+    steps, rounds, table = [], [], []
+    before = after = None
+    n = k = 0
+    ebic = 0.0
+    while len(steps) < max_effects and (after is None or after["structured"]):
+        current.label = f"closure-{len(steps) + 1}: screen"
+        screened, base = screen_effects(current, theta_full, library)
+        if before is None:
+            n, k = base["n"], base["k"]
+            before = after = _chi2_test(base["chi2"], n, k)
+            ebic = base["chi2"] + k * np.log(n)
+        if not after["structured"]:
+            break
+        checked = []
         for c in pick(screened, n_check):
-            c = check_candidate(residual, theta, lower, upper, c, by_kind[c["effect"]])
-            c["delta_bic"] = float(c["chi2"] + (k + 1) * np.log(n) + 2 * np.log(c["n_locations"]) - bic0)
+            c = check_candidate(residual, theta_full, lo_full, hi_full, c, by_kind[c["effect"]],
+                                [(by_kind[s["effect"]], s["location"]) for s in steps], len(steps) + 1)
+            locations = sum(np.log(s["n_locations"]) for s in steps) + np.log(c["n_locations"])
+            c["delta_bic"] = float(c["chi2"] + (k + 1) * np.log(n) + 2 * locations - ebic)
+            c["step"] = len(steps) + 1
             checked.append(c)
         plausible = [c for c in checked if not c["implausible"] and c["delta_bic"] < 0]
-        if plausible:
-            chosen = min(plausible, key=lambda c: c["delta_bic"])
-            after = _chi2_test(chosen["chi2"], n, k + 1)
+        keys = {(c["effect"], c["location"]) for c in checked}
+        table += checked + [dict(c, chi2=None, delta_bic=None, step=len(steps) + 1) for c in screened
+                            if (c["effect"], c["location"]) not in keys][:max(n_report - len(checked), 0)]
+        rounds.append({"step": len(steps) + 1, "chi2_before": base["chi2"],
+                       "checked": [{x: c[x] for x in ("effect", "location", "value", "chi2", "delta_bic",
+                                                       "implausible", "fe_runs")} for c in checked]})
+        if not plausible:
+            break
+        chosen = min(plausible, key=lambda c: c["delta_bic"])
+        steps.append(chosen)
+        for s, v, d in zip(steps, chosen["values"], chosen["sds"]):  # the joint refit's values
+            s["value"], s["sd"] = float(v), float(d)
+        k += 1
+        ebic += chosen["delta_bic"]
+        after = _chi2_test(chosen["chi2"], n, k)
+        theta_full = np.asarray(chosen["theta_full"], float)
+        lo_e, hi_e = (float(b[0]) / float(by_kind[chosen["effect"]].scale_at(chosen["location"])[0])
+                      for b in by_kind[chosen["effect"]].bounds_at(chosen["location"]))
+        lo_full, hi_full = np.append(lo_full, lo_e), np.append(hi_full, min(hi_e, 1e6))
+        current = ExtendedModalResidual(residual, [(by_kind[s["effect"]], s["location"]) for s in steps])
+    residual.label = "fit"
     if not before["structured"]:
         verdict = "noise"
-    elif chosen is None:
+    elif not steps:
         verdict = "not explained"
     else:
         verdict = "partly explained" if after["structured"] else "explained"
-    keys = {(c["effect"], c["location"]) for c in checked}
-    table = checked + [dict(c, chi2=None, delta_bic=None) for c in screened if (c["effect"], c["location"])
-                       not in keys][:max(n_report - len(checked), 0)]
-    return {"verdict": verdict, "effects": list(effects), "before": before, "after": after,
-            "chosen": chosen, "candidates": table, "n_screened": len(screened),
-            "fe_runs": residual.n_evaluations - runs0 + sum(c["fe_runs"] for c in checked),
+    added = [{x: s[x] for x in ("effect", "location", "value", "unit", "sd", "position_m", "n_locations")}
+             for s in steps]
+    return {"verdict": verdict, "effects": list(effects), "before": before, "after": after if steps else None,
+            "chosen": steps[0] if steps else None, "added": added, "rounds": rounds,
+            "theta": (theta_full[:theta.size] if steps else theta).tolist(),
+            "candidates": table, "n_screened": len(screened),
+            "fe_runs": len(residual.history) - runs0,
             "uncertainties": "stated" if stated else "the default uncertainties (sigma_f 0.002, sigma_s 0.02) "
                              "taken as stated for the test", "level": LEVEL}

@@ -69,7 +69,8 @@ class ModalResidual:
         self.names = names or [f"mode {k + 1}" for k in range(self.f_test.size)]
         self.dmats = parameter_matrices(model)
         self.n_evaluations = 0
-        self.history: list[dict] = []  # every FE run (eigen-solve): parameters and frequencies
+        self.history: list[dict] = []  # every FE run (eigen-solve): parameters, frequencies, who asked
+        self.label = "fit"  # the stage whose FE runs these are (history's "stage")
         self.n_jacobians = 0
         self._modes: dict = {}
         self.swaps: list[str] = []
@@ -94,8 +95,8 @@ class ModalResidual:
         """(freqs Hz (n_model,), shapes at the test DOFs (n_model, n_dofs), full vectors, lam, K, M)."""
         K, M = self.matrices(theta)
         freqs, vecs = eigenmodes(K, M, self.n_model)
-        self.history.append({"run": len(self.history) + 1, "theta": np.asarray(theta, float).tolist(),
-                             "frequencies_hz": freqs.tolist()})
+        self.history.append({"run": len(self.history) + 1, "stage": self.label,
+                             "theta": np.asarray(theta, float).tolist(), "frequencies_hz": freqs.tolist()})
         self.n_evaluations = len(self.history)
         return freqs, (self.L.T @ vecs).T, vecs, (2 * np.pi * freqs) ** 2, K, M
 
