@@ -19,6 +19,8 @@ structure's first modes (the cantilever's three y-bending modes, the plate's fir
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -31,6 +33,11 @@ PLATE = dict(size=(0.3, 0.15, 0.01), cells=(10, 5, 1), edges=(0.0, 0.1, 0.2, 0.3
 PLATE_ALPHA = np.array([0.1, -0.1, 0.05])
 #: The damaged patch's centre on the plate's top face (a patch centre of the library: every second top node).
 PATCH_CENTRE = (0.09, 0.06, 0.01)
+
+
+@functools.lru_cache(maxsize=1)
+def _cantilever_fem() -> dict:
+    return mx.skfem_model()
 
 
 def _noisy(Z: np.ndarray, seed: int) -> np.ndarray:
@@ -47,7 +54,7 @@ def cantilever_case(effect: str, size: float, seed: int = 5, node: int = 208) ->
     from fe_core.io import read_model
     from flows.config import REPO
 
-    fem = mx.skfem_model()
+    fem = _cantilever_fem()
     if effect == "point_mass":
         fem, node = mx.with_point_mass(fem, fem["mesh"].p[:, node], size)
     elif effect == "grounded_spring_y":
