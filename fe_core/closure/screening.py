@@ -12,7 +12,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from .effects import Applied, Effect, LinearisedResponse
-from .fits import ALPHA_BOUNDS, Fit, alpha_starts, fit_update, joint_fit
+from .fits import ALPHA_BOUNDS, SIZE_MULTIPLES, Fit, alpha_starts, far_off, fit_update, joint_fit
 from ..model import ParametricModel
 
 __all__ = [
@@ -228,10 +228,13 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
     Fills ``candidate.fit`` (and ``moved_from``) and returns the candidate.
     """
     kw = dict(alpha_bounds=alpha_bounds, max_evaluations=max_evaluations, tol=tol, prior=base.applied)
-    # Joint fit of alpha and the effect from several starts (fe_core.closure.fits.joint_fit): the update's
-    # and the nominal alpha, the linearised size (kept halfway from a bound) and multiples of it.
-    fit = joint_fit(model, freqs_hz, amplitude, alpha_starts(model, base.alpha, alpha_bounds), effect,
-                    candidate.location, candidate.linear_values,
+    # Joint fit of alpha and the effect (fe_core.closure.fits.joint_fit): where the residual is far off, from
+    # several starts (the update's and the nominal alpha, the linearised size kept halfway from a bound and
+    # multiples of it); else from the update's alpha and the linearised size alone.
+    far = far_off(base)
+    fit = joint_fit(model, freqs_hz, amplitude, alpha_starts(model, base.alpha, alpha_bounds) if far
+                    else {"update": base.alpha}, effect, candidate.location, candidate.linear_values,
+                    multiples=SIZE_MULTIPLES if far else (),
                     primary=_start_value(effect, candidate.location, candidate.linear_values), **kw)
     if fit.rss > base.rss:  # the linear start led astray: start from the effect's absence
         again = fit_update(model, freqs_hz, amplitude, base.alpha, effect, candidate.location, None, **kw)
