@@ -58,7 +58,7 @@ def run(name: str) -> dict:
         "added": f"{step.effect} {step.location} = {value:.4g}" if step else "-",
         "right place": bool(step) and (step.effect, step.location) == (truth["effect"], truth["location"]),
         "size error": f"{abs(value - size) / abs(size):.1%}" if step and size else "-",
-        "start": step.fit.start if step and step.fit is not None and by_kind else "-",
+        "start": (getattr(step.fit, "start", "") or "-") if step and step.fit is not None and by_kind else "-",
         "at a bound": "; ".join(bounds[:2]) or "-",
         "CPU s": round(cpu, 1),
     }
@@ -72,11 +72,11 @@ def main(argv=None) -> int:
     if unknown:
         print(f"unknown case(s) {unknown}; choose from {list(CASES)}", file=sys.stderr)
         return 2
-    rows = [run(name) for name in (args.cases or CASES)]
-    cols = list(rows[0])
-    print("| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
-    for r in rows:
-        print("| " + " | ".join(str(r[c]) for c in cols) + " |", flush=True)
+    for k, name in enumerate(args.cases or CASES):
+        r = run(name)
+        if k == 0:
+            print("| " + " | ".join(r) + " |\n|" + "---|" * len(r))
+        print("| " + " | ".join(str(v) for v in r.values()) + " |", flush=True)
     return 0
 
 

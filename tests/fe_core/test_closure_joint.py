@@ -17,7 +17,8 @@ import pytest
 from benchmarks.make.large_effects import cantilever_case, plate_case, plate_model
 from fe_core.closure.decisions import at_bound, bound_hit
 from fe_core.closure.effects import build_library
-from fe_core.closure.fits import alpha_starts, far_off, fit_update, joint_fit, size_starts
+from fe_core.closure.fits import (FAR_PER_TYPE, alpha_starts, checks_per_type, far_off, fit_update, joint_fit,
+                                  size_starts)
 from fe_core.closure.screening import Candidate, _start_value, screen
 
 #: Size error allowed: the issue's 10 %. With 0.5 % noise on 135 (cantilever) or 216 (plate) amplitudes the
@@ -59,6 +60,7 @@ def test_a_point_mass_of_19_percent_is_sized_although_the_screen_underestimates_
     # The closure tries several starts only where the residual is far off: the baseline's is (rms of the log
     # residual 46 %), the fit with the mass is at the noise.
     assert far_off(base) and not far_off(fit)
+    assert checks_per_type(base, 1) == FAR_PER_TYPE and checks_per_type(fit, 1) == 1
 
 
 def test_a_nearly_rigid_spring_needs_the_nominal_start_and_is_then_sized():
