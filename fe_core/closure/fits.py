@@ -320,7 +320,8 @@ def size_starts(effect: Effect, location: str, linear, multiples: Sequence[float
 def joint_fit(model: ParametricModel, freqs_hz, amplitude, alpha_starts, effect: Effect, location: str,
               linear=None, *, prior: Sequence[Applied] = (), multiples: Sequence[float] = SIZE_MULTIPLES,
               primary=None, alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, max_evaluations: int = 600,
-              tol: float = 1e-6, coarse_evaluations: int = COARSE_EVALUATIONS, coarse_tol: float = COARSE_TOL) -> Fit:
+              tol: float = 1e-6, coarse_evaluations: int = COARSE_EVALUATIONS, coarse_tol: float = COARSE_TOL,
+              base_rss: float | None = None, contender: float = 0.5) -> Fit:
     """Segment factors and one effect's parameters fitted together (one bounded least squares with the exact
     Jacobians: the model's for alpha, the effect's for its parameters), from several starts.
 
@@ -329,7 +330,9 @@ def joint_fit(model: ParametricModel, freqs_hz, amplitude, alpha_starts, effect:
     ``linear``). The first start (the first alpha with ``primary``, or else the first size) is fitted to
     ``tol`` with ``max_evaluations``; the others coarsely (``coarse_tol``, ``coarse_evaluations``), and
     the best of them is refined to ``tol`` if it beats the first. Returns the best fit, with
-    ``Fit.start`` naming its start and ``Fit.evaluations`` counting every start's FE solves.
+    ``Fit.start`` naming its start and ``Fit.evaluations`` counting every start's FE solves. With
+    ``base_rss`` (the sum of squares without the effect) the other starts are tried only for a contender,
+    a first fit that explains at least ``contender`` of it (as a check moves only a contender).
     """
     labels = list(alpha_starts)
     if not labels:
@@ -349,6 +352,8 @@ def joint_fit(model: ParametricModel, freqs_hz, amplitude, alpha_starts, effect:
     best.start = label
     total = best.evaluations
     coarse = None
+    if base_rss is not None and best.rss > (1.0 - contender) * base_rss:
+        starts = starts[:1]
     for label, a0, w0 in starts[1:]:
         trial = fit_update(model, freqs_hz, amplitude, a0, effect, location, w0, max_evaluations=coarse_evaluations,
                            tol=coarse_tol, **kw)

@@ -234,7 +234,7 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
     far = far_off(base)
     fit = joint_fit(model, freqs_hz, amplitude, alpha_starts(model, base.alpha, alpha_bounds) if far
                     else {"update": base.alpha}, effect, candidate.location, candidate.linear_values,
-                    multiples=SIZE_MULTIPLES if far else (),
+                    multiples=SIZE_MULTIPLES if far else (), base_rss=base.rss, contender=contender,
                     primary=_start_value(effect, candidate.location, candidate.linear_values), **kw)
     if fit.rss > base.rss:  # the linear start led astray: start from the effect's absence
         again = fit_update(model, freqs_hz, amplitude, base.alpha, effect, candidate.location, None, **kw)
