@@ -208,6 +208,8 @@ def print_closure(summary: dict, file=None) -> None:
             print(f"  {e['step']}. {STATUSES[e['status']]}: {e['type']} at {e['location']}{moved}, {e['parameter']} = "
                   f"{e['value']:.4g} {e['unit']}, explains {e['explained']:.1%} of the residual then{evidence}",
                   file=file)
+            if e.get("start"):
+                print(f"       joint fit of alpha and the effect: the start '{e['start']}' won", file=file)
             if e.get("locations_95", 0) > 1:
                 far = f", up to {e['spread_mm']:.0f} mm away" if e.get("spread_mm") is not None else ""
                 pinned = "" if e.get("located", True) else ": the location is not pinned down"
@@ -219,8 +221,9 @@ def print_closure(summary: dict, file=None) -> None:
         for s in summary.get("swaps", []):
             print(f"  swapped: {s}", file=file)
         for e in summary.get("implausible", []):
+            bound = f" (the {e['at_bound']})" if e.get("at_bound") else ""
             print(f"  implausible (fit ends on a plausibility bound): {e['type']} at {e['location']}, "
-                  f"{e['parameter']} = {e['value']:.4g} {e['unit']}", file=file)
+                  f"{e['parameter']} = {e['value']:.4g} {e['unit']}{bound}", file=file)
     floor = (f"noise floor {summary['noise_floor']:.3%} ({summary['noise_floor_source']})"
              if summary.get("noise_floor") is not None else f"noise floor {summary.get('noise_floor_source')}")
     print(f"overall error ({summary['error_metric']}): at the run's parameters {summary['error_at_run_parameters']:.3%}"

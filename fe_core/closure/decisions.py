@@ -23,6 +23,7 @@ __all__ = [
     "dedupe",
     "merge",
     "at_bound",
+    "bound_hit",
     "verdict",
     "VERDICTS",
 ]
@@ -73,13 +74,24 @@ def at_bound(effect: Effect, location: str, values, rtol: float = 1e-2) -> bool:
     A bound at zero (the effect's absence: no mass, no spring) does not count:
     an effect fitted to nothing is not added anyway.
     """
+    return bound_hit(effect, location, values, rtol) is not None
+
+
+def bound_hit(effect: Effect, location: str, values, rtol: float = 1e-2) -> str | None:
+    """Which plausibility bound a fit ends on (as :func:`at_bound`): ``"upper 6.28 kg"``-like text naming the
+    parameter's bound and its value, or None."""
     lo, hi = effect.bounds_at(location)
     tol = rtol * effect.scale_at(location)
     v = np.atleast_1d(np.asarray(values, float))
     with np.errstate(invalid="ignore"):  # infinite bounds compare False
         hit_lo = np.isfinite(lo) & (lo != 0) & (v <= lo + np.maximum(tol, 1e-3 * np.abs(lo)))
         hit_hi = np.isfinite(hi) & (hi != 0) & (v >= hi - np.maximum(tol, 1e-3 * np.abs(hi)))
-    return bool(np.any(hit_lo | hit_hi))
+    for i in range(v.size):
+        if hit_lo[i] or hit_hi[i]:
+            which, b = ("lower", lo[i]) if hit_lo[i] else ("upper", hi[i])
+            unit = effect.units[i] if i < len(effect.units) else ""
+            return f"{which} {effect.parameters[i]} = {b:.4g} {unit}".rstrip()
+    return None
 
 
 def score(base: Fit, checked: Sequence[Candidate]) -> None:

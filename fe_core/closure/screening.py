@@ -12,7 +12,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from .effects import Applied, Effect, LinearisedResponse
-from .fits import ALPHA_BOUNDS, Fit, fit_update
+from .fits import ALPHA_BOUNDS, SIZE_MULTIPLES, Fit, alpha_starts, far_off, fit_update, joint_fit
 from ..model import ParametricModel
 
 __all__ = [
@@ -228,11 +228,18 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
     Fills ``candidate.fit`` (and ``moved_from``) and returns the candidate.
     """
     kw = dict(alpha_bounds=alpha_bounds, max_evaluations=max_evaluations, tol=tol, prior=base.applied)
-    fit = fit_update(model, freqs_hz, amplitude, base.alpha, effect, candidate.location,
-                     _start_value(effect, candidate.location, candidate.linear_values), **kw)
+    # Joint fit of alpha and the effect (fe_core.closure.fits.joint_fit): where the residual is far off, from
+    # several starts (the update's and the nominal alpha, the linearised size kept halfway from a bound and
+    # multiples of it); else from the update's alpha and the linearised size alone.
+    far = far_off(base)
+    fit = joint_fit(model, freqs_hz, amplitude, alpha_starts(model, base.alpha, alpha_bounds) if far
+                    else {"update": base.alpha}, effect, candidate.location, candidate.linear_values,
+                    multiples=SIZE_MULTIPLES if far else (), base_rss=base.rss, contender=contender,
+                    primary=_start_value(effect, candidate.location, candidate.linear_values), **kw)
     if fit.rss > base.rss:  # the linear start led astray: start from the effect's absence
         again = fit_update(model, freqs_hz, amplitude, base.alpha, effect, candidate.location, None, **kw)
         again.evaluations += fit.evaluations
+        again.start = "update alpha, no effect"
         fit = again
     moved = []
     visited = {fit.location} | {a.location for a in base.applied if a.effect.kind == effect.kind}
@@ -252,6 +259,7 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
                            **{**kw, "prior": fit.prior})
         trial.evaluations += fit.evaluations
         trial.seconds += fit.seconds
+        trial.start = f"{fit.start}; moved from {fit.location}" if fit.start else ""
         if trial.rss >= fit.rss:
             fit.evaluations, fit.seconds = trial.evaluations, trial.seconds
             break

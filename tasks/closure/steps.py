@@ -152,7 +152,7 @@ def check_candidate(ref, effects, kind: str, location: str, linear_values, base_
     return {"effect": kind, "screened_location": location, "location": f.location,
             "moved_from": json.dumps(cand.moved_from), "values": json.dumps(list(map(float, f.values))),
             "alpha": json.dumps(list(map(float, f.alpha))), "rss": f.rss, "evaluations": f.evaluations,
-            "seconds": f.seconds, "message": f.message}
+            "seconds": f.seconds, "message": f.message, "start": f.start}
 
 
 @task(name="closure-check", cache_policy=NO_CACHE)
@@ -163,13 +163,13 @@ def check_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndar
     if not _done(store, "check"):
         analysis = store.info("baseline")["analysis"]
         screened = _screened(store)
-        picked = screening.pick_for_check(screened, settings["per_type"])
+        model = problem.model
+        base = _baseline_fit(store, model, freqs, u)
+        picked = screening.pick_for_check(screened, fits.checks_per_type(base, settings["per_type"]))
         if not (analysis["structured"] or settings.get("check_noise")):
             logger.info("closure: the residual is noise (chi-square p = %.3g); no candidate is checked",
                         analysis["p_chi2"])
             picked = []
-        model = problem.model
-        base = _baseline_fit(store, model, freqs, u)
         todo = [(k, c) for k, c in enumerate(picked) if not store.path("check", f"check={k:03d}").exists()]
         if len(todo) < len(picked):
             logger.info("closure: %d of %d checks found on disk", len(picked) - len(todo), len(picked))
@@ -189,7 +189,7 @@ def check_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndar
         parts = [pd.read_parquet(store.path("check", f"check={k:03d}")) for k in range(len(picked))]
         checks = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(
             columns=["effect", "screened_location", "location", "moved_from", "values", "alpha", "rss",
-                     "evaluations", "seconds", "message"])
+                     "evaluations", "seconds", "message", "start"])
         store.write_table("check", "checks", checks)
         store.finish("check", ["checks"], {"n": len(checks)})
     return store.info("check")
@@ -227,6 +227,7 @@ def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: 
                                 linear_delta_ebic=c.linear_delta_ebic, moved_from=json.loads(r.moved_from))
         c.fit = _fit_from_parameters(model, library, freqs, u, json.loads(r.alpha), r.effect, r.location,
                                      json.loads(r.values), r.evaluations, r.seconds, r.message)
+        c.fit.start = str(getattr(r, "start", "") or "")  # stores written before the joint fit's starts lack it
         checked.append(c)
     checked = decisions.dedupe(checked)
     chosen = decisions.decide(base, before, checked)

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from fe_core.closure import fits, screening
+from fe_core.closure.decisions import bound_hit
 from fe_core.closure.selection import IDENTIFIED, spread_mm
 from fe_core.inference.residual import overall_error, per_sensor_error
 
@@ -37,6 +38,8 @@ def _candidates_frame(ranked: list[screening.Candidate], library: dict) -> pd.Da
             "linear_delta_bic": c.linear_delta_bic, "linear_delta_ebic": c.linear_delta_ebic,
             "moved_from": json.dumps(c.moved_from),
             "fe_solves": fit.evaluations if fit is not None else 0,
+            "start": fit.start if fit is not None else "",
+            "at_bound": bool(fit is not None and c.implausible),
         })
     return pd.DataFrame(rows)
 
@@ -46,7 +49,9 @@ def _effect_entry(c: screening.Candidate, library: dict, values=None) -> dict:
     v = c.fit.values if values is None else values
     return {"type": c.effect, "location": c.location,
             "value": float(v[0]) if eff.n_parameters == 1 else dict(zip(eff.parameters, map(float, v))),
-            "parameter": eff.parameters[0], "unit": _unit(eff, c.location), "details": eff.describe(c.location)}
+            "parameter": eff.parameters[0], "unit": _unit(eff, c.location), "details": eff.describe(c.location),
+            # The plausibility bound the fit ends on (None: inside the box) and the joint fit's winning start.
+            "at_bound": bound_hit(eff, c.location, v), "start": getattr(c.fit, "start", "") or None}
 
 
 def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, final: fits.Fit, sel=None) -> dict:

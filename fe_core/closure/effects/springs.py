@@ -21,6 +21,8 @@ class GroundedSpring(_NodalEffect):
     lower = (0.0,)
     upper = (1e8,)
     scale = (1e5,)
+    #: Fitted in ln(k) (:func:`fe_core.closure.fits.log_sized`): soft to nearly rigid is one search.
+    log_sizes = (True,)
     component = 2
 
     def __init__(self, model: ParametricModel, nodes: Sequence[int] | None = None, component: int | None = None):
