@@ -1,38 +1,57 @@
 """Example: a cylindrical aluminium panel of S8R shells, a CalculiX deck (route A on segment moduli).
 
-    python -m benchmarks.make.shell_panel          # data/examples/shell_panel/
+    python -m benchmarks.make.shell_panel          # data/examples/shell_panel/ (about 4 min on 2 busy cores)
 
-A panel of radius 0.4 m over a 90 degree arc, 0.5 m long, 3 mm thick, clamped along its straight edge at
-x = 0 (every node there, *BOUNDARY 1-6). Four segments (*ELSET): the root half (x < 0.25 m) and the tip
-half, each split at mid-arc; one material for all. Our own FE core has no shell element: the model is the
-deck, ccx assembles it.
+A panel of radius 0.4 m over a 90 degree arc, 0.5 m long, 3 mm thick, hung free on soft springs at four points
+of its straight edges (SPRING1 to ground in x, y and z, SUSPENSION_K: the suspension's rigid-body modes at 3-6 Hz, a
+bungee test set-up). Four segments (*ELSET): the half x < 0.25 m and the other, each split at mid-arc; one
+material for all. Our own FE core has no shell element: the model is the deck, ccx assembles it.
 
-``panel.inp`` is the model's mesh (``MODEL_MESH``: 12 x 12 cells). ``measured.csv`` is CalculiX's own FRF
-(``*STEADY STATE DYNAMICS``, modal superposition of 40 modes with ``*MODAL DAMPING, RAYLEIGH`` = the model
-file's a, b) of the same panel meshed twice as finely (``FINE_MESH``: 24 x 24; the natural frequencies
-differ by 0.085-0.108 % in the first three modes, see the printout) with the segments' moduli scaled by
-``1 + ALPHA_TRUE``, around the first three modes (ccx places 5 frequencies in each half-band 0.85-1.0 and
-1.0-1.15 times each natural frequency; repeated ones dropped: 30), 7 sensors, with 1 % multiplicative
-noise (seed 5). The first try, a flat panel with two blade stiffeners (S4 and S8R), was 0.3-0.7 % off its
-finer mesh (the T-junctions converge slowly) and is not kept.
+``panel.inp`` is the model's mesh (``MODEL_MESH``: 20 x 20 cells). ``measured.csv`` (and, without its noise,
+``exact.npz``) is the FRF of ccx's stiffness and mass matrices of the same panel meshed twice as finely
+(``FINE_MESH``: 40 x 40) with the segments' moduli scaled by ``1 + ALPHA_TRUE``, solved at each frequency
+(no modal truncation) with the model file's Rayleigh damping (``EXAMPLE_DAMPING``: 0.9-1.2 % of critical),
+at the frequencies of a 1 Hz grid within 0.9-1.1 times each of the first four flexible modes (``BAND``),
+7 sensors, with 1 % multiplicative noise (seed 5). The printout and ``truth.json`` say how far the model mesh
+is from the data mesh at the truth: ccx's natural frequencies, the noise-free FRF's chi-square per line in
+units of the noise, and the least-squares factors of the noise-free data against their 95 % intervals.
+
+Tried first and not kept: the panel clamped along x = 0 (12 x 12 against 24 x 24: natural frequencies 0.1 %
+apart; S8R converge like 1/n there, ccx's clamped shell being a clamped 3-D face with its edge singularity,
+so the 1 % noise on 210 amplitudes resolved the mesh difference and the intervals missed the truth), data
+from ccx's own *STEADY STATE DYNAMICS (40 modes: up to 3x off the direct solution in small channels of the
+free panel), and a flat panel with two blade stiffeners (0.3-0.7 % off its finer mesh).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from fe_core.io.calculix import read_eigenfrequencies, read_steady_state, run_ccx
+from fe_core.io.calculix import read_eigenfrequencies, run_ccx
 
 OUT = Path(__file__).resolve().parents[2] / "data" / "examples" / "shell_panel"
 ALPHA_TRUE = [-0.10, 0.15, 0.20, -0.15]
 SEGMENTS = ["ROOT_LOW", "ROOT_HIGH", "TIP_LOW", "TIP_HIGH"]
 NOISE, SEED = 0.01, 5
-MODEL_MESH, FINE_MESH = (12, 12), (24, 24)     # cells along the axis, around the arc
-DAMPING = (2.0, 2e-6)
+MODEL_MESH, FINE_MESH = (20, 20), (40, 40)     # cells along the axis, around the arc
+SUPPORT = "suspended"
+SUSPENSION_K = 250.0       # N/m per corner and direction: the suspension's rigid-body modes at 3-6 Hz
+#: where the springs hold the straight edges (axial fractions): no sensor or the excitation on a spring's node
+#: (ccx ties a spring's shell node through a knot, and loads it otherwise than route A's equal shares)
+SUSPENSION_AT = (0.25, 0.75)
+N_RIGID, N_BANDS = 6, 4    # the suspension's modes, then the panel's first four, measured around
+DAMPING = (2.0, 2e-6)      # Rayleigh a, b of route B's clamped panel (benchmarks/calculix_route_b.py)
+#: the example's Rayleigh a, b: 0.9-1.2 % of critical in its four measured modes (0.2-0.5 % with DAMPING put
+#: the half-power lines' slopes at 100-250 x a frequency difference: 0.014 % became 3 % in amplitude)
+EXAMPLE_DAMPING = (4.0, 2e-5)
+#: the measured frequencies: a grid of STEP_HZ within BAND times each flexible natural frequency of the data
+#: mesh (evenly stepped bands: the flows estimate the noise from second differences along frequency)
+BAND, STEP_HZ = (0.9, 1.1), 1.0
 L, R, ARC = 0.5, 0.4, np.pi / 2
 E, NU, RHO, T = 70e9, 0.33, 2700.0, 0.003
 #: Sensors (x, y, z, direction) and the excitation: points on both meshes.
@@ -41,8 +60,11 @@ SENSORS = [(0.5, 0.0, "z"), (0.5, 0.25, "z"), (0.5, 0.75, "y"), (1.0, 0.0, "z"),
 EXCITATION = (1.0, 1.0, "z")
 
 
-def panel(nx: int, ny: int, factors=None) -> tuple[str, dict]:
-    """(model cards of the deck, {(x, y, z) rounded: node id}): nx cells along the axis, ny around the arc."""
+def panel(nx: int, ny: int, factors=None, support: str = "clamped") -> tuple[str, dict]:
+    """(model cards of the deck, {(x, y, z) rounded: node id}): nx cells along the axis, ny around the arc.
+
+    ``support``: "clamped" (the straight edge at x = 0, *BOUNDARY 1-6; route B's panel) or "suspended"
+    (free, on soft springs to ground at four points of its straight edges, SUSPENSION_K in x, y and z: the example's)."""
     nodes, ids = [], {}
 
     def node(u, v):
@@ -69,9 +91,10 @@ def panel(nx: int, ny: int, factors=None) -> tuple[str, dict]:
         out.append(f"*ELSET, ELSET={s}")
         ids_ = sets[s]
         out += [", ".join(map(str, ids_[k:k + 12])) for k in range(0, len(ids_), 12)]
-    clamp = [i for (x, _, _), i in ids.items() if abs(x) < 1e-12]
-    out.append("*NSET, NSET=CLAMP")
-    out += [", ".join(map(str, clamp[k:k + 12])) for k in range(0, len(clamp), 12)]
+    if support == "clamped":
+        clamp = [i for (x, _, _), i in ids.items() if abs(x) < 1e-12]
+        out.append("*NSET, NSET=CLAMP")
+        out += [", ".join(map(str, clamp[k:k + 12])) for k in range(0, len(clamp), 12)]
     out += ["*NSET, NSET=TIP_CORNER", f"{node(1.0, 1.0)}"]
     if factors is None:
         out += ["*MATERIAL, NAME=ALU", "*ELASTIC", f"{E:.6g}, {NU}", "*DENSITY", f"{RHO}"]
@@ -83,7 +106,15 @@ def panel(nx: int, ny: int, factors=None) -> tuple[str, dict]:
             out += [f"*MATERIAL, NAME=ALU_{s}", "*ELASTIC", f"{E * (1 + f)!r}, {NU}", "*DENSITY", f"{RHO}"]
     for s, m in zip(SEGMENTS, mats):
         out += [f"*SHELL SECTION, ELSET={s}, MATERIAL={m}", f"{T}"]
-    out += ["*BOUNDARY", "CLAMP, 1, 6"]
+    if support == "clamped":
+        out += ["*BOUNDARY", "CLAMP, 1, 6"]
+    else:
+        corners = [node(u, v) for u in SUSPENSION_AT for v in (0.0, 1.0)]
+        out += ["*NSET, NSET=SUSPENSION", ", ".join(map(str, corners))]
+        for d in (1, 2, 3):                       # one grounded spring per corner and direction
+            out.append(f"*ELEMENT, TYPE=SPRING1, ELSET=SUSPENSION_{'XYZ'[d - 1]}")
+            out += [f"{len(elems) + 4 * (d - 1) + k + 1}, {c}" for k, c in enumerate(corners)]
+            out += [f"*SPRING, ELSET=SUSPENSION_{'XYZ'[d - 1]}", f"{d}", f"{SUSPENSION_K!r}"]
     return "\n".join(out) + "\n", ids
 
 
@@ -93,25 +124,6 @@ def point(u: float, v: float) -> tuple[float, float, float]:
 
 def _node_at(ids, p):
     return ids[p]
-
-
-def ccx_frf(model_cards: str, ids: dict, bands: list[tuple[float, float]], n_per_half: int, folder: Path):
-    """ccx's modal FRF at the sensors (complex, shape (p, n)) and its frequencies."""
-    sensors = [_node_at(ids, point(*s[:2])) for s in SENSORS]
-    f = _node_at(ids, point(*EXCITATION[:2]))
-    a, b = DAMPING
-    steps = ["*NSET, NSET=SENSORS", ", ".join(map(str, sensors)),
-             "*STEP", "*FREQUENCY, STORAGE=YES", "40", "*CLOAD", f"{f}, 3, 0.", "*END STEP"]
-    for lo, hi in bands:
-        steps += ["*STEP", "*STEADY STATE DYNAMICS", f"{lo!r}, {hi!r}, {n_per_half}, 1.",
-                  "*MODAL DAMPING, RAYLEIGH", f",,{a!r},{b!r}", "*CLOAD", f"{f}, 3, 1.",
-                  "*NODE PRINT, NSET=SENSORS", "U", "*END STEP"]
-    (folder / "frf.inp").write_text(model_cards + "\n".join(steps) + "\n")
-    run_ccx(folder, "frf", timeout=900)
-    freqs, disp = read_steady_state(folder / "frf.dat")
-    comp = {"x": 0, "y": 1, "z": 2}
-    H_ = np.column_stack([disp[n][:, comp[s[2]]] for n, s in zip(sensors, SENSORS)])
-    return freqs, H_
 
 
 def modes(model_cards: str, folder: Path, n: int = 8) -> np.ndarray:
@@ -139,37 +151,87 @@ direction = "z"
 """
 
 
-def main(out: Path = OUT) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    coarse, cids = panel(*MODEL_MESH)
-    (out / "panel.inp").write_text(coarse + "*STEP\n*FREQUENCY\n8\n*END STEP\n")
-    segs = "".join(f'\n[[segments]]\nset = "{s}"\nbounds = [-0.5, 0.5]\n' for s in SEGMENTS)
-    sens = "".join(f'\n[[sensors]]\nname = "{d} at {point(u, v)}"\nnode = {_node_at(cids, point(u, v))}\n'
+def check_model_mesh(out: Path, freqs, exact) -> dict:
+    """The model mesh against the data mesh at the truth: the noise-free data's residual per line in units
+    of the noise (chi-square per line), and the least-squares factors of the noise-free data against their
+    95 % intervals at 1 % noise (the bias the discretisation difference alone leaves)."""
+    from fe_core.inference.intervals import parameter_intervals
+    from fe_core.io import read_model
+
+    model = read_model(out / "model.toml")                     # route A: m + 1 ccx runs on the model mesh
+    ours = np.abs(model.frf(np.array(ALPHA_TRUE), freqs))
+    r = ours / np.abs(exact) - 1
+    fit = parameter_intervals(model, freqs, np.abs(exact), np.array(ALPHA_TRUE), -0.5, 0.5, noise=NOISE,
+                              max_jacobians=4).intervals
+    half = (fit.high - fit.low) / 2
+    bias = fit.estimate - np.array(ALPHA_TRUE)
+    return {"chi2_per_line_at_truth": float(np.mean((r / NOISE) ** 2)), "max_abs_relative_difference": float(
+        np.abs(r).max()), "noise_free_fit": fit.estimate.round(5).tolist(), "bias": bias.round(5).tolist(),
+            "interval_half_width_95": half.round(5).tolist(), "bias_over_half_width": (bias / half).round(3).tolist()}
+
+
+def write_model(folder: Path, mesh: tuple[int, int], factors=None, segments=SEGMENTS) -> None:
+    """panel.inp (the suspended panel, nominal moduli or ``factors``) and model.toml (route A on ``segments``,
+    SENSORS, the excitation at TIP_CORNER) in ``folder``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    cards, ids = panel(*mesh, factors=factors, support=SUPPORT)
+    (folder / "panel.inp").write_text(cards + "*STEP\n*FREQUENCY\n12\n*END STEP\n")
+    segs = "".join(f'\n[[segments]]\nset = "{s}"\nbounds = [-0.5, 0.5]\n' for s in segments)
+    sens = "".join(f'\n[[sensors]]\nname = "{d} at {point(u, v)}"\nnode = {_node_at(ids, point(u, v))}\n'
                    f'direction = "{d}"\n' for u, v, d in SENSORS)
-    (out / "model.toml").write_text(MODEL_TOML.format(a=DAMPING[0], b=DAMPING[1], segments=segs, sensors=sens))
+    (folder / "model.toml").write_text(MODEL_TOML.format(a=EXAMPLE_DAMPING[0], b=EXAMPLE_DAMPING[1],
+                                                       segments=segs, sensors=sens))
+
+
+def measured_frequencies(natural_hz) -> np.ndarray:
+    """The STEP_HZ grid's frequencies within BAND of any of the data mesh's flexible natural frequencies."""
+    grid = STEP_HZ * np.arange(1, int(BAND[1] * max(natural_hz) / STEP_HZ) + 2)
+    near = np.any([(grid >= BAND[0] * f) & (grid <= BAND[1] * f) for f in natural_hz], axis=0)
+    return grid[near]
+
+
+def main(out: Path = OUT) -> None:
+    from fe_core.io import read_model
+
+    write_model(out, MODEL_MESH)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        fine, fids = panel(*FINE_MESH, factors=ALPHA_TRUE)
-        coarse_truth, _ = panel(*MODEL_MESH, factors=ALPHA_TRUE)
-        f_fine = modes(fine, tmp)
-        f_coarse = modes(coarse_truth, tmp)
-        print("natural frequencies at the truth, fine mesh  :", np.round(f_fine, 2).tolist())
-        print("                                 model mesh :", np.round(f_coarse, 2).tolist())
-        print("difference (%):", np.round(100 * (f_coarse / f_fine - 1), 3).tolist())
-        bands = [(float(0.85 * f), float(1.15 * f)) for f in f_fine[:3]]
-        freqs, H_ = ccx_frf(fine, fids, bands, 5, tmp)
-    freqs, keep = np.unique(np.round(freqs, 6), return_index=True)   # ccx prints a natural frequency twice
-    H_ = H_[keep]
+        f_fine = modes(panel(*FINE_MESH, factors=ALPHA_TRUE, support=SUPPORT)[0], tmp, N_RIGID + N_BANDS + 2)
+        f_coarse = modes(panel(*MODEL_MESH, factors=ALPHA_TRUE, support=SUPPORT)[0], tmp, N_RIGID + N_BANDS + 2)
+        print("ccx's natural frequencies at the truth, data mesh:", np.round(f_fine, 3).tolist())
+        print("                                       model mesh:", np.round(f_coarse, 3).tolist())
+        print("difference (%):", np.round(100 * (f_coarse / f_fine - 1), 4).tolist())
+        freqs = measured_frequencies(f_fine[N_RIGID:N_RIGID + N_BANDS])
+        # ccx's matrices of the data mesh with the true moduli (route A on one segment: 2 ccx runs, kept out of
+        # the matrix cache), solved at each frequency (no modal truncation)
+        write_model(tmp / "fine", FINE_MESH, factors=ALPHA_TRUE, segments=SEGMENTS[:1])
+        cache = os.environ.get("FE_CALCULIX_CACHE")
+        os.environ["FE_CALCULIX_CACHE"] = str(tmp / "cache")
+        try:
+            H_ = read_model(tmp / "fine" / "model.toml").frf(np.zeros(1), freqs)   # Krylov: direct to 1e-10
+        finally:
+            if cache is None:
+                os.environ.pop("FE_CALCULIX_CACHE")
+            else:
+                os.environ["FE_CALCULIX_CACHE"] = cache
+    check = check_model_mesh(out, freqs, H_)
+    print(f"model mesh {MODEL_MESH} vs data mesh {FINE_MESH} at the truth, noise-free: chi-square per line "
+          f"{check['chi2_per_line_at_truth']:.4f} (the noise alone: 1), max |difference| "
+          f"{100 * check['max_abs_relative_difference']:.2f} %")
+    print("noise-free least-squares factors", check["noise_free_fit"], "bias", check["bias"],
+          "95 % half-widths", check["interval_half_width_95"], "bias / half-width", check["bias_over_half_width"])
     rng = np.random.default_rng(SEED)
     amp = np.abs(H_) * (1 + NOISE * rng.standard_normal(H_.shape))
     rows = ["sensor,frequency_hz,amplitude"]
     for k, f in enumerate(freqs):
         rows += [f"{j + 1},{float(f)!r},{float(amp[k, j])!r}" for j in range(H_.shape[1])]
     (out / "measured.csv").write_text("\n".join(rows) + "\n")
+    np.savez_compressed(out / "exact.npz", frequencies_hz=freqs, frf=H_)
     truth = {"parameters": ALPHA_TRUE, "names": SEGMENTS, "noise": NOISE, "seed": SEED,
-             "natural_frequencies_fine_hz": np.round(f_fine, 4).tolist(),
+             "model_mesh": list(MODEL_MESH), "data_mesh": list(FINE_MESH),
+             "natural_frequencies_data_mesh_hz": np.round(f_fine, 4).tolist(),
              "natural_frequencies_model_mesh_hz": np.round(f_coarse, 4).tolist(),
-             "frequencies_hz": np.round(freqs, 4).tolist()}
+             "frequencies_hz": np.round(freqs, 4).tolist(), "model_mesh_check": check}
     (out / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
     print(f"wrote {out}: {len(freqs)} frequencies x {H_.shape[1]} sensors")
 

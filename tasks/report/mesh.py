@@ -23,10 +23,9 @@ from matplotlib.colors import Normalize, to_rgba  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
-from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
-from fe_core.surface import boundary_faces, dof_arrows, face_normals  # noqa: E402
 from tasks.report.html import Section  # noqa: E402
+from tasks.report.view3d import AZIMUTH, DPI, ELEVATION, MeshView, _save  # noqa: E402,F401 (re-exported)
 
 __all__ = ["MeshView", "plot_mesh_segments", "plot_mesh_factors", "mesh_section",
            "SEGMENTS_PNG", "FACTORS_PNG"]
@@ -34,74 +33,8 @@ __all__ = ["MeshView", "plot_mesh_segments", "plot_mesh_factors", "mesh_section"
 REPO = Path(__file__).resolve().parents[2]
 SEGMENTS_PNG = "mesh_segments.png"
 FACTORS_PNG = "mesh_factors.png"
-DPI = 110
-#: Viewing angles (degrees) and the light's direction (from the viewer's upper left).
-ELEVATION, AZIMUTH = 24.0, -58.0
 REMAINDER_COLOR = "0.78"
 EXCITATION_STYLE = dict(marker="*", s=170, c="C3", edgecolors="k", linewidths=0.6)
-
-
-class MeshView:
-    """The visible outer surface of a model's mesh, computed once for several pictures.
-
-    Attributes
-    ----------
-    polygons : ndarray, shape (n_visible, 3 or 4, 3), m
-        Corner coordinates of the faces that look towards the viewer.
-    cell : ndarray, shape (n_visible,), int
-        The cell of each face.
-    shade : ndarray, shape (n_visible,)
-        Brightness factor in [0.45, 1] from the angle between the face and the light.
-    n_boundary : int
-        Boundary faces before back-face culling.
-    """
-
-    def __init__(self, model, elevation: float = ELEVATION, azimuth: float = AZIMUTH):
-        nodes = model.mesh.nodes
-        faces, owner = boundary_faces(nodes, model.mesh.cells)
-        normals = face_normals(nodes, faces)
-        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-        e, a = np.radians(elevation), np.radians(azimuth)
-        eye = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
-        visible = normals @ eye > 0.0
-        light = eye + np.array([-np.sin(a), np.cos(a), 0.0]) * 0.4 + np.array([0.0, 0.0, 0.5])
-        light /= np.linalg.norm(light)
-        self.elevation, self.azimuth = elevation, azimuth
-        self.n_boundary = faces.shape[0]
-        self.polygons = nodes[faces[visible]]
-        self.cell = owner[visible]
-        self.shade = 0.45 + 0.55 * np.clip(normals[visible] @ light, 0.0, 1.0)
-        self.lo, self.hi = nodes.min(axis=0), nodes.max(axis=0)
-
-    @property
-    def size(self) -> float:
-        """Largest extent of the model, m."""
-        return float(np.max(self.hi - self.lo))
-
-    def axes(self, fig: Figure, position, title: str):
-        ax = fig.add_subplot(*np.atleast_1d(position), projection="3d")
-        ax.set_proj_type("ortho")
-        ax.view_init(elev=self.elevation, azim=self.azimuth)
-        ax.computed_zorder = False  # markers stay above the surface (the painter would hide them)
-        span = np.maximum(self.hi - self.lo, 1e-3 * self.size)
-        pad = 0.08 * self.size
-        for setter, lo, hi in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), self.lo - pad, self.hi + pad):
-            setter(lo, hi)
-        ax.set_box_aspect(span + 2 * pad)  # equal scale on all three axes
-        ax.set_xlabel("x (m)", fontsize=8, labelpad=6)
-        ax.set_ylabel("y (m)", fontsize=8, labelpad=6)
-        ax.set_zlabel("z (m)", fontsize=8, labelpad=2)
-        ax.tick_params(labelsize=7)
-        ax.set_title(title, fontsize=10)
-        return ax
-
-    def draw(self, ax, rgba: np.ndarray) -> None:
-        """The visible faces in colours ``rgba`` (n_visible, 4), shaded."""
-        shaded = rgba.copy()
-        shaded[:, :3] *= self.shade[:, None]
-        poly = Poly3DCollection(self.polygons, facecolors=shaded, edgecolors=(0, 0, 0, 0.25), linewidths=0.15,
-                                zorder=1)
-        ax.add_collection3d(poly)
 
 
 def _segment_colors(n: int) -> list:
@@ -115,7 +48,7 @@ def _sensors_and_excitation(ax, model, view: MeshView) -> list:
     handles = []
     outputs = model.outputs.tocsc()
     for j, name in enumerate(model.sensor_names):
-        arrows = dof_arrows(model, outputs[:, j])
+        arrows = view.arrows(model, outputs[:, j])
         p, d = arrows.positions, arrows.directions
         ax.quiver(p[:, 0], p[:, 1], p[:, 2], d[:, 0], d[:, 1], d[:, 2], length=length, color="k", lw=1.4,
                   arrow_length_ratio=0.3, zorder=5)
@@ -125,7 +58,7 @@ def _sensors_and_excitation(ax, model, view: MeshView) -> list:
                 bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.7))
     handles.append(Line2D([], [], color="k", marker=r"$\rightarrow$", ms=10, ls="none",
                           label=f"sensor ({model.n_sensors}): measured direction"))
-    exc = dof_arrows(model, model.load)
+    exc = view.arrows(model, model.load)
     p, d = exc.positions, exc.directions
     ax.quiver(p[:, 0], p[:, 1], p[:, 2], d[:, 0], d[:, 1], d[:, 2], length=0.8 * length, color="C3", lw=1.6,
               arrow_length_ratio=0.35, zorder=5)
@@ -140,13 +73,12 @@ def plot_mesh_segments(model, path: Path, view: MeshView | None = None, title: s
     """The outer surface coloured by segment, the remainder grey, with sensors and excitation."""
     view = view or MeshView(model)
     fig = Figure(figsize=(9.0, 6.2))
-    ax = view.axes(fig, 111, title or f"Segments, sensors and excitation ({model.mesh.n_cells} cells)")
+    ax = view.axes(fig, 111, title or f"Segments, sensors and excitation ({view.n_cells} cells)")
     colors = _segment_colors(model.n_segments)
-    seg = np.asarray(model.cell_segment)[view.cell]
     rgba = np.array([to_rgba(colors[s]) if s >= 0 else to_rgba(REMAINDER_COLOR) for s in range(-1, model.n_segments)])
-    view.draw(ax, rgba[seg + 1])
+    view.paint(ax, rgba)
     handles = [Patch(color=colors[i], label=f"{i + 1}: {name}") for i, name in enumerate(model.segment_names)]
-    if np.any(np.asarray(model.cell_segment) < 0):
+    if np.any(view.cell_segments < 0):
         handles.append(Patch(color=REMAINDER_COLOR, label="remainder (fixed)"))
     handles += _sensors_and_excitation(ax, model, view)
     fig.legend(handles=handles, loc="center right", fontsize=8, frameon=False)
@@ -165,7 +97,7 @@ def plot_mesh_factors(model, alpha, path: Path, gamma=None, view: MeshView | Non
     if gamma is not None:
         factors["gamma (mass factor)"] = np.asarray(gamma, float)
     fig = Figure(figsize=(7.6 * len(factors), 5.6))
-    seg = np.asarray(model.cell_segment)[view.cell]
+    seg = view.segment
     for k, (label, values) in enumerate(factors.items()):
         symbol = label.split(" ")[0]
         ax = view.axes(fig, (1, len(factors), k + 1), f"Updated {label}: " +
@@ -174,7 +106,7 @@ def plot_mesh_factors(model, alpha, path: Path, gamma=None, view: MeshView | Non
         norm = Normalize(-top, top)
         cmap = colormaps["coolwarm"]
         rgba = np.vstack([to_rgba(REMAINDER_COLOR), cmap(norm(values))])
-        view.draw(ax, rgba[seg + 1])
+        view.paint(ax, rgba)
         bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.65, pad=0.08)
         remainder = "; grey: fixed remainder" if np.any(seg < 0) else ""
         bar.set_label(f"{symbol} (on the mesh: segment number: value){remainder}", fontsize=8)
@@ -199,13 +131,6 @@ def _segment_labels(ax, view: MeshView, seg: np.ndarray, labels: list[str]) -> N
                     bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="none", alpha=0.75))
 
 
-def _save(fig: Figure, path: Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI, bbox_inches="tight", pad_inches=0.15)  # flat structures leave empty bands
-    return path
-
-
 def mesh_section(data, out: Path) -> Section:
     """The mesh pictures of a run (or one line saying why there are none)."""
     from tasks.model_vtu import VTU_NAME, factors_from_parameters
@@ -213,28 +138,46 @@ def mesh_section(data, out: Path) -> Section:
     title = "Mesh, segments, sensors and updated factors"
     name = data.config.get("model", "three_plate")
     model = data.model
-    if model.mesh is None:
+    deck = getattr(model, "deck_view", None)          # a solver deck's mesh (fe_core.io.calculix.vtu)
+    if model.mesh is None and deck is None:
         return Section(title=title, notes=[f"No mesh pictures: the model {name} is given as matrices (no node "
                                            "coordinates or cells to draw), and no model.vtu is written for it."])
     _, theta, _ = data.best()
     alpha, gamma = factors_from_parameters(dict(zip(data.names, theta)), model)
-    view = MeshView(model)
+    if deck is not None:
+        from tasks.report.deck_mesh import MODES_PNG, DeckMeshView, plot_mode_shapes
+
+        view = DeckMeshView(model)
+    else:
+        view = MeshView(model)
     fig1 = plot_mesh_segments(model, out / SEGMENTS_PNG, view)
     fig2 = plot_mesh_factors(model, alpha, out / FACTORS_PNG, gamma, view)
-    cells = np.bincount(np.asarray(model.cell_segment) + 1, minlength=model.n_segments + 1)
+    cells = np.bincount(view.cell_segments + 1, minlength=model.n_segments + 1)
     table = pd.DataFrame({"segment": [f"{i + 1}: {s}" for i, s in enumerate(model.segment_names)],
                           "cells": cells[1:], "alpha (updated)": alpha})
     if gamma is not None:
         table["gamma (updated)"] = gamma
     vtu = data.root / VTU_NAME
-    paragraphs = [f"{model.mesh.n_cells} cells, {model.mesh.n_nodes} nodes, {model.n_dofs} free DOFs; "
-                  f"{int(cells[0])} cells in the fixed remainder. The pictures show the outer surface "
-                  f"({view.n_boundary} boundary faces, those facing the viewer drawn)."]
+    figures = [(fig1, "Outer surface by segment; sensors (arrows along the measured direction) and the excitation "
+                      "(red stars)"),
+               (fig2, "Updated factors per segment; the colour bar marks each segment's value")]
+    if deck is None:
+        paragraphs = [f"{model.mesh.n_cells} cells, {model.mesh.n_nodes} nodes, {model.n_dofs} free DOFs; "
+                      f"{int(cells[0])} cells in the fixed remainder. The pictures show the outer surface "
+                      f"({view.n_boundary} boundary faces, those facing the viewer drawn)."]
+    else:
+        skipped = ", ".join(f"{n} {t}" for t, n in sorted(view.skipped.items()))
+        paragraphs = [f"The solver deck's mesh: {view.n_cells} cells ({view.n_boundary} shell or solid-surface "
+                      f"polygons, {len(view.lines)} beam lines), {len(deck.node_ids)} nodes, {model.n_dofs} DOFs "
+                      f"in ccx's matrices; {int(cells[0])} cells in no segment (the fixed remainder)"
+                      + (f"; not drawn: {skipped} (no cell type to draw them as)." if skipped else ".")]
+        low = float(data.frequencies.min()) if len(data.measured) else 0.0
+        fig3, freqs = plot_mode_shapes(model, view, alpha, out / MODES_PNG, gamma, lowest_hz=0.5 * low)
+        figures.append((fig3, "Mode shapes of the updated model from half the lowest measured frequency up ("
+                              + ", ".join(f"{f:.2f}" for f in freqs) + " Hz), on the deck's nodes (a shell "
+                              "node: the mean of ccx's expanded nodes)"))
     paragraphs.append(f"{VTU_NAME} in the run folder holds the mesh with the cell data segment, alpha"
                       f"{' and gamma' if gamma is not None else ''} and the first modes of the updated model as "
                       "point data, for ParaView." if vtu.exists() else
                       f"No {VTU_NAME} in the run folder (it is written when a run finishes).")
-    return Section(title=title, paragraphs=paragraphs, tables=[("Segments", table)],
-                   figures=[(fig1, "Outer surface by segment; sensors (arrows along the measured direction) and "
-                                   "the excitation (red stars)"),
-                            (fig2, "Updated factors per segment; the colour bar marks each segment's value")])
+    return Section(title=title, paragraphs=paragraphs, tables=[("Segments", table)], figures=figures)
