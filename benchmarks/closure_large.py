@@ -65,8 +65,9 @@ def run(name: str) -> dict:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.closure_large", description=__doc__.split("\n\n")[0])
-    p.add_argument("cases", nargs="*", help=f"case names ({', '.join(CASES)}); all by default")
+    p = argparse.ArgumentParser(prog="python -m benchmarks.closure_large",  # argparse formats help with %
+                                description=__doc__.split("\n\n")[0].replace("%", "%%"))
+    p.add_argument("cases", nargs="*", help=f"case names ({', '.join(CASES)}); all by default".replace("%", "%%"))
     args = p.parse_args(argv)
     unknown = [c for c in args.cases if c not in CASES]
     if unknown:

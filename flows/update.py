@@ -71,7 +71,7 @@ def _run_parser() -> argparse.ArgumentParser:
         epilog="Settings come from the defaults, then --config, then these flags. See data/update.example.toml. "
                "Measured modes (UFF dataset 55 or a modal CSV), or FRFs with --identify-modes LO-HI, take the modal "
                "update, with its own options --frequency-sigma, --shape-sigma, --no-shapes, --mac-threshold, "
-               "--identify-modes, --pol-order, --starts (docs/modal-data.md).",
+               "--identify-modes, --pol-order, --starts, --true-parameters (docs/modal-data.md).",
     )
     p.add_argument("--config", metavar="PATH", help="TOML file with any of the settings (data/update.example.toml)")
     p.add_argument("--model", metavar="NAME|PATH", help="FE model: three_plate (default, the benchmark) or a "
