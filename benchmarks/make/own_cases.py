@@ -13,8 +13,9 @@ Sizes: a point mass of s of the structure's mass; a mount (a spring to ground al
 clamped structure's static stiffness at that node and axis; a damaged patch (the cells within 2 rings of a node,
 the closure's ``patch ... r2``) whose stiffness is lowered by ``beta = -s V_seg / V_patch``, i.e. the segment holding
 most of the patch (what the model updates) loses s of its volume-weighted stiffness, concentrated in the patch. Measured: scikit-fem's direct FRF of the structure with the effect, at the
-truth's alpha, at 0.8-1.2 times (9 lines) each of the first four modes of the structure with the effect (the
-cantilever: its first three bending modes in y, as ``matrix_example``), 0.5 % multiplicative noise.
+truth's alpha, at 0.8-1.2 times (9 lines) each of the first four modes of the structure with the effect, windows
+of close modes merged into one evenly stepped band (:func:`lines`; the cantilever: its first three bending modes
+in y, as ``matrix_example``), 0.5 % multiplicative noise.
 """
 
 from __future__ import annotations
@@ -79,6 +80,20 @@ def _cantilever_case(s, fem, kind, node, value):
     return mx.skfem_frf(fem, mx.ALPHA_TRUE, freqs), freqs
 
 
+def lines(modes_hz) -> np.ndarray:
+    """0.8-1.2 times each mode in steps of 0.05 (``WINDOW``); windows that overlap (close modes) become one
+    evenly stepped band at the lower mode's step, so every band has an even step (the closure estimates the noise
+    from second differences along evenly stepped bands: ``fe_core.inference.residual.frequency_bands``)."""
+    bands = []
+    for f in np.sort(np.asarray(modes_hz, float)):
+        lo, hi, step = WINDOW[0] * f, WINDOW[-1] * f, (WINDOW[1] - WINDOW[0]) * f
+        if bands and lo <= bands[-1][1]:
+            bands[-1][1] = max(bands[-1][1], hi)
+        else:
+            bands.append([lo, hi, step])
+    return np.concatenate([np.round(lo + step * np.arange(round((hi - lo) / step) + 1), 1) for lo, hi, step in bands])
+
+
 def _size(kind, share, s, fem, node) -> float:
     """The effect's value for a share s (module docstring)."""
     if s["name"] == "cantilever":
@@ -140,7 +155,7 @@ def main() -> int:
         else:
             effect = {"kind": kind, "node": node, "value": value}
             K, M = st.matrices(fem, s["alpha"], effect, s)
-            freqs = np.unique(np.round(np.concatenate([f * np.asarray(WINDOW) for f in st.modes_hz(fem, K, M, 4)]), 1))
+            freqs = lines(st.modes_hz(fem, K, M, 4))
             Z = st.frf(fem, K, M, s["damping"], freqs)
         amp = np.abs(Z) * (1 + NOISE * np.random.default_rng(seed).standard_normal(Z.shape))
         file = f"{case.replace('%', 'pc')}.csv"
