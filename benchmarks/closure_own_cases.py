@@ -64,7 +64,8 @@ def score(case: str, truth: dict, closure: dict, geometry) -> dict:
     loc_err = float(np.linalg.norm(np.asarray(at) - t["xyz_m"]) / size) if at is not None else np.nan
     value = first.get("value")
     size_err = abs(float(value) - t["value"]) / abs(t["value"]) if isinstance(value, (int, float)) else np.nan
-    kind_right = kind == t["effect"]
+    # The closure names the spring along z "grounded_spring" (its default axis); the truth names the axis.
+    kind_right = kind == t["effect"] or (t["effect"] == "grounded_spring_z" and kind == "grounded_spring")
     ok = closure.get("verdict") == "explained" and kind_right and loc_err <= LOCATED and size_err <= SIZED
     why = [w for w, bad in (("verdict", closure.get("verdict") != "explained"), ("kind", not kind_right),
                             ("location", not loc_err <= LOCATED), ("size", not size_err <= SIZED)) if bad]
