@@ -1,0 +1,123 @@
+"""Wall time of the closure on the 34k-DOF tet10 bracket with ~750 lines (issue 28), by stage, with counts.
+
+    python -m benchmarks.make.bracket_mass                       # the data, once
+    nice -n 10 python -m benchmarks.closure_speed                # the closure as fe_core.closure.close_loop runs it
+    nice -n 10 python -m benchmarks.closure_speed --profile out.prof --restarts 0
+
+The closure starts from the true factors (what a good update returns; the flow's ``--close-loop`` starts
+from the update's result). It prints the wall and CPU time of the baseline (alpha-only fit and restarts),
+the screens and the checks, how many sparse factorisations of K and Krylov spaces were made and what they
+cost, and the outcome (effect, node, mass). ``--path`` chooses the solver path (:mod:`fe_core.closure.fast`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import json
+import os
+import pstats
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parents[1] / "data" / "examples" / "bracket"
+
+
+class Counter:
+    """Wraps a module function, counting its calls and their wall time."""
+
+    def __init__(self, module, name):
+        self.module, self.name, self.calls, self.seconds = module, name, 0, 0.0
+        self.original = getattr(module, name)
+
+        def wrapped(*args, **kwargs):
+            t = time.perf_counter()
+            try:
+                return self.original(*args, **kwargs)
+            finally:
+                self.calls += 1
+                self.seconds += time.perf_counter() - t
+
+        setattr(module, name, wrapped)
+
+    def __str__(self):
+        return f"{self.name}: {self.calls} calls, {self.seconds:.1f} s"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.closure_speed", description=__doc__.split("\n\n")[0])
+    p.add_argument("--measured", default=str(HERE / "measured_mass.csv"))
+    p.add_argument("--model", default=str(HERE / "model.toml"))
+    p.add_argument("--restarts", type=int, default=8, help="baseline restarts (the flow's default: 8)")
+    p.add_argument("--max-effects", type=int, default=1)
+    p.add_argument("--per-type", type=int, default=1, help="the flow's default: 1")
+    p.add_argument("--effects", default=None, help="comma-separated effect kinds (default: the whole library)")
+    p.add_argument("--path", choices=("fast", "plain"), default="fast")
+    p.add_argument("--profile", metavar="FILE", help="write cProfile stats and print the top 25 by cumulative time")
+    p.add_argument("--json", metavar="FILE", help="append the result as a JSON line")
+    args = p.parse_args(argv)
+
+    from fe_core.closure import close_loop
+    from fe_core.closure.effects import build_library
+    from fe_core.solvers import adjoint, frf
+    from flows.problem import load_model
+    from tasks.io.measured import read_measured
+
+    os.environ.setdefault("MRGP_CLOSURE_PATH", args.path)
+    model = load_model(args.model)[0]
+    measured = read_measured(args.measured)
+    truth = json.loads((HERE / "truth_mass.json").read_text())
+    freqs, u = measured.frequencies_hz, measured.amplitude
+    library = build_library(model)
+    if args.effects:
+        kinds = {k.strip() for k in args.effects.split(",")}
+        library = [e for e in library if e.kind in kinds]
+    counters = [Counter(frf, "spd_solver"), Counter(adjoint, "krylov_space")]
+    if args.path == "fast":
+        from fe_core.closure import fast
+        counters.append(Counter(fast, "_factor"))
+    print(f"model: {model.n_dofs if hasattr(model, 'n_dofs') else '?'} DOFs; {freqs.size} lines x {u.shape[1]} "
+          f"sensors = {u.size} values; {len(library)} effect kinds; path {args.path}; restarts {args.restarts}")
+    prof = cProfile.Profile() if args.profile else None
+    t0, c0 = time.perf_counter(), time.process_time()
+    if prof:
+        prof.enable()
+    ctx = _path(args.path)
+    with ctx:
+        res = close_loop(model, freqs, u, truth["alpha"], library=library, restarts=args.restarts,
+                         per_type=args.per_type, max_effects=args.max_effects)
+    if prof:
+        prof.disable()
+        prof.dump_stats(args.profile)
+        pstats.Stats(args.profile).sort_stats("cumulative").print_stats(25)
+        pstats.Stats(args.profile).sort_stats("tottime").print_stats(15)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    chosen = res.steps[0] if res.steps else None
+    found = "-" if chosen is None else f"{chosen.effect} at {chosen.location} = {chosen.fit.values[0]:.4g}"
+    print(f"closure: {wall:.1f} s wall, {cpu:.1f} s CPU; stages {', '.join(f'{k} {v:.1f} s' for k, v in res.seconds.items())}")
+    for c in counters:
+        print(f"  {c}")
+    print(f"verdict {res.verdict}; found {found}; truth {truth['mass_kg']:.4g} kg at node {truth['node']}")
+    print(f"rss before {res.baseline.rss:.6g}, after {res.final.rss:.6g}")
+    if args.json:
+        with open(args.json, "a") as fh:
+            fh.write(json.dumps({"path": args.path, "restarts": args.restarts, "wall_s": wall, "cpu_s": cpu,
+                                 "stages": res.seconds, "verdict": res.verdict, "found": found,
+                                 "rss_before": res.baseline.rss, "rss_after": res.final.rss,
+                                 "alpha_after": [float(a) for a in res.final.alpha],
+                                 "counts": {c.name: [c.calls, c.seconds] for c in counters}}) + "\n")
+    return 0
+
+
+def _path(name):
+    import contextlib
+    if name == "plain":
+        return contextlib.nullcontext()
+    from fe_core.closure import fast
+    return fast.enabled()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
