@@ -1,0 +1,249 @@
+"""The closure's least-squares fits on a reduced model that grows with the fit (issue 28: speed on real meshes).
+
+A fit of the plain path (:func:`fe_core.closure.fits.fit_update`) builds, at every point the optimiser
+asks for, a new Krylov space of the load and the sensor loads: one factorisation of ``K(theta)`` and
+about ten block solves, 10-20 times per fit, for the baseline, every restart, every candidate's check
+and every move. Here the fit runs on a Galerkin projection instead, in rounds:
+
+1. the full space ``V_k`` at the round's start ``theta_k`` (one FE evaluation, as the plain path's
+   first) is added to the basis ``V`` (orthonormal; the segments' stiffness, the mass, the load and
+   the outputs projected once per basis);
+2. the same ``fit_update`` runs with every evaluation on ``V``: ``K(theta)`` and ``M(theta)`` reduced
+   (the segments' factors, the effects' terms projected through their few rows), a small generalised
+   eigenproblem, and the exact derivatives of the reduced model (milliseconds, no factorisation);
+3. at its optimum ``theta_{k+1}`` the full space is built again; if the reduced and the full ``ln|Z|``
+   agree there to ``AGREE`` (1e-6) the fit ends, with the full model's residual at ``theta_{k+1}``;
+   otherwise the round repeats from ``theta_{k+1}`` with that space added.
+
+A basis that holds the full space at a point reproduces there the full model's receptance and its
+first derivatives (input and output spaces in the projection: Baur, Beattie, Feng & Gugercin 2011),
+so every round starts with the full model's value and gradient, and the fit ends at a point whose
+full residual the reduced model predicted to 1e-6 in ``ln|Z|``: the plain fit's optimum to the
+optimiser's tolerance (``tests/fe_core/test_closure_fast.py`` compares both paths' fits). A fit that
+has not agreed after ``MAX_ROUNDS`` rounds finishes on the plain path from where it got to.
+
+:func:`enabled` switches the closure's fits (baseline, restarts, checks, moves, swaps) to this path
+for a block of code; :func:`fit_update` is the fit itself, with ``fits.fit_update``'s signature.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from ..solvers.adjoint import ReducedResponse
+from . import fits
+from .effects import LinearisedResponse, extended_matrices, sensor_gain
+from .effects.extended import segment_stiffness
+
+__all__ = ["fit_update", "enabled", "ReducedBasis", "AGREE", "MAX_ROUNDS"]
+
+log = logging.getLogger(__name__)
+
+#: Largest |ln|Z_reduced| - ln|Z_full|| at a fit's end for the reduced fit to stand.
+AGREE = 1e-6
+#: Rounds (full evaluations that enlarge the basis) before the plain path takes over.
+MAX_ROUNDS = 6
+
+_PLAIN_FIT = fits.fit_update
+
+
+class ReducedBasis:
+    """An orthonormal basis V of full fields and the model's matrices projected on it."""
+
+    def __init__(self, model, freqs_hz):
+        self.model = model
+        self.freqs_hz = np.asarray(freqs_hz, float)
+        self.V = np.zeros((model.stiffness(np.zeros(model.n_segments)).shape[0], 0))
+        self.segments: list[np.ndarray] = []
+        self.fixed = None
+
+    def add(self, W: np.ndarray):
+        """Enlarge the basis by the columns of W (orthogonalised twice, rank-revealing) and reproject."""
+        V = self.V
+        X = np.array(W, dtype=float, copy=True)
+        for _ in range(2):
+            X -= V @ (V.T @ X)
+        q, r, _ = sla.qr(X, mode="economic", pivoting=True)
+        d = np.abs(np.diag(r))
+        keep = int(np.sum(d > 1e-10 * max(1.0, d.max(initial=0.0))))
+        self.V = np.hstack([V, q[:, :keep]])
+        self._project()
+
+    def _project(self):
+        model, V = self.model, self.V
+        m = model.n_segments
+        self.segments = [V.T @ (segment_stiffness(model, i) @ V) for i in range(m)]
+        K0, M, _, _ = extended_matrices(model, np.zeros(m))
+        self.fixed = V.T @ (K0 @ V) - sum(self.segments)  # K(alpha) = fixed + sum (1 + alpha_i) K_i
+        self.mass = V.T @ (M @ V)
+        self.load = V.T @ model.combined_load()
+        self.outputs = np.asarray(sp.csc_matrix(model.outputs).T @ V).T  # (d, n_s)
+
+    def project(self, A) -> np.ndarray:
+        """``V^T A V`` of a sparse change through its non-empty rows."""
+        A = sp.csr_matrix(A)
+        rows = np.flatnonzero(np.diff(A.indptr))
+        if rows.size == 0:
+            return np.zeros((self.V.shape[1],) * 2)
+        return self.V[rows].T @ (A[rows] @ self.V)
+
+
+class _ReducedModal(ReducedResponse):
+    """:class:`ReducedResponse` on a given basis: the same modal algebra, no Krylov space."""
+
+    def __init__(self, basis: ReducedBasis, Kr, Mr, a, b, omegas, gain):
+        self.basis = basis
+        self.omegas = w = np.asarray(omegas, float)
+        self.a, self.b = float(a), float(b)
+        self.gain = np.asarray(gain, float)
+        mu, phi = sla.eigh(0.5 * (Kr + Kr.T), 0.5 * (Mr + Mr.T))
+        self.phi, self.mu = phi, mu
+        lam = (w**2 - 1j * w * self.a) / (1.0 + 1j * w * self.b)
+        self.g = 1.0 / ((1.0 + 1j * w * self.b)[:, None] * (mu[None, :] - lam[:, None]))
+        self.left = basis.outputs.T @ phi  # (n_s, m)
+        self.right = phi.T @ basis.load
+        self.Z = np.einsum("sm,pm,m->ps", self.left, self.g, self.right)
+        self._u = self.left[None, :, :] * self.g[:, None, :]
+        self._v = self.g * self.right[None, :]
+
+    def project(self, A) -> np.ndarray:
+        """``W^T A W`` (modal coordinates) of a sparse change, through the basis."""
+        return self.phi.T @ self.basis.project(A) @ self.phi
+
+
+class _ReducedLinearised(LinearisedResponse):
+    """:class:`LinearisedResponse` evaluated on a :class:`ReducedBasis` (same interface, no FE solve)."""
+
+    def __init__(self, basis: ReducedBasis, model, alpha, freqs_hz, applied=()):
+        self.model = model
+        self.alpha = np.asarray(alpha, float)
+        self.freqs_hz = np.asarray(freqs_hz, float)
+        self.omegas = 2 * np.pi * self.freqs_hz
+        self.applied = list(applied)
+        Kr = basis.fixed + sum((1.0 + a) * k for a, k in zip(self.alpha, basis.segments))
+        Mr = basis.mass.copy()
+        a, b = model.damping
+        for item in self.applied:
+            t = item.terms(self.alpha)
+            if t.gain is not None:
+                continue
+            if t.stiffness is not None:
+                Kr = Kr + basis.project(t.stiffness)
+            if t.mass is not None:
+                Mr = Mr + basis.project(t.mass)
+            a += t.damping_a
+            b += t.damping_b
+        self.a, self.b, self.basis = a, b, basis
+        self.gain = sensor_gain(model, self.alpha, self.applied)
+        self.reduced = _ReducedModal(basis, Kr, Mr, a, b, self.omegas, self.gain)
+        self.Z = self.reduced.Z
+
+    def alpha_derivatives(self) -> np.ndarray:
+        cols = []
+        for i in range(self.model.n_segments):
+            dK = self.basis.segments[i]
+            for item in self.applied:
+                extra = item.effect.alpha_derivative(self.alpha, item.location, item.values, i)
+                if extra is not None and extra.stiffness is not None:
+                    dK = dK + self.basis.project(extra.stiffness)
+            phi = self.reduced.phi
+            cols.append(self.reduced.dlog(dK=phi.T @ dK @ phi).ravel())
+        return np.column_stack(cols)
+
+
+@contextlib.contextmanager
+def _responses(factory):
+    """``fits.fit_update`` evaluating through ``factory`` instead of a full Krylov space, for a block."""
+    saved = fits.LinearisedResponse
+    fits.LinearisedResponse = factory
+    try:
+        yield
+    finally:
+        fits.LinearisedResponse = saved
+
+
+def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, value0=None, *,
+               max_evaluations: int = 600, tol: float = 1e-8, alpha_bounds=fits.ALPHA_BOUNDS, prior=(),
+               jacobian: str = "exact") -> fits.Fit:
+    """:func:`fe_core.closure.fits.fit_update` in rounds on a growing reduced model (the module's docstring).
+
+    Same arguments and result; ``Fit.evaluations`` counts the full FE evaluations (one per round),
+    ``Fit.message`` adds the rounds and the basis size.
+    """
+    if jacobian != "exact":
+        return _PLAIN_FIT(model, freqs_hz, amplitude, alpha0, effect, location, value0, max_evaluations=max_evaluations,
+                          tol=tol, alpha_bounds=alpha_bounds, prior=prior, jacobian=jacobian)
+    t0 = time.perf_counter()
+    u = np.asarray(amplitude, float)
+    freqs = np.asarray(freqs_hz, float)
+    basis = ReducedBasis(model, freqs)
+    alpha, value, applied = np.asarray(alpha0, float), value0, list(prior)
+    full = LinearisedResponse(model, alpha, freqs, _with(applied, effect, location, value))
+    reduced_evals = 0
+    fit = None
+    for k in range(1, MAX_ROUNDS + 1):
+        basis.add(full.reduced.W)
+        count = [0]
+
+        def factory(model_, alpha_, freqs_, applied_=()):
+            count[0] += 1
+            return _ReducedLinearised(basis, model_, alpha_, freqs_, applied_)
+
+        with _responses(factory):
+            fit = _PLAIN_FIT(model, freqs, u, alpha, effect, location, value, max_evaluations=max_evaluations,
+                             tol=tol, alpha_bounds=alpha_bounds, prior=applied)
+        reduced_evals += count[0]
+        alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
+        full = LinearisedResponse(model, alpha, freqs, fit.applied)
+        gap = float(np.max(np.abs(np.log(full.amplitude) - np.log(fit.model_amplitude))))
+        log.debug("reduced fit round %d: basis %d, rss %.6g, gap to the full model %.2e", k, basis.V.shape[1],
+                  fit.rss, gap)
+        if gap <= AGREE:
+            r = fits.log_residual(full.amplitude, u)
+            fit.residual, fit.model_amplitude = r, np.exp(r) * u
+            fit.evaluations = k + 1
+            fit.seconds = time.perf_counter() - t0
+            fit.message += f" (reduced model: {k} round(s), {reduced_evals} reduced evaluations, basis {basis.V.shape[1]})"
+            return fit
+    log.info("reduced fit did not agree with the full model after %d rounds: the plain fit finishes it", MAX_ROUNDS)
+    plain = _PLAIN_FIT(model, freqs, u, alpha, effect, location, value, max_evaluations=max_evaluations, tol=tol,
+                       alpha_bounds=alpha_bounds, prior=applied)
+    plain.evaluations += MAX_ROUNDS + 1
+    plain.seconds = time.perf_counter() - t0
+    return plain
+
+
+def _with(applied, effect, location, value):
+    from .effects import Applied
+
+    if effect is None:
+        return list(applied)
+    v = np.zeros(effect.n_parameters) if value is None else np.atleast_1d(np.asarray(value, float))
+    return list(applied) + [Applied(effect, location, v)]
+
+
+#: Modules whose ``fit_update`` the closure calls through their own name.
+_USERS = ("fe_core.closure.fits", "fe_core.closure.screening", "fe_core.closure.selection")
+
+
+@contextlib.contextmanager
+def enabled():
+    """Within the block, the closure's fits (``fit_update`` as the fits, screening and selection modules
+    call it) run on the reduced model; the plain path is restored after."""
+    import importlib
+
+    mods = [importlib.import_module(name) for name in _USERS]
+    saved = [m.fit_update for m in mods]
+    for m in mods:
+        m.fit_update = fit_update
+    try:
+        yield
+    finally:
+        for m, f in zip(mods, saved):
+            m.fit_update = f
