@@ -23,7 +23,9 @@ optimiser's tolerance (``tests/fe_core/test_closure_fast.py`` compares both path
 has not agreed after ``MAX_ROUNDS`` rounds finishes on the plain path from where it got to.
 
 :func:`enabled` switches the closure's fits (baseline, restarts, checks, moves, swaps) to this path
-for a block of code; :func:`fit_update` is the fit itself, with ``fits.fit_update``'s signature.
+for a block of code, :func:`install` (or ``MRGP_CLOSURE_FAST=1`` in the environment, which the flow's
+worker processes inherit) for the process; :func:`fit_update` is the fit itself, with
+``fits.fit_update``'s signature.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ from . import fits
 from .effects import LinearisedResponse, extended_matrices, sensor_gain
 from .effects.extended import segment_stiffness
 
-__all__ = ["fit_update", "enabled", "ReducedBasis", "AGREE", "MAX_ROUNDS"]
+__all__ = ["fit_update", "enabled", "install", "ReducedBasis", "AGREE", "MAX_ROUNDS"]
 
 log = logging.getLogger(__name__)
 
@@ -230,6 +232,15 @@ def _with(applied, effect, location, value):
 
 #: Modules whose ``fit_update`` the closure calls through their own name.
 _USERS = ("fe_core.closure.fits", "fe_core.closure.screening", "fe_core.closure.selection")
+
+
+def install():
+    """Switch the closure's fits to the reduced model for the rest of the process (``MRGP_CLOSURE_FAST=1``
+    does it when :mod:`fe_core.closure` is imported, in the flow's worker processes too)."""
+    import importlib
+
+    for name in _USERS:
+        importlib.import_module(name).fit_update = fit_update
 
 
 @contextlib.contextmanager
