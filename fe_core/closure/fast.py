@@ -186,7 +186,7 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
     freqs = np.asarray(freqs_hz, float)
     basis = ReducedBasis(model, freqs)
     alpha, value, applied = np.asarray(alpha0, float), value0, list(prior)
-    full = LinearisedResponse(model, alpha, freqs, _with(applied, effect, location, value))
+    full = full_response(model, alpha, freqs, _with(applied, effect, location, value))
     reduced_evals = 0
     fit = None
     for k in range(1, MAX_ROUNDS + 1):
@@ -202,7 +202,7 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
                              tol=tol, alpha_bounds=alpha_bounds, prior=applied)
         reduced_evals += count[0]
         alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
-        full = LinearisedResponse(model, alpha, freqs, fit.applied)
+        full = full_response(model, alpha, freqs, fit.applied)
         gap = float(np.max(np.abs(np.log(full.amplitude) - np.log(fit.model_amplitude))))
         log.debug("reduced fit round %d: basis %d, rss %.6g, gap to the full model %.2e", k, basis.V.shape[1],
                   fit.rss, gap)
@@ -219,6 +219,28 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
     plain.evaluations += MAX_ROUNDS + 1
     plain.seconds = time.perf_counter() - t0
     return plain
+
+
+#: The last full evaluations (key -> LinearisedResponse): a check's relocation screen is linearised at the
+#: point its fit ended, where the fit's last round built the same full space.
+_FULL: dict = {}
+_FULL_SIZE = 2
+
+
+def _key(model, alpha, freqs, applied) -> tuple:
+    return (id(model), np.asarray(alpha, float).tobytes(), np.asarray(freqs, float).tobytes(),
+            tuple((a.effect.kind, a.location, np.asarray(a.values, float).tobytes()) for a in applied))
+
+
+def full_response(model, alpha, freqs_hz, applied=()) -> LinearisedResponse:
+    """:class:`LinearisedResponse` (a full Krylov space), the same object again for the same point."""
+    key = _key(model, alpha, freqs_hz, applied)
+    held = _FULL.get(key)
+    if held is None or held.model is not model:
+        while len(_FULL) >= _FULL_SIZE:
+            _FULL.pop(next(iter(_FULL)))
+        _FULL[key] = held = LinearisedResponse(model, alpha, freqs_hz, applied)
+    return held
 
 
 def _with(applied, effect, location, value):
@@ -241,6 +263,7 @@ def install():
 
     for name in _USERS:
         importlib.import_module(name).fit_update = fit_update
+    importlib.import_module("fe_core.closure.screening").LinearisedResponse = full_response
 
 
 @contextlib.contextmanager
@@ -251,10 +274,15 @@ def enabled():
 
     mods = [importlib.import_module(name) for name in _USERS]
     saved = [m.fit_update for m in mods]
+    screening = importlib.import_module("fe_core.closure.screening")
+    saved_response = screening.LinearisedResponse
     for m in mods:
         m.fit_update = fit_update
+    screening.LinearisedResponse = full_response
     try:
         yield
     finally:
         for m, f in zip(mods, saved):
             m.fit_update = f
+        screening.LinearisedResponse = saved_response
+        _FULL.clear()
