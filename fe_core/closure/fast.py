@@ -5,19 +5,21 @@ asks for, a new Krylov space of the load and the sensor loads: one factorisation
 about ten block solves, 10-20 times per fit, for the baseline, every restart, every candidate's check
 and every move. Here the fit runs on a Galerkin projection instead, in rounds:
 
-1. the full space ``V_k`` at the round's start ``theta_k`` (one FE evaluation, as the plain path's
-   first) is added to the basis ``V`` (orthonormal; the segments' stiffness, the mass, the load and
-   the outputs projected once per basis);
+1. the basis ``V`` (orthonormal; the segments' stiffness, the mass, the load and the outputs projected
+   once per basis) is shared by the fits of one model and one set of lines and holds the full spaces
+   of the points earlier rounds ended at (the first fit starts it with the space at its start);
 2. the same ``fit_update`` runs with every evaluation on ``V``: ``K(theta)`` and ``M(theta)`` reduced
    (the segments' factors, the effects' terms projected through their few rows), a small generalised
    eigenproblem, and the exact derivatives of the reduced model (milliseconds, no factorisation);
 3. at its optimum ``theta_{k+1}`` the full space is built again; if the reduced and the full ``ln|Z|``
    agree there to ``AGREE`` (1e-6) the fit ends, with the full model's residual at ``theta_{k+1}``;
-   otherwise the round repeats from ``theta_{k+1}`` with that space added.
+   otherwise the round repeats from ``theta_{k+1}`` with that space added (a basis beyond
+   ``MAX_BASIS`` columns starts afresh from it).
 
 A basis that holds the full space at a point reproduces there the full model's receptance and its
 first derivatives (input and output spaces in the projection: Baur, Beattie, Feng & Gugercin 2011),
-so every round starts with the full model's value and gradient, and the fit ends at a point whose
+so a round from a point an earlier round ended at starts with the full model's value and gradient, and
+the fit ends at a point whose
 full residual the reduced model predicted to 1e-6 in ``ln|Z|``: the plain fit's optimum to the
 optimiser's tolerance (``tests/fe_core/test_closure_fast.py`` compares both paths' fits). A fit that
 has not agreed after ``MAX_ROUNDS`` rounds finishes on the plain path from where it got to.
@@ -184,13 +186,13 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
     t0 = time.perf_counter()
     u = np.asarray(amplitude, float)
     freqs = np.asarray(freqs_hz, float)
-    basis = ReducedBasis(model, freqs)
+    built = _BUILT[0]
+    basis = shared_basis(model, freqs)
     alpha, value, applied = np.asarray(alpha0, float), value0, list(prior)
-    full = full_response(model, alpha, freqs, _with(applied, effect, location, value))
+    if basis.V.shape[1] == 0:
+        basis.add(full_response(model, alpha, freqs, _with(applied, effect, location, value)).reduced.W)
     reduced_evals = 0
-    fit = None
     for k in range(1, MAX_ROUNDS + 1):
-        basis.add(full.reduced.W)
         count = [0]
 
         def factory(model_, alpha_, freqs_, applied_=()):
@@ -209,16 +211,38 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
         if gap <= AGREE:
             r = fits.log_residual(full.amplitude, u)
             fit.residual, fit.model_amplitude = r, np.exp(r) * u
-            fit.evaluations = k + 1
+            fit.evaluations = _BUILT[0] - built
             fit.seconds = time.perf_counter() - t0
-            fit.message += f" (reduced model: {k} round(s), {reduced_evals} reduced evaluations, basis {basis.V.shape[1]})"
+            fit.message += (f" (reduced model: {k} round(s), {reduced_evals} reduced evaluations, "
+                            f"basis {basis.V.shape[1]})")
             return fit
+        if basis.V.shape[1] + full.reduced.W.shape[1] > MAX_BASIS:  # start afresh from this point's space
+            basis.V = basis.V[:, :0]
+        basis.add(full.reduced.W)
     log.info("reduced fit did not agree with the full model after %d rounds: the plain fit finishes it", MAX_ROUNDS)
     plain = _PLAIN_FIT(model, freqs, u, alpha, effect, location, value, max_evaluations=max_evaluations, tol=tol,
                        alpha_bounds=alpha_bounds, prior=applied)
-    plain.evaluations += MAX_ROUNDS + 1
+    plain.evaluations += _BUILT[0] - built
     plain.seconds = time.perf_counter() - t0
     return plain
+
+
+#: Full evaluations built (Krylov spaces), for the fits' counts.
+_BUILT = [0]
+#: Largest basis kept across fits (columns; 34k DOFs x 480 is 130 MB); beyond it a fit's basis restarts.
+MAX_BASIS = 480
+_BASES: dict = {}
+
+
+def shared_basis(model, freqs_hz) -> ReducedBasis:
+    """The basis the closure's fits on one model and one set of lines share and enlarge (the fits of a
+    closure stay near each other: a later fit usually needs one full evaluation, at its end)."""
+    key = (id(model), np.asarray(freqs_hz, float).tobytes())
+    basis = _BASES.get(key)
+    if basis is None or basis.model is not model:
+        _BASES.clear()
+        _BASES[key] = basis = ReducedBasis(model, freqs_hz)
+    return basis
 
 
 #: The last full evaluations (key -> LinearisedResponse): a check's relocation screen is linearised at the
@@ -240,6 +264,7 @@ def full_response(model, alpha, freqs_hz, applied=()) -> LinearisedResponse:
         while len(_FULL) >= _FULL_SIZE:
             _FULL.pop(next(iter(_FULL)))
         _FULL[key] = held = LinearisedResponse(model, alpha, freqs_hz, applied)
+        _BUILT[0] += 1
     return held
 
 
@@ -286,3 +311,4 @@ def enabled():
             m.fit_update = f
         screening.LinearisedResponse = saved_response
         _FULL.clear()
+        _BASES.clear()
