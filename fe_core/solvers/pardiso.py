@@ -28,6 +28,7 @@ import logging
 import os
 import site
 import sys
+import threading
 import weakref
 from ctypes.util import find_library
 
@@ -46,6 +47,8 @@ MAX_LOW_RANK = 12
 POOL_SIZE = 2
 
 _POOL: dict[tuple, list["_Handle"]] = {}
+#: Guards the pools (a finaliser may run in any thread); each thread has its own handles.
+_LOCK = threading.RLock()
 #: Counts since start (or :func:`clear`): analyses, factorisations, reuses, Woodbury solvers.
 stats = {"analyses": 0, "factorisations": 0, "reused": 0, "woodbury": 0}
 
@@ -128,11 +131,16 @@ def _trim(pool: list):
 
 
 def clear():
-    """Free every pooled factor and reset the counts."""
+    """Free every idle pooled factor and reset the counts."""
+    with _LOCK:
+        _clear()
+
+
+def _clear():
     for pool in _POOL.values():
-        for h in pool:
-            if not h.pins:
-                h.free()
+        for h in [h for h in pool if not h.pins]:
+            pool.remove(h)
+            h.free()
     _POOL.clear()
     for k in stats:
         stats[k] = 0
@@ -189,8 +197,13 @@ def cholesky(A: sp.spmatrix):
     """
     upper = sp.triu(A, format="csr").astype(float)
     upper.sort_indices()
-    key = (upper.shape[0], upper.nnz, _digest(upper.indptr, upper.indices))
+    key = (threading.get_ident(), upper.shape[0], upper.nnz, _digest(upper.indptr, upper.indices))
     digest = _digest(upper.data)
+    with _LOCK:
+        return _cholesky(upper, key, digest)
+
+
+def _cholesky(upper, key, digest):
     pool = _POOL.setdefault(key, [])
     # 1. The same values: the factor serves as it is.
     for h in pool:
@@ -229,9 +242,13 @@ def _pinned(pool: list, handle: _Handle, fn):
         return fn(rhs)
 
     def unpin():
-        handle.pins -= 1
-        if handle in pool:
-            _trim(pool)
+        with _LOCK:
+            handle.pins -= 1
+            if _POOL.get(handle.key) is not pool and not handle.pins and handle in pool:  # cleared meanwhile
+                pool.remove(handle)
+                handle.free()
+            elif handle in pool:
+                _trim(pool)
 
     weakref.finalize(solve, unpin)
     return solve

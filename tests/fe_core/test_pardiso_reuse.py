@@ -25,7 +25,7 @@ def block():
     """A tet10 block clamped at x = 0, nodes numbered at random (PARDISO's path, as a gmsh mesh): K, M, split
     in two 'segments' (x below and above 0.15 m), one load, four outputs."""
     rng = np.random.default_rng(11)
-    nodes, cells = box_tets((0.3, 0.2, 0.04), (6, 4, 2), order=2)
+    nodes, cells = box_tets((0.3, 0.2, 0.04), (5, 3, 2), order=2)
     order = rng.permutation(len(nodes))
     nodes, cells = nodes[np.argsort(order)], order[cells]
     n = 3 * len(nodes)
