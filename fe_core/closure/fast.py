@@ -63,31 +63,45 @@ class ReducedBasis:
     def __init__(self, model, freqs_hz):
         self.model = model
         self.freqs_hz = np.asarray(freqs_hz, float)
-        self.V = np.zeros((model.stiffness(np.zeros(model.n_segments)).shape[0], 0))
+        m = model.n_segments
+        K0, M, _, _ = extended_matrices(model, np.zeros(m))
+        # The matrices kept projected, each with the rows it touches: the segments, K(alpha = 0), M.
+        self._mats = [segment_stiffness(model, i) for i in range(m)] + [sp.csr_matrix(K0), sp.csr_matrix(M)]
+        self._rows = [np.flatnonzero(np.diff(A.indptr)) for A in self._mats]
+        self._proj = [np.zeros((0, 0)) for _ in self._mats]
+        self.V = np.zeros((K0.shape[0], 0))
         self.segments: list[np.ndarray] = []
         self.fixed = None
 
     def add(self, W: np.ndarray):
-        """Enlarge the basis by the columns of W (orthogonalised twice, rank-revealing) and reproject."""
+        """Enlarge the basis by the span of W's columns (normalised, orthogonalised twice against V, kept
+        where a pivoted QR finds them new to 1e-8) and extend the projections by the new rows and columns."""
         V = self.V
         X = np.array(W, dtype=float, copy=True)
+        X /= np.maximum(np.linalg.norm(X, axis=0), np.finfo(float).tiny)
         for _ in range(2):
             X -= V @ (V.T @ X)
         q, r, _ = sla.qr(X, mode="economic", pivoting=True)
-        d = np.abs(np.diag(r))
-        keep = int(np.sum(d > 1e-10 * max(1.0, d.max(initial=0.0))))
-        self.V = np.hstack([V, q[:, :keep]])
-        self._project()
+        keep = int(np.sum(np.abs(np.diag(r)) > 1e-8))
+        Q = q[:, :keep]
+        for t, (A, rows) in enumerate(zip(self._mats, self._rows)):
+            AQ = (A @ Q)[rows]  # (rows, k): A's rows only
+            cross = V[rows].T @ AQ  # (d, k)
+            new = Q[rows].T @ AQ  # (k, k)
+            P = self._proj[t]
+            self._proj[t] = np.block([[P, cross], [cross.T, 0.5 * (new + new.T)]])
+        self.V = np.hstack([V, Q])
+        m = self.model.n_segments
+        self.segments = self._proj[:m]
+        self.fixed = self._proj[m] - sum(self.segments)  # K(alpha) = fixed + sum (1 + alpha_i) K_i
+        self.mass = self._proj[m + 1]
+        self.load = self.V.T @ self.model.combined_load()
+        self.outputs = np.asarray(sp.csc_matrix(self.model.outputs).T @ self.V).T  # (d, n_s)
 
-    def _project(self):
-        model, V = self.model, self.V
-        m = model.n_segments
-        self.segments = [V.T @ (segment_stiffness(model, i) @ V) for i in range(m)]
-        K0, M, _, _ = extended_matrices(model, np.zeros(m))
-        self.fixed = V.T @ (K0 @ V) - sum(self.segments)  # K(alpha) = fixed + sum (1 + alpha_i) K_i
-        self.mass = V.T @ (M @ V)
-        self.load = V.T @ model.combined_load()
-        self.outputs = np.asarray(sp.csc_matrix(model.outputs).T @ V).T  # (d, n_s)
+    def reset(self):
+        """Empty the basis (the next :meth:`add` starts it afresh)."""
+        self.V = self.V[:, :0]
+        self._proj = [np.zeros((0, 0)) for _ in self._mats]
 
     def project(self, A) -> np.ndarray:
         """``V^T A V`` of a sparse change through its non-empty rows."""
@@ -217,7 +231,7 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
                             f"basis {basis.V.shape[1]})")
             return fit
         if basis.V.shape[1] + full.reduced.W.shape[1] > MAX_BASIS:  # start afresh from this point's space
-            basis.V = basis.V[:, :0]
+            basis.reset()
         basis.add(full.reduced.W)
     log.info("reduced fit did not agree with the full model after %d rounds: the plain fit finishes it", MAX_ROUNDS)
     plain = _PLAIN_FIT(model, freqs, u, alpha, effect, location, value, max_evaluations=max_evaluations, tol=tol,

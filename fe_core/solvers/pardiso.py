@@ -75,7 +75,7 @@ def _digest(*arrays) -> str:
 class _Handle:
     """One PARDISO instance: analysed for a pattern, holding the factor of ``data`` (or none)."""
 
-    def __init__(self, upper: sp.csr_matrix, key: tuple):
+    def __init__(self, upper: sp.csr_matrix, key: tuple, pattern_digest: str):
         from pypardiso import PyPardisoSolver
 
         if "PYPARDISO_MKL_RT" not in os.environ:
@@ -83,6 +83,7 @@ class _Handle:
         self.solver = PyPardisoSolver(mtype=2)  # real symmetric positive-definite
         self.solver.set_iparm(12, 0)  # CSR input (pypardiso's _check_A sets it on every call)
         self.key = key
+        self.pattern_digest = pattern_digest
         self.pattern = upper  # the matrix whose index arrays the factor was analysed for
         self.data = None  # values of the matrix factored (None: no factor)
         self.digest = None
@@ -112,6 +113,10 @@ class _Handle:
         stats["factorisations"] += 1
         self.data, self.digest = data.copy(), digest
         return True
+
+    def matrix(self) -> sp.csr_matrix:
+        """The upper triangle factored (shares the index arrays)."""
+        return sp.csr_matrix((self.data, self.pattern.indices, self.pattern.indptr), shape=self.pattern.shape)
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         rhs = np.asarray(rhs, dtype=float)
@@ -197,38 +202,60 @@ def cholesky(A: sp.spmatrix):
     """
     upper = sp.triu(A, format="csr").astype(float)
     upper.sort_indices()
-    key = (threading.get_ident(), upper.shape[0], upper.nnz, _digest(upper.indptr, upper.indices))
+    key = (threading.get_ident(), upper.shape[0])
+    pattern = _digest(upper.indptr, upper.indices)
     digest = _digest(upper.data)
     with _LOCK:
-        return _cholesky(upper, key, digest)
+        return _cholesky(upper, key, pattern, digest)
 
 
-def _cholesky(upper, key, digest):
+def _cholesky(upper, key, pattern, digest):
     pool = _POOL.setdefault(key, [])
-    # 1. The same values: the factor serves as it is.
-    for h in pool:
-        if h.data is not None and h.digest == digest and np.array_equal(h.data, upper.data):
+    held = [h for h in pool if h.data is not None]
+    # 1. The same matrix: the factor serves as it is.
+    for h in held:
+        if h.pattern_digest == pattern and h.digest == digest and np.array_equal(h.data, upper.data):
             stats["reused"] += 1
             return _pinned(pool, h, h.solve)
-    # 2. A few changed rows: Woodbury on a held factor.
-    for h in pool:
-        if h.data is None:
-            continue
-        change = _changed_rows(upper, h.data, upper.data)
+    # 2. A few changed rows and columns (a spring: one diagonal entry): Woodbury on a held factor.
+    for h in held:
+        if h.pattern_digest == pattern:
+            change = _changed_rows(upper, h.data, upper.data)
+        else:  # sparse sums drop explicit zeros: the pattern of K + spring may differ from K's
+            change = _changed_rows_sparse(upper, h.matrix())
         if change is not None:
             stats["woodbury"] += 1
             return _pinned(pool, h, _woodbury(h, *change))
-    # 3. A numerical factorisation, on the oldest idle analysed handle if there is one (its factor is dropped).
-    idle = [h for h in pool if not h.pins]
+    # 3. A numerical factorisation, on the oldest idle handle analysed for this pattern if there is one.
+    idle = [h for h in pool if not h.pins and h.pattern_digest == pattern]
     if idle:
         h = idle[0]
         pool.remove(h)
     else:
-        h = _Handle(upper.copy(), key)
+        h = _Handle(upper.copy(), key, pattern)
     pool.append(h)
     if not h.factor(upper.data, digest):
         return None
     return _pinned(pool, h, h.solve)
+
+
+def _changed_rows_sparse(upper: sp.csr_matrix, base: sp.csr_matrix):
+    """As :func:`_changed_rows` for upper triangles of different patterns."""
+    diff = sp.csr_matrix(upper - base)
+    diff.eliminate_zeros()
+    if diff.nnz == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 0))
+    coo = diff.tocoo()
+    R = np.unique(np.concatenate([coo.row, coo.col]))
+    if R.size > MAX_LOW_RANK:
+        return None
+    pos = {r: k for k, r in enumerate(R)}
+    D = np.zeros((R.size, R.size))
+    for i, j, v in zip(coo.row, coo.col, coo.data):
+        D[pos[i], pos[j]] += v
+        if i != j:
+            D[pos[j], pos[i]] += v
+    return R, D
 
 
 def _pinned(pool: list, handle: _Handle, fn):

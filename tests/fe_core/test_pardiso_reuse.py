@@ -82,8 +82,16 @@ def test_analysis_and_factor_reused_woodbury_for_a_few_rows(block):
     s1 = pardiso.cholesky(K1)
     assert pardiso.stats["woodbury"] == 1 and pardiso.stats["factorisations"] == 1
     assert close(s1(rhs), lu_solve(K1, rhs)) < RTOL
+    # A change outside K0's pattern (a spring between two DOFs no element couples; sparse sums also drop
+    # explicit zeros): still Woodbury on K0's factor.
+    far = int(np.setdiff1d(np.arange(n), K0.indices[K0.indptr[5]:K0.indptr[6]])[-1])
+    tie = sp.csr_matrix(([2e6, 2e6, -2e6, -2e6], ([5, far, 5, far], [5, far, far, 5])), shape=(n, n))
+    K3 = sp.csr_matrix(K0 + tie)
+    s3 = pardiso.cholesky(K3)
+    assert pardiso.stats["woodbury"] == 2 and pardiso.stats["factorisations"] == 1
+    assert close(s3(rhs), lu_solve(K3, rhs)) < RTOL
     # Other factors: a new numerical factorisation on the analysed pattern, no second analysis.
-    del s0, s0b, s1
+    del s0, s0b, s1, s3
     K2 = stiffness(Ks, [-0.3, 0.4])
     s2 = pardiso.cholesky(K2)
     assert close(s2(rhs), lu_solve(K2, rhs)) < RTOL
