@@ -213,9 +213,13 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
             count[0] += 1
             return _ReducedLinearised(basis, model_, alpha_, freqs_, applied_)
 
-        with _responses(factory):
-            fit = _PLAIN_FIT(model, freqs, u, alpha, effect, location, value, max_evaluations=max_evaluations,
-                             tol=tol, alpha_bounds=alpha_bounds, prior=applied)
+        try:
+            with _responses(factory):
+                fit = _PLAIN_FIT(model, freqs, u, alpha, effect, location, value, max_evaluations=max_evaluations,
+                                 tol=tol, alpha_bounds=alpha_bounds, prior=applied)
+        except (np.linalg.LinAlgError, ValueError) as error:  # a reduced pencil that is not definite, say
+            log.info("reduced fit failed (%s): the plain fit takes over", error)
+            break
         reduced_evals += count[0]
         alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
         full = full_response(model, alpha, freqs, fit.applied)
@@ -233,7 +237,9 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
         if basis.V.shape[1] + full.reduced.W.shape[1] > MAX_BASIS:  # start afresh from this point's space
             basis.reset()
         basis.add(full.reduced.W)
-    log.info("reduced fit did not agree with the full model after %d rounds: the plain fit finishes it", MAX_ROUNDS)
+    else:
+        log.info("reduced fit did not agree with the full model after %d rounds: the plain fit finishes it",
+                 MAX_ROUNDS)
     plain = _PLAIN_FIT(model, freqs, u, alpha, effect, location, value, max_evaluations=max_evaluations, tol=tol,
                        alpha_bounds=alpha_bounds, prior=applied)
     plain.evaluations += _BUILT[0] - built
