@@ -12,7 +12,9 @@ and every move. Here the fit runs on a Galerkin projection instead, in rounds:
    (the segments' factors, the effects' terms projected through their few rows), a small generalised
    eigenproblem, and the exact derivatives of the reduced model (milliseconds, no factorisation);
 3. at its optimum ``theta_{k+1}`` the full space is built again; if the reduced and the full ``ln|Z|``
-   agree there to ``AGREE`` (1e-6) the fit ends, with the full model's residual at ``theta_{k+1}``;
+   agree there to ``AGREE`` (1e-6) and the round, started from a point whose space the basis held,
+   lowered the full sum of squares by no more than the fit's tolerance (its start was stationary for the
+   full model too), the fit ends, with the full model's residual at ``theta_{k+1}``;
    otherwise the round repeats from ``theta_{k+1}`` with that space added (a basis beyond
    ``MAX_BASIS`` columns starts afresh from it).
 
@@ -70,6 +72,7 @@ class ReducedBasis:
         self._rows = [np.flatnonzero(np.diff(A.indptr)) for A in self._mats]
         self._proj = [np.zeros((0, 0)) for _ in self._mats]
         self.V = np.zeros((K0.shape[0], 0))
+        self.holds: set = set()  # keys of the points whose full spaces the basis holds
         self.segments: list[np.ndarray] = []
         self.fixed = None
 
@@ -102,6 +105,7 @@ class ReducedBasis:
         """Empty the basis (the next :meth:`add` starts it afresh)."""
         self.V = self.V[:, :0]
         self._proj = [np.zeros((0, 0)) for _ in self._mats]
+        self.holds = set()
 
     def project(self, A) -> np.ndarray:
         """``V^T A V`` of a sparse change through its non-empty rows."""
@@ -203,10 +207,15 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
     built = _BUILT[0]
     basis = shared_basis(model, freqs)
     alpha, value, applied = np.asarray(alpha0, float), value0, list(prior)
-    if basis.V.shape[1] == 0:
-        basis.add(full_response(model, alpha, freqs, _with(applied, effect, location, value)).reduced.W)
     reduced_evals = 0
+    start = full_response(model, alpha, freqs, _with(applied, effect, location, value))
     for k in range(1, MAX_ROUNDS + 1):
+        if start.fast_key not in basis.holds:  # the round starts with the full model's value and gradient
+            if basis.V.shape[1] + start.reduced.W.shape[1] > MAX_BASIS:  # start afresh from this point's space
+                basis.reset()
+            basis.add(start.reduced.W)
+            basis.holds.add(start.fast_key)
+        rss_start = float(np.sum(fits.log_residual(start.amplitude, u) ** 2))
         count = [0]
 
         def factory(model_, alpha_, freqs_, applied_=()):
@@ -226,17 +235,17 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
         gap = float(np.max(np.abs(np.log(full.amplitude) - np.log(fit.model_amplitude))))
         log.debug("reduced fit round %d: basis %d, rss %.6g, gap to the full model %.2e", k, basis.V.shape[1],
                   fit.rss, gap)
-        if gap <= AGREE:
-            r = fits.log_residual(full.amplitude, u)
+        r = fits.log_residual(full.amplitude, u)
+        # Done when the reduced model is right at the end and, from a start it held exactly, found next to
+        # nothing to gain: the start was (to the fit's tolerance) a stationary point of the full model too.
+        if gap <= AGREE and rss_start - float(np.sum(r**2)) <= max(tol, 1e-9) * rss_start:
             fit.residual, fit.model_amplitude = r, np.exp(r) * u
             fit.evaluations = _BUILT[0] - built
             fit.seconds = time.perf_counter() - t0
             fit.message += (f" (reduced model: {k} round(s), {reduced_evals} reduced evaluations, "
                             f"basis {basis.V.shape[1]})")
             return fit
-        if basis.V.shape[1] + full.reduced.W.shape[1] > MAX_BASIS:  # start afresh from this point's space
-            basis.reset()
-        basis.add(full.reduced.W)
+        start = full
     else:
         log.info("reduced fit did not agree with the full model after %d rounds: the plain fit finishes it",
                  MAX_ROUNDS)
@@ -284,6 +293,7 @@ def full_response(model, alpha, freqs_hz, applied=()) -> LinearisedResponse:
         while len(_FULL) >= _FULL_SIZE:
             _FULL.pop(next(iter(_FULL)))
         _FULL[key] = held = LinearisedResponse(model, alpha, freqs_hz, applied)
+        held.fast_key = key
         _BUILT[0] += 1
     return held
 
