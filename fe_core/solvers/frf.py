@@ -434,6 +434,10 @@ def spd_solver(A: sp.spmatrix):
     callable or None
         ``solve(rhs)`` for ``rhs`` of shape (n,) or (n, k), returning the same shape.
     """
+    from . import pardiso
+
+    if pardiso.ENABLED:  # the analysis, the factor or (Woodbury) a low-rank change of it reused
+        return pardiso.cholesky(A)
     from pypardiso import PyPardisoSolver
     from pypardiso.pardiso_wrapper import PyPardisoError
 

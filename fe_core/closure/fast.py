@@ -1,0 +1,344 @@
+"""The closure's least-squares fits on a reduced model that grows with the fit (issue 28: speed on real meshes).
+
+A fit of the plain path (:func:`fe_core.closure.fits.fit_update`) builds, at every point the optimiser
+asks for, a new Krylov space of the load and the sensor loads: one factorisation of ``K(theta)`` and
+about ten block solves, 10-20 times per fit, for the baseline, every restart, every candidate's check
+and every move. Here the fit runs on a Galerkin projection instead, in rounds:
+
+1. the basis ``V`` (orthonormal; the segments' stiffness, the mass, the load and the outputs projected
+   once per basis) is shared by the fits of one model and one set of lines and holds the full spaces
+   of the points earlier rounds ended at (the first fit starts it with the space at its start);
+2. the same ``fit_update`` runs with every evaluation on ``V``: ``K(theta)`` and ``M(theta)`` reduced
+   (the segments' factors, the effects' terms projected through their few rows), a small generalised
+   eigenproblem, and the exact derivatives of the reduced model (milliseconds, no factorisation);
+3. at its optimum ``theta_{k+1}`` the full space is built again; if the reduced and the full ``ln|Z|``
+   agree there to ``AGREE`` (1e-6) and the round, started from a point whose space the basis held,
+   lowered the full sum of squares by no more than the fit's tolerance (its start was stationary for the
+   full model too), the fit ends, with the full model's residual at ``theta_{k+1}``;
+   otherwise the round repeats from ``theta_{k+1}`` with that space added (a basis beyond
+   ``MAX_BASIS`` columns starts afresh from it).
+
+A basis that holds the full space at a point reproduces there the full model's receptance and its
+first derivatives (input and output spaces in the projection: Baur, Beattie, Feng & Gugercin 2011),
+so a round from a point an earlier round ended at starts with the full model's value and gradient, and
+the fit ends at a point whose
+full residual the reduced model predicted to 1e-6 in ``ln|Z|``: the plain fit's optimum to the
+optimiser's tolerance (``tests/fe_core/test_closure_fast.py`` compares both paths' fits). A fit that
+has not agreed after ``MAX_ROUNDS`` rounds finishes on the plain path from where it got to.
+
+:func:`enabled` switches the closure's fits (baseline, restarts, checks, moves, swaps) to this path
+for a block of code, :func:`install` (or ``MRGP_CLOSURE_FAST=1`` in the environment, which the flow's
+worker processes inherit) for the process; :func:`fit_update` is the fit itself, with
+``fits.fit_update``'s signature.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from ..solvers.adjoint import ReducedResponse
+from . import fits
+from .effects import LinearisedResponse, extended_matrices, sensor_gain
+from .effects.extended import segment_stiffness
+
+__all__ = ["fit_update", "enabled", "install", "ReducedBasis", "AGREE", "MAX_ROUNDS"]
+
+log = logging.getLogger(__name__)
+
+#: Largest |ln|Z_reduced| - ln|Z_full|| at a fit's end for the reduced fit to stand.
+AGREE = 1e-6
+#: Rounds (full evaluations that enlarge the basis) before the plain path takes over.
+MAX_ROUNDS = 6
+
+_PLAIN_FIT = fits.fit_update
+
+
+class ReducedBasis:
+    """An orthonormal basis V of full fields and the model's matrices projected on it."""
+
+    def __init__(self, model, freqs_hz):
+        self.model = model
+        self.freqs_hz = np.asarray(freqs_hz, float)
+        m = model.n_segments
+        K0, M, _, _ = extended_matrices(model, np.zeros(m))
+        # The matrices kept projected, each with the rows it touches: the segments, K(alpha = 0), M.
+        self._mats = [segment_stiffness(model, i) for i in range(m)] + [sp.csr_matrix(K0), sp.csr_matrix(M)]
+        self._rows = [np.flatnonzero(np.diff(A.indptr)) for A in self._mats]
+        self._proj = [np.zeros((0, 0)) for _ in self._mats]
+        self.V = np.zeros((K0.shape[0], 0))
+        self.holds: set = set()  # keys of the points whose full spaces the basis holds
+        self.segments: list[np.ndarray] = []
+        self.fixed = None
+
+    def add(self, W: np.ndarray):
+        """Enlarge the basis by the span of W's columns (normalised, orthogonalised twice against V, kept
+        where a pivoted QR finds them new to 1e-8) and extend the projections by the new rows and columns."""
+        V = self.V
+        X = np.array(W, dtype=float, copy=True)
+        X /= np.maximum(np.linalg.norm(X, axis=0), np.finfo(float).tiny)
+        for _ in range(2):
+            X -= V @ (V.T @ X)
+        q, r, _ = sla.qr(X, mode="economic", pivoting=True)
+        keep = int(np.sum(np.abs(np.diag(r)) > 1e-8))
+        Q = q[:, :keep]
+        for t, (A, rows) in enumerate(zip(self._mats, self._rows)):
+            AQ = (A @ Q)[rows]  # (rows, k): A's rows only
+            cross = V[rows].T @ AQ  # (d, k)
+            new = Q[rows].T @ AQ  # (k, k)
+            P = self._proj[t]
+            self._proj[t] = np.block([[P, cross], [cross.T, 0.5 * (new + new.T)]])
+        self.V = np.hstack([V, Q])
+        m = self.model.n_segments
+        self.segments = self._proj[:m]
+        self.fixed = self._proj[m] - sum(self.segments)  # K(alpha) = fixed + sum (1 + alpha_i) K_i
+        self.mass = self._proj[m + 1]
+        self.load = self.V.T @ self.model.combined_load()
+        self.outputs = np.asarray(sp.csc_matrix(self.model.outputs).T @ self.V).T  # (d, n_s)
+
+    def reset(self):
+        """Empty the basis (the next :meth:`add` starts it afresh)."""
+        self.V = self.V[:, :0]
+        self._proj = [np.zeros((0, 0)) for _ in self._mats]
+        self.holds = set()
+
+    def project(self, A) -> np.ndarray:
+        """``V^T A V`` of a sparse change through its non-empty rows."""
+        A = sp.csr_matrix(A)
+        rows = np.flatnonzero(np.diff(A.indptr))
+        if rows.size == 0:
+            return np.zeros((self.V.shape[1],) * 2)
+        return self.V[rows].T @ (A[rows] @ self.V)
+
+
+class _ReducedModal(ReducedResponse):
+    """:class:`ReducedResponse` on a given basis: the same modal algebra, no Krylov space."""
+
+    def __init__(self, basis: ReducedBasis, Kr, Mr, a, b, omegas, gain):
+        self.basis = basis
+        self.omegas = w = np.asarray(omegas, float)
+        self.a, self.b = float(a), float(b)
+        self.gain = np.asarray(gain, float)
+        mu, phi = sla.eigh(0.5 * (Kr + Kr.T), 0.5 * (Mr + Mr.T))
+        self.phi, self.mu = phi, mu
+        lam = (w**2 - 1j * w * self.a) / (1.0 + 1j * w * self.b)
+        self.g = 1.0 / ((1.0 + 1j * w * self.b)[:, None] * (mu[None, :] - lam[:, None]))
+        self.left = basis.outputs.T @ phi  # (n_s, m)
+        self.right = phi.T @ basis.load
+        self.Z = np.einsum("sm,pm,m->ps", self.left, self.g, self.right)
+        self._u = self.left[None, :, :] * self.g[:, None, :]
+        self._v = self.g * self.right[None, :]
+
+    def project(self, A) -> np.ndarray:
+        """``W^T A W`` (modal coordinates) of a sparse change, through the basis."""
+        return self.phi.T @ self.basis.project(A) @ self.phi
+
+
+class _ReducedLinearised(LinearisedResponse):
+    """:class:`LinearisedResponse` evaluated on a :class:`ReducedBasis` (same interface, no FE solve)."""
+
+    def __init__(self, basis: ReducedBasis, model, alpha, freqs_hz, applied=()):
+        self.model = model
+        self.alpha = np.asarray(alpha, float)
+        self.freqs_hz = np.asarray(freqs_hz, float)
+        self.omegas = 2 * np.pi * self.freqs_hz
+        self.applied = list(applied)
+        Kr = basis.fixed + sum((1.0 + a) * k for a, k in zip(self.alpha, basis.segments))
+        Mr = basis.mass.copy()
+        a, b = model.damping
+        for item in self.applied:
+            t = item.terms(self.alpha)
+            if t.gain is not None:
+                continue
+            if t.stiffness is not None:
+                Kr = Kr + basis.project(t.stiffness)
+            if t.mass is not None:
+                Mr = Mr + basis.project(t.mass)
+            a += t.damping_a
+            b += t.damping_b
+        self.a, self.b, self.basis = a, b, basis
+        self.gain = sensor_gain(model, self.alpha, self.applied)
+        self.reduced = _ReducedModal(basis, Kr, Mr, a, b, self.omegas, self.gain)
+        self.Z = self.reduced.Z
+
+    def alpha_derivatives(self) -> np.ndarray:
+        cols = []
+        for i in range(self.model.n_segments):
+            dK = self.basis.segments[i]
+            for item in self.applied:
+                extra = item.effect.alpha_derivative(self.alpha, item.location, item.values, i)
+                if extra is not None and extra.stiffness is not None:
+                    dK = dK + self.basis.project(extra.stiffness)
+            phi = self.reduced.phi
+            cols.append(self.reduced.dlog(dK=phi.T @ dK @ phi).ravel())
+        return np.column_stack(cols)
+
+
+@contextlib.contextmanager
+def _responses(factory):
+    """``fits.fit_update`` evaluating through ``factory`` instead of a full Krylov space, for a block."""
+    saved = fits.LinearisedResponse
+    fits.LinearisedResponse = factory
+    try:
+        yield
+    finally:
+        fits.LinearisedResponse = saved
+
+
+def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, value0=None, *,
+               max_evaluations: int = 600, tol: float = 1e-8, alpha_bounds=fits.ALPHA_BOUNDS, prior=(),
+               jacobian: str = "exact") -> fits.Fit:
+    """:func:`fe_core.closure.fits.fit_update` in rounds on a growing reduced model (the module's docstring).
+
+    Same arguments and result; ``Fit.evaluations`` counts the full FE evaluations (one per round),
+    ``Fit.message`` adds the rounds and the basis size.
+    """
+    if jacobian != "exact":
+        return _PLAIN_FIT(model, freqs_hz, amplitude, alpha0, effect, location, value0, max_evaluations=max_evaluations,
+                          tol=tol, alpha_bounds=alpha_bounds, prior=prior, jacobian=jacobian)
+    t0 = time.perf_counter()
+    u = np.asarray(amplitude, float)
+    freqs = np.asarray(freqs_hz, float)
+    built = _BUILT[0]
+    basis = shared_basis(model, freqs)
+    alpha, value, applied = np.asarray(alpha0, float), value0, list(prior)
+    reduced_evals = 0
+    start = full_response(model, alpha, freqs, _with(applied, effect, location, value))
+    for k in range(1, MAX_ROUNDS + 1):
+        if start.fast_key not in basis.holds:  # the round starts with the full model's value and gradient
+            if basis.V.shape[1] + start.reduced.W.shape[1] > MAX_BASIS:  # start afresh from this point's space
+                basis.reset()
+            basis.add(start.reduced.W)
+            basis.holds.add(start.fast_key)
+        rss_start = float(np.sum(fits.log_residual(start.amplitude, u) ** 2))
+        count = [0]
+
+        def factory(model_, alpha_, freqs_, applied_=()):
+            count[0] += 1
+            return _ReducedLinearised(basis, model_, alpha_, freqs_, applied_)
+
+        try:
+            with _responses(factory):
+                fit = _PLAIN_FIT(model, freqs, u, alpha, effect, location, value, max_evaluations=max_evaluations,
+                                 tol=tol, alpha_bounds=alpha_bounds, prior=applied)
+        except (np.linalg.LinAlgError, ValueError) as error:  # a reduced pencil that is not definite, say
+            log.info("reduced fit failed (%s): the plain fit takes over", error)
+            break
+        reduced_evals += count[0]
+        alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
+        full = full_response(model, alpha, freqs, fit.applied)
+        gap = float(np.max(np.abs(np.log(full.amplitude) - np.log(fit.model_amplitude))))
+        log.debug("reduced fit round %d: basis %d, rss %.6g, gap to the full model %.2e", k, basis.V.shape[1],
+                  fit.rss, gap)
+        r = fits.log_residual(full.amplitude, u)
+        # Done when the reduced model is right at the end and, from a start it held exactly, found next to
+        # nothing to gain: the start was (to the fit's tolerance) a stationary point of the full model too.
+        if gap <= AGREE and rss_start - float(np.sum(r**2)) <= max(tol, 1e-9) * rss_start:
+            fit.residual, fit.model_amplitude = r, np.exp(r) * u
+            fit.evaluations = _BUILT[0] - built
+            fit.seconds = time.perf_counter() - t0
+            fit.message += (f" (reduced model: {k} round(s), {reduced_evals} reduced evaluations, "
+                            f"basis {basis.V.shape[1]})")
+            return fit
+        start = full
+    else:
+        log.info("reduced fit did not agree with the full model after %d rounds: the plain fit finishes it",
+                 MAX_ROUNDS)
+    plain = _PLAIN_FIT(model, freqs, u, alpha, effect, location, value, max_evaluations=max_evaluations, tol=tol,
+                       alpha_bounds=alpha_bounds, prior=applied)
+    plain.evaluations += _BUILT[0] - built
+    plain.seconds = time.perf_counter() - t0
+    return plain
+
+
+#: Full evaluations built (Krylov spaces), for the fits' counts.
+_BUILT = [0]
+#: Largest basis kept across fits (columns; 34k DOFs x 480 is 130 MB); beyond it a fit's basis restarts.
+MAX_BASIS = 480
+_BASES: dict = {}
+
+
+def shared_basis(model, freqs_hz) -> ReducedBasis:
+    """The basis the closure's fits on one model and one set of lines share and enlarge (the fits of a
+    closure stay near each other: a later fit usually needs one full evaluation, at its end)."""
+    key = (id(model), np.asarray(freqs_hz, float).tobytes())
+    basis = _BASES.get(key)
+    if basis is None or basis.model is not model:
+        _BASES.clear()
+        _BASES[key] = basis = ReducedBasis(model, freqs_hz)
+    return basis
+
+
+#: The last full evaluations (key -> LinearisedResponse): a check's relocation screen is linearised at the
+#: point its fit ended, where the fit's last round built the same full space.
+_FULL: dict = {}
+_FULL_SIZE = 2
+
+
+def _key(model, alpha, freqs, applied) -> tuple:
+    return (id(model), np.asarray(alpha, float).tobytes(), np.asarray(freqs, float).tobytes(),
+            tuple((a.effect.kind, a.location, np.asarray(a.values, float).tobytes()) for a in applied))
+
+
+def full_response(model, alpha, freqs_hz, applied=()) -> LinearisedResponse:
+    """:class:`LinearisedResponse` (a full Krylov space), the same object again for the same point."""
+    key = _key(model, alpha, freqs_hz, applied)
+    held = _FULL.get(key)
+    if held is None or held.model is not model:
+        while len(_FULL) >= _FULL_SIZE:
+            _FULL.pop(next(iter(_FULL)))
+        _FULL[key] = held = LinearisedResponse(model, alpha, freqs_hz, applied)
+        held.fast_key = key
+        _BUILT[0] += 1
+    return held
+
+
+def _with(applied, effect, location, value):
+    from .effects import Applied
+
+    if effect is None:
+        return list(applied)
+    v = np.zeros(effect.n_parameters) if value is None else np.atleast_1d(np.asarray(value, float))
+    return list(applied) + [Applied(effect, location, v)]
+
+
+#: Modules whose ``fit_update`` the closure calls through their own name.
+_USERS = ("fe_core.closure.fits", "fe_core.closure.screening", "fe_core.closure.selection")
+
+
+def install():
+    """Switch the closure's fits to the reduced model for the rest of the process (``MRGP_CLOSURE_FAST=1``
+    does it when :mod:`fe_core.closure` is imported, in the flow's worker processes too)."""
+    import importlib
+
+    for name in _USERS:
+        importlib.import_module(name).fit_update = fit_update
+    importlib.import_module("fe_core.closure.screening").LinearisedResponse = full_response
+
+
+@contextlib.contextmanager
+def enabled():
+    """Within the block, the closure's fits (``fit_update`` as the fits, screening and selection modules
+    call it) run on the reduced model; the plain path is restored after."""
+    import importlib
+
+    mods = [importlib.import_module(name) for name in _USERS]
+    saved = [m.fit_update for m in mods]
+    screening = importlib.import_module("fe_core.closure.screening")
+    saved_response = screening.LinearisedResponse
+    for m in mods:
+        m.fit_update = fit_update
+    screening.LinearisedResponse = full_response
+    try:
+        yield
+    finally:
+        for m, f in zip(mods, saved):
+            m.fit_update = f
+        screening.LinearisedResponse = saved_response
+        _FULL.clear()
+        _BASES.clear()
