@@ -32,6 +32,7 @@ from scipy import stats
 
 __all__ = [
     "STRUCTURED_ESTIMATE",
+    "MAX_NOISE",
     "log_residual",
     "relative_residual",
     "overall_error",
@@ -157,6 +158,11 @@ def runs_test(residual: np.ndarray, freqs_hz) -> tuple[int, float, float]:
 #: ``ResidualAnalysis.sigma_source`` of a noise level estimated from a residual the test calls structure.
 STRUCTURED_ESTIMATE = "estimated from a residual that is structure: an upper bound, not the measured noise"
 
+#: An estimated relative noise level above this is not believed for measured amplitudes: the residual is called
+#: structure (a model far off varies from line to line across resonances far more than noise does, and its second
+#: differences then "estimate" tens of per cent). The hybrid's check uses the same ceiling (``HybridOptions``).
+MAX_NOISE = 0.05
+
 
 @dataclass(frozen=True)
 class ResidualAnalysis:
@@ -197,7 +203,8 @@ class ResidualAnalysis:
 
 
 def analyse_residual(residual: np.ndarray, freqs_hz, n_fitted: int, noise: float | None = None,
-                     significance: float = 0.01, relative: np.ndarray | None = None) -> ResidualAnalysis:
+                     significance: float = 0.01, relative: np.ndarray | None = None,
+                     max_noise: float = MAX_NOISE) -> ResidualAnalysis:
     """Noise or structure?
 
     Parameters
@@ -214,6 +221,9 @@ def analyse_residual(residual: np.ndarray, freqs_hz, n_fitted: int, noise: float
         Chi-square level below which the residual is called structure.
     relative : ndarray, shape (p, n), optional
         Relative residuals for the overall error; from ``residual`` if None.
+    max_noise : float
+        An estimated level above this is not believed: the residual is structure, whatever the chi-square says
+        (the level, too high, would call any misfit noise).
     """
     r = np.asarray(residual, float)
     if r.ndim != 2:
@@ -228,11 +238,12 @@ def analyse_residual(residual: np.ndarray, freqs_hz, n_fitted: int, noise: float
     T, dof, p = chi_square_test(r, sigma, n_fitted)
     runs, z, p_runs = runs_test(r, freqs_hz)
     rel = np.expm1(r) if relative is None else np.asarray(relative, float)
-    if source == "estimated" and p < significance:
+    structured = bool(p < significance) or (source == "estimated" and sigma > max_noise)
+    if source == "estimated" and structured:
         source = STRUCTURED_ESTIMATE
     return ResidualAnalysis(
         n_values=int(r.size), n_fitted=int(n_fitted), rss=float(np.sum(r**2)), rms=float(np.sqrt(np.mean(r**2))),
         sigma=sigma, sigma_source=source, sigma_estimated=estimated, chi2=T, dof=dof, p_chi2=p,
-        runs=runs, runs_z=z, p_runs=p_runs, significance=float(significance), structured=bool(p < significance),
+        runs=runs, runs_z=z, p_runs=p_runs, significance=float(significance), structured=structured,
         overall_error=overall_error(rel), noise_floor=noise_floor_error(sigma),
     )

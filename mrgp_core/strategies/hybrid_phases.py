@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import qmc
 
+from fe_core.inference.residual import MAX_NOISE
+
 from .gauss_newton import TrustRegionGN
 from .ledger import BudgetSpent, Ledger
 
@@ -69,7 +71,7 @@ class HybridOptions:
     target: float = 1e-4
     step_tol: float = 1e-3
     noise: float | None = None
-    max_noise: float = 0.05
+    max_noise: float = MAX_NOISE
     noise_ratio: float = 1.5
     significance: float = 0.01
     max_cost: float = 300.0

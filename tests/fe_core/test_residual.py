@@ -81,3 +81,21 @@ def test_analysis_calls_noise_noise_and_a_smooth_misfit_structure(rng):
     estimated = analyse_residual(noise, FREQS, 6)
     assert estimated.sigma_source == "estimated" and 0.5 * sigma < estimated.sigma < 2 * sigma
     assert calm.noise_floor == pytest.approx(noise_floor_error(sigma)) == pytest.approx(0.003989, rel=1e-3)
+
+
+def test_an_estimated_noise_above_the_ceiling_is_not_believed(rng):
+    """A model far off alternates across resonances from line to line: second differences of r = +/-0.3 "estimate"
+    sqrt(16 * 0.09 / 6) = 49 %, against which the chi-square calls a 30 % misfit noise (p = 1). Above MAX_NOISE the
+    estimate is an upper bound and the residual structure (issue 28's frame-patch-10 % case); a configured level
+    is taken as given, and white noise of 1 % stays noise."""
+    from fe_core.inference.residual import MAX_NOISE, STRUCTURED_ESTIMATE
+
+    freqs = np.arange(100.0, 140.0, 1.0)
+    r = 0.3 * np.where(np.arange(freqs.size) % 2 == 0, 1.0, -1.0)[:, None] * np.ones((1, 6))
+    a = analyse_residual(r, freqs, n_fitted=4)
+    assert a.sigma_estimated == pytest.approx(np.sqrt(16 * 0.09 / 6), rel=0.03) and a.sigma_estimated > MAX_NOISE
+    assert a.p_chi2 > 0.99  # what the chi-square alone would call noise
+    assert a.structured and a.sigma_source == STRUCTURED_ESTIMATE and not a.noise_known
+    assert not analyse_residual(r, freqs, n_fitted=4, noise=0.5).structured  # configured: taken as given
+    white = analyse_residual(0.01 * rng.standard_normal((freqs.size, 6)), freqs, n_fitted=4)
+    assert white.sigma_source == "estimated" and not white.structured
