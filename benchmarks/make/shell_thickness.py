@@ -1,12 +1,12 @@
 """Example: the suspended cylindrical S8R panel of data/examples/shell_panel updated on its shell thicknesses
 (route B: ccx as a black box, forward-difference Jacobians).
 
-    python -m benchmarks.make.shell_thickness        # data/examples/shell_thickness/ (about 5 min on 2 cores)
+    python -m benchmarks.make.shell_thickness        # data/examples/shell_thickness/ (about 2 min on 2 cores)
 
-The panel, its springs, four segments, sensors, excitation, damping (Rayleigh a = 4, b = 2e-5) and measured
-frequencies (a 1 Hz grid within 0.9-1.1 times each of the first four flexible modes) are those of
-:mod:`benchmarks.make.shell_panel`; the parameters are relative factors on the four ``*SHELL SECTION``
-thicknesses (3 mm nominal), which enter K and M non-linearly (bending stiffness ~ t^3): each FE run is one ccx
+The panel, its springs, four segments, excitation and damping (Rayleigh a = 4, b = 2e-5) are those of
+:mod:`benchmarks.make.shell_panel`, with 4 of its 7 sensors (``SENSORS_KEPT``) and a ``STEP_HZ`` grid within
+0.9-1.1 times each of the first ``N_BANDS`` = 3 flexible modes; the parameters are relative factors on the
+four ``*SHELL SECTION`` thicknesses (3 mm nominal), which enter K and M non-linearly (bending stiffness ~ t^3): each FE run is one ccx
 run of the deck (``*STEADY STATE DYNAMICS`` on ``N_MODES`` modes).
 
 ``panel.inp`` is the model's mesh (``MODEL_MESH``, 20 x 20). ``measured.csv`` is the FRF of ccx's stiffness
@@ -14,12 +14,12 @@ and mass matrices of the panel on ``DATA_MESH`` with the thicknesses scaled by `
 matrix run at the true thicknesses), solved at each frequency (no modal truncation), at the sensors
 ``SENSORS_KEPT``, with 1 % multiplicative noise (seed ``SEED``): the model's ccx runs superpose ``N_MODES``
 modes, the data do not. The printout and ``truth.json`` say how far the model is from the data at the truth
-(the noise-free FRF's chi-square per line in units of the noise, 0.14).
+(the noise-free FRF's chi-square per line in units of the noise, 0.047; the factors' linearised bias).
 
 The data mesh is the model's, not a finer one: where two segments of different thickness meet, ccx's expansion
 of the shell nodes into 3-D ones (a knot, or a nodal thickness shared by both sides) blurs the step over an
-element's width, so the panel with thickness steps converges slowly: at the truth the 20 x 20 mesh's second flexible mode is 0.60 % above
-the 40 x 40 mesh's (0.16 %, 0.22 % for modes 3, 4; printed, ``truth.json``), and route B on 20 x 20 against
+element's width, so the panel with thickness steps converges slowly: at the truth the 20 x 20 mesh's second
+flexible mode is 0.60 % above the 40 x 40 mesh's (0.16 %, 0.22 % for modes 3, 4; printed, ``truth.json``), and route B on 20 x 20 against
 the 40 x 40 matrices' FRF is 76 (chi-square per line) off at the truth. (Route A's moduli, one thickness: 0.014 %.)
 
 Replaced (issue 29): the panel clamped along x = 0, 12 x 12 against 24 x 24 with ccx's modal FRF as data, whose
