@@ -6,8 +6,8 @@
 The panel, its springs, four segments, excitation and damping (Rayleigh a = 4, b = 2e-5) are those of
 :mod:`benchmarks.make.shell_panel`, with 4 of its 7 sensors (``SENSORS_KEPT``) and a ``STEP_HZ`` grid within
 0.9-1.1 times each of the first ``N_BANDS`` = 3 flexible modes; the parameters are relative factors on the
-four ``*SHELL SECTION`` thicknesses (3 mm nominal), which enter K and M non-linearly (bending stiffness ~ t^3): each FE run is one ccx
-run of the deck (``*STEADY STATE DYNAMICS`` on ``N_MODES`` modes).
+four ``*SHELL SECTION`` thicknesses (3 mm nominal), which enter K and M non-linearly (bending stiffness ~
+t^3): each FE run is one ccx run of the deck (``*STEADY STATE DYNAMICS`` on ``N_MODES`` modes).
 
 ``panel.inp`` is the model's mesh (``MODEL_MESH``, 20 x 20). ``measured.csv`` is the FRF of ccx's stiffness
 and mass matrices of the panel on ``DATA_MESH`` with the thicknesses scaled by ``1 + THETA_TRUE`` (one ccx
@@ -19,8 +19,9 @@ modes, the data do not. The printout and ``truth.json`` say how far the model is
 The data mesh is the model's, not a finer one: where two segments of different thickness meet, ccx's expansion
 of the shell nodes into 3-D ones (a knot, or a nodal thickness shared by both sides) blurs the step over an
 element's width, so the panel with thickness steps converges slowly: at the truth the 20 x 20 mesh's second
-flexible mode is 0.60 % above the 40 x 40 mesh's (0.16 %, 0.22 % for modes 3, 4; printed, ``truth.json``), and route B on 20 x 20 against
-the 40 x 40 matrices' FRF is 76 (chi-square per line) off at the truth. (Route A's moduli, one thickness: 0.014 %.)
+flexible mode is 0.60 % above the 40 x 40 mesh's (0.16 %, 0.22 % for modes 3, 4; printed, ``truth.json``), and
+route B on 20 x 20 against the 40 x 40 matrices' FRF is 76 (chi-square per line) off at the truth. (Route A's
+moduli, one thickness: 0.014 %.)
 
 Replaced (issue 29): the panel clamped along x = 0, 12 x 12 against 24 x 24 with ccx's modal FRF as data, whose
 discretisation difference (0.2 % in frequency, S8R converging like 1/n at ccx's clamped edge) the 1 % noise
