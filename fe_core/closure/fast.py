@@ -42,7 +42,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from ..solvers.adjoint import ReducedResponse
+from ..solvers.adjoint import ReducedResponse, project_rows
 from . import fits
 from .effects import LinearisedResponse, extended_matrices, sensor_gain
 from .effects.extended import segment_stiffness
@@ -109,11 +109,7 @@ class ReducedBasis:
 
     def project(self, A) -> np.ndarray:
         """``V^T A V`` of a sparse change through its non-empty rows."""
-        A = sp.csr_matrix(A)
-        rows = np.flatnonzero(np.diff(A.indptr))
-        if rows.size == 0:
-            return np.zeros((self.V.shape[1],) * 2)
-        return self.V[rows].T @ (A[rows] @ self.V)
+        return project_rows(A, self.V)
 
 
 class _ReducedModal(ReducedResponse):

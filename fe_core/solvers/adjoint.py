@@ -49,7 +49,17 @@ import scipy.sparse as sp
 
 from .frf import direct_frf, krylov_space
 
-__all__ = ["ReducedResponse"]
+__all__ = ["ReducedResponse", "project_rows"]
+
+
+def project_rows(A, W: np.ndarray) -> np.ndarray:
+    """``W^T A W`` of a sparse (n, n) change, shape (m, m), reading only A's non-empty rows (an effect or a
+    segment touches few)."""
+    A = sp.csr_matrix(A)
+    rows = np.flatnonzero(np.diff(A.indptr))
+    if rows.size == 0:
+        return np.zeros((W.shape[1],) * 2)
+    return W[rows].T @ (A[rows] @ W)
 
 
 class ReducedResponse:
@@ -112,11 +122,7 @@ class ReducedResponse:
 
     def project(self, A) -> np.ndarray:
         """``W^T A W`` for a sparse (n, n) change, shape (m, m); only A's non-empty rows are read."""
-        A = sp.csr_matrix(A)
-        rows = np.flatnonzero(np.diff(A.indptr))
-        if rows.size == 0:
-            return np.zeros((self.W.shape[1],) * 2)
-        return self.W[rows].T @ (A[rows] @ self.W)
+        return project_rows(A, self.W)
 
     def _bilinear(self, A: np.ndarray) -> np.ndarray:
         """``u_ps^T A v_p`` for every frequency and sensor, shape (p, n_s)."""
