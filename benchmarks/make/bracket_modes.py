@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import json
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.make import bracket_example
 from benchmarks.make.bracket_example import ALPHA_TRUE, OUT, SENSORS, SEGMENTS, TOLERANCE, model_text
 from tasks.io.measured.modes import MeasuredModes, write_uff55
 
@@ -76,17 +76,7 @@ def modes_of(model, n_modes: int = N_MODES):
 
 def fine_model(out: Path = OUT):
     """The fine mesh with the triaxial test points (regenerated with make_mesh.py --fine when missing)."""
-    import subprocess
-
-    from fe_core.io import read_model
-
-    mesh = out / "bracket_fine.msh"
-    if not mesh.exists():
-        subprocess.run([sys.executable, str(out / "make_mesh.py"), "--fine"], check=True)
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "model_fine.toml"
-        path.write_text(modal_model_text(str(mesh), TOLERANCE["bracket_fine.msh"], "The fine mesh (measured modes)."))
-        return read_model(path)
+    return bracket_example.fine_model(out, modal_model_text, "The fine mesh (measured modes).")
 
 
 def main() -> int:
