@@ -121,6 +121,9 @@ class ParametricModel(ModelResponses):
         Where each sensor and excitation point landed (node, distance), for the log.
     dof_table : ndarray, shape (n_total_dofs, 2), int, or None
         Node id and direction of each DOF of a matrices model.
+    node_coordinates : ndarray, shape (k, 3), m, or None
+        Coordinates of the ``k`` nodes of :attr:`dof_table` in ascending node id (a matrices
+        model's optional node table); None when not given. A mesh model's are ``mesh.nodes``.
     cell_segment : ndarray, shape (n_cells,), int, or None
         Segment index (0-based, in :attr:`segment_names`' order) of each mesh cell, -1 for
         the fixed remainder; None without a mesh.
@@ -171,6 +174,7 @@ class ParametricModel(ModelResponses):
     sensor_test_dofs: list = field(default_factory=list)
     excitation_test_dofs: list = field(default_factory=list)
     mass_parameters: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    node_coordinates: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.mass_parameters = np.asarray(self.mass_parameters, dtype=int).ravel()
@@ -233,6 +237,24 @@ class ParametricModel(ModelResponses):
     def n_dofs(self) -> int:
         """Number of free DOFs."""
         return self.free_dofs.size
+
+    # -- geometry --------------------------------------------------------
+    def node_position(self, node: int) -> np.ndarray | None:
+        """Coordinates of a node, m, shape (3,): the mesh's, or a matrices model's node table's; None when
+        the model has neither (or the node is not in it)."""
+        if self.mesh is not None:
+            return self.mesh.nodes[int(node)].copy()
+        if self.node_coordinates is None or self.dof_table is None:
+            return None
+        ids = np.unique(np.asarray(self.dof_table)[:, 0])
+        i = int(np.searchsorted(ids, int(node)))
+        return self.node_coordinates[i].copy() if i < ids.size and ids[i] == int(node) else None
+
+    @property
+    def size_m(self) -> float | None:
+        """The structure's size, m: the diagonal of its nodes' bounding box; None without coordinates."""
+        xyz = self.mesh.nodes if self.mesh is not None else self.node_coordinates
+        return None if xyz is None else float(np.linalg.norm(np.ptp(xyz, axis=0)))
 
     @property
     def n_sensors(self) -> int:

@@ -8,7 +8,7 @@ Four segments of 0.2 m (x < 0.8 m) are the subdomains whose stiffness is updated
 the last 0.2 m is the fixed remainder. Written per segment as Matrix Market files
 (``K_seg<i>.mtx``, ``M_seg<i>.mtx``, the remainder ``K_rest.mtx``, ``M_rest.mtx``,
 before constraints) with the DOF table ``dofs.csv`` (node = scikit-fem's vertex
-index). Five sensors read u_y at the top edge at x = 0.2 ... 1.0 m; the excitation
+index) and the node table ``nodes.csv`` (each vertex's coordinates, m). Five sensors read u_y at the top edge at x = 0.2 ... 1.0 m; the excitation
 pushes the tip along y and z at once (weights 1 and 0.5).
 
 ``measured.csv`` is scikit-fem's own FRF (one direct complex solve per frequency with
@@ -129,6 +129,7 @@ def write_files(fem: dict, out: Path) -> None:
     with open(out / "dofs.csv", "w") as fh:
         fh.write("node,direction\n")
         fh.writelines(f"{n},{'xyz'[d]}\n" for n, d in table)
+    write_nodes(fem, out)
     names = [f"seg{i + 1}" for i in range(len(fem["K"]) - 1)] + ["rest"]
     for name, K, M in zip(names, fem["K"], fem["M"]):
         scipy.io.mmwrite(str(out / f"K_{name}.mtx"), K, symmetry="symmetric", precision=17)
@@ -140,6 +141,7 @@ def write_files(fem: dict, out: Path) -> None:
         "",
         "[matrices]",
         'dofs = "dofs.csv"',
+        'nodes = "nodes.csv"        # node coordinates, m (optional: the closure locates effects with them)',
         'stiffness = "K_rest.mtx"   # the fixed remainder: x > 0.8 m',
         'mass = "M_rest.mtx"',
         "",
@@ -158,6 +160,14 @@ def write_files(fem: dict, out: Path) -> None:
               f'  {{ node = {fem["tip"]}, direction = "y", weight = 1.0 }},',
               f'  {{ node = {fem["tip"]}, direction = "z", weight = 0.5 }},', "]", ""]
     (out / "model.toml").write_text("\n".join(lines))
+
+
+def write_nodes(fem: dict, out: Path) -> None:
+    """``nodes.csv``: every vertex's coordinates (node = scikit-fem's vertex index, as in ``dofs.csv``), m."""
+    p = fem["mesh"].p
+    with open(out / "nodes.csv", "w") as fh:
+        fh.write("node,x,y,z\n")
+        fh.writelines(f"{n},{float(p[0, n])!r},{float(p[1, n])!r},{float(p[2, n])!r}\n" for n in range(p.shape[1]))
 
 
 def with_point_mass(fem: dict, point, mass: float) -> tuple[dict, int]:

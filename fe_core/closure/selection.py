@@ -184,10 +184,10 @@ def located(model, effect: Effect, location: str, spread: Sequence[tuple[str, fl
     if all(loc == location for loc, _ in spread):
         return True
     far = spread_mm(effect, location, spread)
-    if far is None or getattr(model, "mesh", None) is None:
+    size_m = getattr(model, "size_m", None)
+    if far is None or size_m is None:
         return False
-    size_mm = 1e3 * float(np.linalg.norm(np.ptp(model.mesh.nodes, axis=0)))
-    return far <= LOCATION_SHARE * size_mm
+    return far <= LOCATION_SHARE * 1e3 * size_m
 
 
 def _reordered(fit: Fit, order: Sequence[int]) -> Fit:

@@ -4,7 +4,9 @@ Matrix files: Matrix Market ``.mtx`` (``scipy.io.mmread``) or SciPy's sparse
 ``.npz`` (``scipy.sparse.save_npz`` / ``load_npz``). The DOF table is a CSV file
 with the header ``node,direction`` and one row per matrix row: the node id (any
 integer the exporting program uses) and the direction ``x``, ``y`` or ``z``
-(or 1, 2, 3).
+(or 1, 2, 3). An optional node table (CSV, header ``node,x,y,z``) gives each node's
+coordinates in metres: the closure then places its effects and measures how far
+their evidence spreads.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import numpy as np
 import scipy.io
 import scipy.sparse as sp
 
-__all__ = ["read_matrix", "read_dof_table", "check_symmetric_psd", "DIRECTIONS", "MatrixFileError"]
+__all__ = ["read_matrix", "read_dof_table", "read_node_table", "check_symmetric_psd", "DIRECTIONS", "MatrixFileError"]
 
 DIRECTIONS = {"x": 0, "y": 1, "z": 2, "1": 0, "2": 1, "3": 2}
 
@@ -80,6 +82,42 @@ def read_dof_table(path: str | Path) -> np.ndarray:
         k = uniq[counts > 1][0]
         raise MatrixFileError(f"{path}: node {k // 3} direction {'xyz'[k % 3]} appears {counts.max()} times")
     return out
+
+
+def read_node_table(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """The node table: node ids, shape (k,), int, ascending, and their coordinates, shape (k, 3), m.
+
+    A CSV file with the header ``node,x,y,z`` and one row per node: an integer id (the DOF
+    table's) and three finite numbers. A malformed row or a repeated node is refused
+    (:class:`MatrixFileError` naming the file and the line).
+    """
+    path = Path(path)
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.reader(fh))
+    except OSError as exc:
+        raise MatrixFileError(f"{path}: cannot read the node table ({exc.strerror})") from None
+    if not rows or [c.strip() for c in rows[0]] != ["node", "x", "y", "z"]:
+        raise MatrixFileError(f"{path}: the node table needs the header 'node,x,y,z'")
+    ids = np.empty(len(rows) - 1, dtype=np.int64)
+    xyz = np.empty((len(rows) - 1, 3))
+    line_of: dict[int, int] = {}
+    for i, row in enumerate(rows[1:]):
+        try:
+            node, *coords = (c.strip() for c in row)
+            ids[i], xyz[i] = int(node), [float(c) for c in coords]
+        except ValueError:
+            raise MatrixFileError(f"{path}: line {i + 2}: expected 'node,x,y,z' with an integer node and three "
+                                  f"numbers, got {','.join(row)!r}") from None
+        if not np.all(np.isfinite(xyz[i])):
+            raise MatrixFileError(f"{path}: line {i + 2}: node {ids[i]} has a non-finite coordinate "
+                                  f"{','.join(row[1:])!r}")
+        if int(ids[i]) in line_of:
+            raise MatrixFileError(f"{path}: line {i + 2}: node {ids[i]} is listed again (first on line "
+                                  f"{line_of[int(ids[i])]})")
+        line_of[int(ids[i])] = i + 2
+    order = np.argsort(ids)
+    return ids[order], xyz[order]
 
 
 def check_symmetric_psd(A: sp.csr_matrix, name: str) -> None:

@@ -271,13 +271,14 @@ class _NodalEffect(Effect):
 
     def describe(self, location) -> dict:
         n = self.node(location)
-        if self.model.mesh is None:  # a matrices model: no coordinates
+        p = self.model.node_position(n)
+        if p is None:  # a matrices model without a node table: no coordinates
             return {"node": n}
-        x, y, z = self.model.mesh.nodes[n]
+        x, y, z = p
         return {"node": n, "x_m": float(x), "y_m": float(y), "z_m": float(z)}
 
     def position(self, location) -> np.ndarray | None:
-        return None if self.model.mesh is None else self.model.mesh.nodes[self.node(location)].copy()
+        return self.model.node_position(self.node(location))
 
     def neighbours(self, location) -> list[str]:
         """Candidate nodes sharing a cell with this node (without a mesh: coupled to it in K)."""

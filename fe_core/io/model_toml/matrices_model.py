@@ -11,7 +11,7 @@ import scipy.sparse as sp
 
 from ...assembly import SegmentedMatrix, free_dof_map
 from ...model import ParametricModel
-from ..matrices import MatrixFileError, check_symmetric_psd, read_dof_table, read_matrix
+from ..matrices import MatrixFileError, check_symmetric_psd, read_dof_table, read_matrix, read_node_table
 from .sensors import _Locator, _sensors_and_excitation
 from .spec import UNITS, _fixed_dofs, _get, _keys, _segment_parameters, _Spec, _tables
 
@@ -25,7 +25,7 @@ def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
     mat = spec.data["matrices"]
     if not isinstance(mat, dict):
         raise spec.error("matrices", f"must be a table with dofs (and optionally stiffness, mass), got {mat!r}")
-    _keys(spec, mat, {"dofs", "stiffness", "mass"}, "matrices")
+    _keys(spec, mat, {"dofs", "stiffness", "mass", "nodes"}, "matrices")
     dof_path = spec.file("matrices.dofs", _get(spec, mat, "dofs", "matrices", (str,)))
 
     def matrix(key: str, value: Any) -> sp.csr_matrix:
@@ -49,6 +49,7 @@ def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
     except MatrixFileError as exc:
         raise spec.error("matrices.dofs", str(exc)) from None
     n = table.shape[0]
+    coordinates = _node_coordinates(spec, mat, table, dof_path.name)
     seg_tables = _tables(spec, "segments")
     K_full, M_full, names = [], [], []
     for i, seg in enumerate(seg_tables):
@@ -100,8 +101,29 @@ def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
         segment_names=names, damping=damping, segment_masses=masses, outputs=outputs, load=load,
         sensor_names=snames, excitation_name=exc_name, n_total_dofs=n, parameter_bounds=bounds,
         source=str(spec.path), remainder_mass=float(ux @ (M0 @ ux)) if M0 is not None else 0.0,
-        placements=placements, dof_table=table, mass_parameters=mass_parameters, **extra,
+        placements=placements, dof_table=table, mass_parameters=mass_parameters, node_coordinates=coordinates,
+        **extra,
     )
+
+
+def _node_coordinates(spec: _Spec, mat: dict, table: np.ndarray, dof_name: str) -> np.ndarray | None:
+    """``matrices.nodes``: the coordinates of every node of the DOF table, shape (k, 3), m, in the order of
+    the table's ascending node ids (:func:`fe_core.closure.effects.base.node_rows`); None without the key.
+    Nodes the DOF table does not name are ignored; a node of the DOF table without coordinates is refused."""
+    if "nodes" not in mat:
+        return None
+    path = spec.file("matrices.nodes", _get(spec, mat, "nodes", "matrices", (str,)))
+    try:
+        ids, xyz = read_node_table(path)
+    except MatrixFileError as exc:
+        raise spec.error("matrices.nodes", str(exc)) from None
+    nodes = np.unique(table[:, 0])
+    at = np.clip(np.searchsorted(ids, nodes), 0, max(ids.size - 1, 0))
+    missing = nodes[ids[at] != nodes] if ids.size else nodes
+    if missing.size:
+        raise spec.error("matrices.nodes", f"{path.name}: no coordinates for {missing.size} node(s) of the DOF "
+                                           f"table {dof_name}, e.g. node(s) {missing[:5].tolist()}")
+    return xyz[at]
 
 
 #: Lowest eigenvalue of (K, M), relative to mean(diag K) / mean(diag M), below which it is a rigid-body mode.
