@@ -9,7 +9,8 @@ the closure's FE solves, the verdict, the effect found (kind, location), the loc
 the found and the true node, or the patches' centroids, as % of the structure's size: its bounding box's
 largest side), the size error (relative, of the mass, the spring's k or the patch's beta), the closure's final
 error against its noise floor, wall time. The criteria (issue 28): located within 5 %, sized within 10 %, verdict
-``explained`` -- a row's ``pass`` says which of them fail.
+``explained`` -- a row's ``pass`` says which of them fail. The control cases (``expected`` in the truth): clean data
+must give ``noise`` and no effect, an effect outside the library must not give ``explained``.
 """
 
 from __future__ import annotations
@@ -57,6 +58,8 @@ def _position(location: str, nodes, cells):
 def score(case: str, truth: dict, closure: dict, geometry) -> dict:
     """The row's finding against its truth (pure: from closure.json and the truth)."""
     t = truth["cases"][case]
+    if t.get("expected", "explained") != "explained":
+        return _control_score(t, closure)
     size = truth["structures"][t["structure"]]["size_m"]
     first = (closure.get("effects") or [{}])[0]
     kind, location = first.get("type"), first.get("location")
@@ -71,6 +74,20 @@ def score(case: str, truth: dict, closure: dict, geometry) -> dict:
                             ("location", not loc_err <= LOCATED), ("size", not size_err <= SIZED)) if bad]
     return {"found": f"{kind} at {location} = {value:.4g}" if first else "-", "location error %": 100 * loc_err,
             "size error %": 100 * size_err, "pass": "yes" if ok else "no: " + ", ".join(why)}
+
+
+def _control_score(t: dict, closure: dict) -> dict:
+    """A control case: clean data must give ``noise`` and no effect, an effect outside the library anything but
+    ``explained`` (the effects found are listed, not scored: none is the truth)."""
+    effects = closure.get("effects") or []
+    found = "; ".join(f"{e.get('type')} at {e.get('location')} = {e.get('value', np.nan):.4g}" for e in effects)
+    verdict = closure.get("verdict")
+    if t["expected"] == "noise":
+        ok, why = verdict == "noise" and not effects, f"verdict {verdict}, {len(effects)} effect(s)"
+    else:
+        ok, why = verdict is not None and verdict != "explained", f"verdict {verdict}"
+    return {"found": found or "-", "location error %": np.nan, "size error %": np.nan,
+            "pass": "yes" if ok else "no: " + why}
 
 
 def main(argv=None) -> int:
@@ -90,13 +107,15 @@ def main(argv=None) -> int:
                 geometry[t["structure"]] = _coordinates(t["structure"], t["model"])
             t0 = time.perf_counter()
             base = run_case({"case": case, "model": t["model"], "measured": t["measured"], "node": t["node"],
-                             "mass_kg": t["value"], "effect": t["effect"]}, work)
+                             "mass_kg": t["value"] or np.nan, "effect": t["effect"]}, work)
             wall = time.perf_counter() - t0
             file = work / case / "run" / "closure" / "closure.json"
             closure = json.loads(file.read_text()) if file.exists() else {}
             noise = closure.get("noise_floor")
             row = {"case": case, "structure": t["structure"],
-                   "effect": f"{t['effect']} at {t['location']} = {t['value']:.4g} ({100 * t['share']:g} %)",
+                   "effect": (f"{t['effect']} at {t['location']} = {t['value']:.4g} ({100 * t['share']:g} %)"
+                              if t.get("expected", "explained") == "explained" else t["description"]),
+                   "expected": t.get("expected", "explained"),
                    "decision": base["evidence"],
                    "FE runs (eq.)": f"{base['update FE runs']} ({base['update FE-run equivalents']:g})",
                    "closure FE solves": closure.get("fe_solves"), "verdict": closure.get("verdict"),

@@ -49,6 +49,17 @@ CASES = [
     ("plate-patch-10%", "plate", "patch", (0.42, 0.2, 0.012), 0.10, 204),
     ("frame-patch-10%", "frame", "patch", (0.02, 0.02, 0.16), 0.10, 304),
 ]
+#: Cases the closure must not call ``explained``: (case, structure, kind, share or size, seed, expected verdict).
+#: Clean data (the truth's alpha, no effect) must give ``noise``; an effect outside the library
+#: (:mod:`benchmarks.make.own_outside`) anything but ``explained``. ``mass_layer``: s of the plate's mass spread
+#: over a rectangle straddling its four quadrants; ``joint``: the frame's left beam-column joint cut and tied by
+#: springs of this normal stiffness per interface node (N/m; shear 10 times stiffer).
+CONTROL_CASES = [
+    ("plate-clean", "plate", "none", 0.0, 205, "noise"),
+    ("frame-clean", "frame", "none", 0.0, 305, "noise"),
+    ("plate-layer-10%", "plate", "mass_layer", 0.10, 206, "not explained"),
+    ("frame-joint", "frame", "joint", 2e8, 306, "not explained"),
+]
 
 
 def _cantilever() -> dict:
@@ -78,6 +89,37 @@ def _cantilever_case(s, fem, kind, node, value):
         fem = {**fem, "K": fem["K"][:-1] + [fem["K"][-1] + extra]}
     freqs = mx.measurement_frequencies(fem)
     return mx.skfem_frf(fem, mx.ALPHA_TRUE, freqs), freqs
+
+
+def _control_case(s, fem, kind, size):
+    """A control case's lines, scikit-fem FRF and truth entry: no effect, or one outside the library."""
+    from benchmarks.make import own_outside as out
+
+    K, M = st.matrices(fem, s["alpha"])
+    if kind == "none":
+        entry = {"location": None, "node": None, "share": 0.0, "value": 0.0, "xyz_m": None,
+                 "description": "no effect"}
+    elif kind == "mass_layer":
+        mass = size * float(M.sum()) / 3.0
+        M = M + out.mass_layer(s, fem, mass)
+        x0, x1, y0, y1 = out.LAYER_REGION
+        entry = {"location": f"x {x0}-{x1} m, y {y0}-{y1} m", "node": None, "share": size, "value": mass,
+                 "xyz_m": [(x0 + x1) / 2, (y0 + y1) / 2, 0.006], "cells": int(out.layer_cells(s).size),
+                 "description": f"a non-structural mass layer of {mass:.6g} kg over x {x0}-{x1} m, y {y0}-{y1} m"}
+    elif kind == "joint":
+        s2, fem2, pairs = out.jointed_frame(s)
+        K, M = st.matrices(fem2, s["alpha"])
+        K = (K + out.joint_springs(fem2, pairs, size)).tocsr()
+        freqs = lines(st.modes_hz(fem2, K, M, 4))
+        entry = {"location": f"left joint, z = {out.JOINT_Z} m", "node": None, "share": None, "value": size,
+                 "xyz_m": [0.02, 0.02, out.JOINT_Z], "interface_nodes": [int(n) for n in pairs[:, 0]],
+                 "description": f"the left beam-column joint tied by springs of {size:.3g} N/m per node along z "
+                                f"({out.SHEAR_TO_NORMAL:g} times that in shear) at {len(pairs)} interface nodes"}
+        return freqs, st.frf(fem2, K, M, s["damping"], freqs), entry
+    else:
+        raise ValueError(kind)
+    freqs = lines(st.modes_hz(fem, K, M, 4))
+    return freqs, st.frf(fem, K, M, s["damping"], freqs), entry
 
 
 def lines(modes_hz) -> np.ndarray:
@@ -170,6 +212,18 @@ def main() -> int:
                                 "value": float(value), "xyz_m": [float(v) for v in centre], "seed": seed,
                                 "frequencies_hz": [float(f) for f in freqs]}
         print(f"{case}: {kind} at {label} = {value:.5g}, lines {freqs.min():.1f}-{freqs.max():.1f} Hz", flush=True)
+    for case, name, kind, size, seed, expected in CONTROL_CASES:
+        s, fem = built[name]
+        freqs, Z, entry = _control_case(s, fem, kind, size)
+        amp = np.abs(Z) * (1 + NOISE * np.random.default_rng(seed).standard_normal(Z.shape))
+        file = f"{case.replace('%', 'pc')}.csv"
+        write_measured(OUT / file, MeasuredFRF(freqs, list(range(1, Z.shape[1] + 1)), amp, None,
+                                               f"scikit-fem direct FRF of the {name} at alpha {s['alpha']}, "
+                                               f"{entry['description']}, {NOISE:.1%} noise, seed {seed}"))
+        truth["cases"][case] = {"structure": name, "model": s["model"], "measured": f"data/own_cases/{file}",
+                                "effect": kind, "expected": expected, **entry, "seed": seed,
+                                "frequencies_hz": [float(f) for f in freqs]}
+        print(f"{case}: {entry['description']}, lines {freqs.min():.1f}-{freqs.max():.1f} Hz", flush=True)
     (OUT / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
     return 0
 
