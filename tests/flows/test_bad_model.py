@@ -89,6 +89,12 @@ def _matrix_edit(name, how):
     return edit
 
 
+def _node_row(tmp, row="17,0.64,zero,0.05"):
+    lines = (tmp / "nodes.csv").read_text().splitlines()
+    lines[5] = row   # line 6 of the file
+    (tmp / "nodes.csv").write_text("\n".join(lines) + "\n")
+
+
 def _drop_dof_rows(tmp):
     lines = (tmp / "dofs.csv").read_text().splitlines()
     (tmp / "dofs.csv").write_text("\n".join(lines[:-3]) + "\n")
@@ -132,6 +138,10 @@ CASES = [
      ["{model}", "key 'segments[1].stiffness'", "K_seg2.mtx is not symmetric"]),
     ("matrix not positive semidefinite", lambda t: _matrices_case(t, _matrix_edit("M_seg3.mtx", "negative")),
      MATRICES_M, ["{model}", "key 'segments[2].mass'", "not positive semidefinite"]),
+    ("bad row of the node table", lambda t: _matrices_case(t, _node_row), MATRICES_M,
+     ["{model}", "key 'matrices.nodes'", "nodes.csv: line 6", "'17,0.64,zero,0.05'"]),
+    ("node without coordinates", lambda t: _matrices_case(t, lambda tmp: _node_row(tmp, "9999,0,0,0")), MATRICES_M,
+     ["{model}", "key 'matrices.nodes'", "nodes.csv: no coordinates for 1 node(s)", "node(s) [4]"]),
     ("sizes do not match the DOF table", lambda t: _matrices_case(t, _drop_dof_rows), MATRICES_M,
      ["{model}", "key 'segments[0].stiffness'", f"{N_DOFS} x {N_DOFS}", f"{N_DOFS - 3} rows"]),
     ("unrestrained matrices", lambda t: _matrices_case(t, toml=MATRICES_TOML.replace("[[supports]]\nnodes",
