@@ -141,7 +141,8 @@ def mesh_section(data, out: Path) -> Section:
     deck = getattr(model, "deck_view", None)          # a solver deck's mesh (fe_core.io.calculix.vtu)
     if model.mesh is None and deck is None:
         return Section(title=title, notes=[f"No mesh pictures: the model {name} is given as matrices (no "
-                                           "cells to draw; its node table, if any, gives points only), and no model.vtu is written for it."])
+                                           "cells to draw; its node table, if any, gives points only), and no "
+                                           "model.vtu is written for it."])
     _, theta, _ = data.best()
     alpha, gamma = factors_from_parameters(dict(zip(data.names, theta)), model)
     if deck is not None:
