@@ -12,6 +12,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from .effects import Applied, Effect, LinearisedResponse
+from .effects.bands import REFINE_BEST
 from .fits import ALPHA_BOUNDS, SIZE_MULTIPLES, Fit, alpha_starts, far_off, fit_update, joint_fit
 from ..model import ParametricModel
 
@@ -98,6 +99,15 @@ def screen(model: ParametricModel, freqs_hz, base: Fit, library: Sequence[Effect
         if not free:
             continue
         d, rss = _linear_fits(lin, effect, free, r_perp, q)
+        # An effect whose locations refine (patches on a large mesh: fe_core.closure.effects.PatchBands)
+        # adds locations round its best-screened ones, screened in turn.
+        refine = getattr(effect, "refine", None)
+        added = refine([free[k] for k in np.argsort(rss)[:REFINE_BEST]]) if refine is not None else []
+        added = [loc for loc in added if (effect.kind, loc) not in taken]
+        if added:
+            d2, rss2 = _linear_fits(lin, effect, added, r_perp, q)
+            free, d, rss = free + added, np.concatenate([d, d2]), np.concatenate([rss, rss2])
+            locations = effect.locations()
         bic = n * np.log(np.maximum(rss, 1e-300) / n) + (base.n_parameters + effect.n_parameters) * np.log(n)
         ebic = bic + 2.0 * np.log(len(locations))  # as scores()
         for k, loc in enumerate(free):
