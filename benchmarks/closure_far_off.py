@@ -95,7 +95,7 @@ def run_case(case: dict, work: Path) -> dict:
     t0 = time.perf_counter()
     runs = work / case["case"]
     code = update.main(["--model", case["model"], "--measured", case["measured"], "--run-id", "run", "--runs-dir",
-                        str(runs), "--no-intervals", "--n-jobs", "1", "--close-loop"])
+                        str(runs), "--no-intervals", "--n-jobs", "1", "--close-loop", *case.get("args", ())])
     wall = time.perf_counter() - t0
     summary = json.loads((runs / "run" / "summary.json").read_text())
     closure_file = runs / "run" / "closure" / "closure.json"

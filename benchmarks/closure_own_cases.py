@@ -94,7 +94,9 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.closure_own_cases", description=__doc__.split("\n\n")[0])
     p.add_argument("--only", nargs="+", help="case names")
     p.add_argument("--keep", help="keep the runs in this folder (default: a temporary one)")
+    p.add_argument("--noise", type=float, help="configure the noise level (the truth: 0.005) instead of estimating it")
     args = p.parse_args(argv)
+    extra = () if args.noise is None else ("--noise", str(args.noise))
     truth = json.loads(TRUTH.read_text())
     geometry = {}
     rows = []
@@ -107,7 +109,7 @@ def main(argv=None) -> int:
                 geometry[t["structure"]] = _coordinates(t["structure"], t["model"])
             t0 = time.perf_counter()
             base = run_case({"case": case, "model": t["model"], "measured": t["measured"], "node": t["node"],
-                             "mass_kg": t["value"] or np.nan, "effect": t["effect"]}, work)
+                             "mass_kg": t["value"] or np.nan, "effect": t["effect"], "args": extra}, work)
             wall = time.perf_counter() - t0
             file = work / case / "run" / "closure" / "closure.json"
             closure = json.loads(file.read_text()) if file.exists() else {}

@@ -126,7 +126,10 @@ class ReducedResponse:
 
     def _bilinear(self, A: np.ndarray) -> np.ndarray:
         """``u_ps^T A v_p`` for every frequency and sensor, shape (p, n_s)."""
-        Av = self._v @ A.T  # (p, m)
+        # A is real: two real products, not one complex one (OpenBLAS's zgemm on these small
+        # matrices spins its threads: 46 ms against 0.2 ms on 2 busy cores, measured).
+        At = A.T
+        Av = self._v.real @ At + 1j * (self._v.imag @ At) if np.isrealobj(A) else self._v @ At  # (p, m)
         return np.einsum("psm,pm->ps", self._u, Av, optimize=False)
 
     def dlog(self, dK=None, dM=None, da: float = 0.0, db: float = 0.0, dgain=None) -> np.ndarray:

@@ -84,6 +84,7 @@ from __future__ import annotations
 from ...assembly import DOFS_PER_NODE  # re-exported: benchmarks/make/effects2.py uses it
 from .bands import (
     ElementBand,
+    PatchBands,
     _cell_set_factory,
     _joint_factory,
     _patch_factory,
@@ -119,6 +120,7 @@ __all__ = [
     "PointMass",
     "GroundedSpring",
     "ElementBand",
+    "PatchBands",
     "RayleighDamping",
     "register_effect",
     "unregister_effect",

@@ -8,6 +8,7 @@ None for any other model.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -18,7 +19,7 @@ from ...elements.hex8 import element_stiffness
 from ...model import ParametricModel, check_parameters
 from .base import Effect, Terms, _free_position, candidate_nodes
 
-__all__ = ["ElementBand", "has_cell_stiffness", "joint_bands", "patch_bands", "patch_centres"]
+__all__ = ["ElementBand", "PatchBands", "has_cell_stiffness", "joint_bands", "patch_bands", "patch_centres"]
 
 
 def _segment_cells(model: ParametricModel) -> list[np.ndarray]:
@@ -113,6 +114,7 @@ class ElementBand(Effect):
         owner = np.full(model.mesh.n_cells, -1)
         for s, cells in enumerate(seg_cells):
             owner[cells] = s
+        self._owner = owner
         self._matrices: dict[str, SegmentedMatrix] = {}
         for label, cells in self.bands.items():
             if cells.size == 0:
@@ -122,21 +124,52 @@ class ElementBand(Effect):
     def locations(self) -> list[str]:
         return list(self.bands)
 
+    def add(self, bands: dict[str, np.ndarray]) -> list[str]:
+        """Add bands (labels not yet present); returns the labels added, now locations too."""
+        new = [label for label in bands if label not in self.bands and np.size(bands[label])]
+        for label in new:
+            self.bands[label] = np.asarray(bands[label], dtype=int)
+            self._matrices[label] = _band_matrix(self.model, self.bands[label], self._owner)
+        if new:
+            self._locset = None  # Effect.check's cached location set
+        return new
+
+    def _resolve(self, location: str) -> None:
+        """A location this effect can make but has not yet (a refined patch named by a stored step or another
+        process's screen): made on first use. Nothing for an effect without a maker."""
+        if location not in self._matrices and self.maker is not None:
+            self.add(self.maker(location))
+
+    #: Builds the bands of an unknown label (``{label: cells}``, empty if the label is not one it makes).
+    maker = None
+
+    def check(self, location: str, values) -> np.ndarray:
+        self._resolve(location)
+        return super().check(location, values)
+
+    def refine(self, best: Sequence[str]) -> list[str]:
+        """More locations around the best-screened ``best`` (see :class:`PatchBands`); none for a fixed set."""
+        return []
+
     def band_stiffness(self, alpha, location) -> sp.csr_matrix:
         """The band's share of ``K(alpha)``, N/m."""
         alpha = check_parameters(alpha, self.model.n_segments, "alpha")
+        self._resolve(location)
         return self._matrices[location].combine(1.0 + alpha)
 
     def terms(self, alpha, location, values) -> Terms:
         return Terms(stiffness=float(values[0]) * self.band_stiffness(alpha, location))
 
     def alpha_derivative(self, alpha, location, values, index) -> Terms:
+        self._resolve(location)
         return Terms(stiffness=float(values[0]) * self._matrices[location].segment(index))
 
     def position(self, location) -> np.ndarray:
+        self._resolve(location)
         return self.model.mesh.centroids[self.bands[location]].mean(axis=0)
 
     def describe(self, location) -> dict:
+        self._resolve(location)
         cells = self.bands[location]
         c = self.model.mesh.centroids[cells]
         return {"cells": int(cells.size), "x_min_m": float(c[:, 0].min()), "x_max_m": float(c[:, 0].max())}
@@ -179,11 +212,79 @@ def patch_centres(model: ParametricModel, n_target: int = 160) -> np.ndarray:
     return np.sort(nodes[first])
 
 
+#: On a mesh without a ``top`` node set, every free node is a patch centre while there are at most this many
+#: (the plate of issue 28's own cases has 495, its frame 855: 990 and 1,710 patches, built in 1.3 and 2.1 s,
+#: screened in 1.2 and 1.8 s); a larger mesh starts from :func:`patch_centres`' spread of about 160 and refines
+#: round the best of each screen (:class:`PatchBands`).
+ALL_CENTRES_MAX = 2500
+#: Refinement: round each of the ``REFINE_BEST`` best-screened patches, every free node within ``REFINE_REACH``
+#: times the patch's radius (its farthest node from the centre) becomes a centre, at most ``REFINE_MAX`` new
+#: centres a screen (the nearest first).
+REFINE_BEST, REFINE_REACH, REFINE_MAX = 5, 2.0, 600
+_LABEL = re.compile(r"node (\d+) r(\d+)")
+
+
+class PatchBands(ElementBand):
+    """Patches of cells round centre nodes (``node <n> r<r>``: the cells within r rings of node n) whose set
+    of centres can grow: :meth:`refine` adds the free nodes round the best-screened patches as centres, and a
+    label of a free node not yet a centre (a refined patch named by a stored step or by another process's
+    screen) is made on first use. The screening calls :meth:`refine` (:func:`fe_core.closure.screening.screen`):
+    a coarse set of centres, then every node near the best of them, so that a damaged patch round any node
+    is a candidate without screening every node of a large mesh."""
+
+    def __init__(self, model: ParametricModel, centres: Sequence[int], rings: Sequence[int] = (1, 2),
+                 refinable: bool = True):
+        self.rings = tuple(int(r) for r in rings)
+        self.refinable = refinable
+        self.free = np.asarray(candidate_nodes(model, node_set=""), dtype=int)
+        super().__init__(model, patch_bands(model, centres, self.rings), kind="patch")
+        self._tree = None
+
+    def maker(self, location: str) -> dict[str, np.ndarray]:
+        hit = _LABEL.fullmatch(location)
+        if hit is None or int(hit.group(2)) not in self.rings or int(hit.group(1)) not in set(self.free.tolist()):
+            return {}
+        return patch_bands(self.model, [int(hit.group(1))], self.rings)
+
+    def centres(self) -> np.ndarray:
+        return np.unique([int(_LABEL.fullmatch(label).group(1)) for label in self.bands])
+
+    def refine(self, best: Sequence[str]) -> list[str]:
+        """Patches centred on every free node near the ``best`` patches (at most :data:`REFINE_MAX` new centres,
+        the nearest first); returns the new locations."""
+        if not self.refinable or not best:
+            return []
+        from scipy.spatial import cKDTree
+
+        nodes = self.model.mesh.nodes
+        if self._tree is None:
+            self._tree = cKDTree(nodes[self.free])
+        have = set(self.centres().tolist())
+        found: dict[int, float] = {}
+        for label in best:
+            hit = _LABEL.fullmatch(label)
+            if hit is None:
+                continue
+            centre = int(hit.group(1))
+            cells = self.bands.get(label)
+            reach = REFINE_REACH * float(np.linalg.norm(nodes[np.unique(self.model.mesh.cells[cells])]
+                                                        - nodes[centre], axis=1).max())
+            for k in self._tree.query_ball_point(nodes[centre], reach):
+                n = int(self.free[k])
+                if n not in have:
+                    d = float(np.linalg.norm(nodes[n] - nodes[centre]))
+                    found[n] = min(d, found.get(n, np.inf))
+        new = sorted(found, key=lambda n: (found[n], n))[:REFINE_MAX]
+        return self.add(patch_bands(self.model, sorted(new), self.rings))
+
+
 def _patch_factory(model: ParametricModel, stride: int = 2) -> Effect | None:
     """Patches of 1 and 2 rings of cells around centre nodes: on a model with a ``top`` node set (the
     benchmark) every ``stride``-th top node in x and y (a 2 x 2 subgrid of the top surface: neighbouring
-    patches overlap, so no damage falls between them); on any other mesh :func:`patch_centres`.
-    None for a model without element matrices (matrices only)."""
+    patches overlap, so no damage falls between them), a fixed set; on any other mesh every free node (up
+    to :data:`ALL_CENTRES_MAX` of them: a damaged patch round a surface node is then a candidate itself, not
+    stood in for by one a few elements away), else :func:`patch_centres`, refined round the best of each
+    screen (:class:`PatchBands`). None for a model without element matrices (matrices only)."""
     if not has_cell_stiffness(model):
         return None
     if "top" in model.mesh.node_sets:
@@ -191,10 +292,11 @@ def _patch_factory(model: ParametricModel, stride: int = 2) -> Effect | None:
         xy = np.round(model.mesh.nodes[top, :2], 9)
         xs, ys = np.unique(xy[:, 0]), np.unique(xy[:, 1])
         keep = np.isin(xy[:, 0], xs[::stride]) & np.isin(xy[:, 1], ys[::stride])
-        centres = top[keep]
-    else:
-        centres = patch_centres(model)
-    return ElementBand(model, patch_bands(model, centres), kind="patch")
+        return ElementBand(model, patch_bands(model, top[keep]), kind="patch")
+    free = candidate_nodes(model, node_set="")
+    if free.size <= ALL_CENTRES_MAX:
+        return PatchBands(model, free, refinable=False)
+    return PatchBands(model, patch_centres(model))
 
 
 def _cell_set_factory(model: ParametricModel) -> Effect | None:
