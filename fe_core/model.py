@@ -246,7 +246,9 @@ class ParametricModel(ModelResponses):
             return self.mesh.nodes[int(node)].copy()
         if self.node_coordinates is None or self.dof_table is None:
             return None
-        ids = np.unique(np.asarray(self.dof_table)[:, 0])
+        ids = getattr(self, "_node_ids_cache", None)
+        if ids is None:
+            ids = self._node_ids_cache = np.unique(np.asarray(self.dof_table)[:, 0])
         i = int(np.searchsorted(ids, int(node)))
         return self.node_coordinates[i].copy() if i < ids.size and ids[i] == int(node) else None
 
