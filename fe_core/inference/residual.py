@@ -73,22 +73,35 @@ def noise_floor_error(sigma: float) -> float:
     return float(sigma * np.sqrt(2.0 / np.pi))
 
 
-def frequency_bands(freqs_hz, gap_factor: float = 1.5) -> list[np.ndarray]:
-    """Indices of contiguous, evenly stepped runs of increasing frequencies.
+def frequency_bands(freqs_hz, step_factor: float = 1.5) -> list[np.ndarray]:
+    """Indices of contiguous, evenly stepped runs of increasing frequencies (a partition of the lines).
 
-    A new band starts where the step exceeds ``gap_factor`` times the
-    smallest step (the benchmark's 106-116 Hz and 285-295 Hz give two bands).
+    A band goes on while each step is within ``step_factor`` of the step before it; where the step changes (a
+    gap, or windows of different steps side by side) a new band starts at the next line. A line alone between a
+    gap and an evenly stepped run is a band of its own. So every evenly stepped run of lines is one band whatever
+    the other runs' steps (the benchmark's 106-116 Hz and 285-295 Hz give two; issue 28's windows of 9 lines
+    round each mode, each at its own step, give one each, where a cut at 1.5 x the smallest step of all lines
+    kept the lowest window only and split the others into single lines).
     """
     f = np.asarray(freqs_hz, float)
     if f.ndim != 1 or f.size == 0:
         raise ValueError("frequencies must be a non-empty 1-D array")
-    order = np.argsort(f)
-    if f.size == 1:
-        return [order]
+    order = np.argsort(f, kind="stable")
     steps = np.diff(f[order])
-    small = steps[steps > 0].min() if np.any(steps > 0) else 1.0
-    cuts = np.flatnonzero(steps > gap_factor * small) + 1
-    return [order[a:b] for a, b in zip(np.r_[0, cuts], np.r_[cuts, f.size])]
+
+    def even(a: float, b: float) -> bool:
+        return a > 0 and b > 0 and max(a, b) <= step_factor * min(a, b)
+
+    bands, i, n = [], 0, f.size
+    while i < n:
+        j = min(i + 2, n)  # lines i..j-1; a band's first step needs no neighbour
+        while j < n and even(steps[j - 1], steps[j - 2]):
+            j += 1
+        if j - i == 2 and j + 1 < n and even(steps[j], steps[j - 1]) and not even(steps[j - 1], steps[j - 2]):
+            j = i + 1  # a line alone after a gap: the next line starts an evenly stepped run without it
+        bands.append(order[i:j])
+        i = j
+    return bands
 
 
 def estimate_noise(residual: np.ndarray, freqs_hz) -> float:

@@ -24,6 +24,39 @@ def test_the_benchmark_frequencies_form_two_bands():
     assert [b.tolist() for b in frequency_bands([5.0, 1.0, 2.0])] == [[1, 2], [0]]
 
 
+def _windows(modes_hz):
+    """Issue 28's own cases' lines: 0.8-1.2 times each mode in steps of 0.05 times it (9 lines), rounded to 0.1 Hz."""
+    return np.concatenate([np.round(f * (0.8 + 0.05 * np.arange(9)), 1) for f in modes_hz])
+
+
+def test_every_evenly_stepped_window_is_a_band_whatever_the_other_windows_steps():
+    """Windows of 9 lines round modes at 60, 350 and 1000 Hz step 3, 17.5 and 50 Hz: three bands of 9 (cut against
+    the smallest step of all lines, the two upper windows fell apart into single lines). Where the step changes
+    without a gap the next band starts at the next line; a line alone between a gap and a run is its own band."""
+    freqs = _windows([60.0, 350.0, 1000.0])
+    assert [b.tolist() for b in frequency_bands(freqs)] == [list(range(9)), list(range(9, 18)), list(range(18, 27))]
+    shuffled = np.random.default_rng(0).permutation(freqs.size)
+    assert [sorted(freqs[shuffled][b]) for b in frequency_bands(freqs[shuffled])] == \
+        [sorted(freqs[:9]), sorted(freqs[9:18]), sorted(freqs[18:])]
+    f = [1.0, 2, 3, 4, 6, 8, 10, 50, 100, 101, 102]
+    assert [np.take(f, b).tolist() for b in frequency_bands(f)] == [[1, 2, 3, 4], [6, 8, 10], [50], [100, 101, 102]]
+
+
+def test_noise_estimate_uses_every_window_of_uneven_lines(rng):
+    """On the own cases' layout (three windows, 6 sensors) the estimate is unbiased for white noise and its spread
+    is that of 126 second differences, not of the lowest window's 42: the standard deviation of the squared
+    estimate over draws is sigma^2 sqrt(2 tr(A^2) / m) / tr(A) with A = D'D per band and sensor, m = 18 of them
+    (0.17 sigma^2; 0.29 from the lowest window alone, as when the bands were cut at 1.5 x the smallest step)."""
+    freqs = _windows([60.0, 350.0, 1000.0])
+    sigma = 0.005
+    s2 = np.array([estimate_noise(sigma * rng.standard_normal((freqs.size, 6)), freqs) ** 2 for _ in range(1500)])
+    D = np.diff(np.eye(9), n=2, axis=0)
+    A = D.T @ D
+    sd = np.sqrt(2 * 3 * 6 * np.trace(A @ A)) / (3 * 6 * np.trace(A))
+    assert np.mean(s2) == pytest.approx(sigma**2, rel=4 * sd / np.sqrt(s2.size))
+    assert np.std(s2) / sigma**2 == pytest.approx(sd, rel=0.15)
+
+
 def test_noise_estimate_is_unbiased_for_white_noise_and_ignores_a_smooth_misfit(rng):
     freqs = np.arange(100.0, 300.0, 2.0)  # one band of 100 frequencies
     sigma = 0.005
