@@ -28,7 +28,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fe_core.inference.residual import STRUCTURED_ESTIMATE, chi_square_test, estimate_noise
+from fe_core.inference.residual import (
+    STRUCTURED_ESTIMATE,
+    chi_square_test,
+    estimate_noise,
+    estimated_noise_test,
+)
 
 from .base import Batch, Evaluate, StopDecision, run_loop
 from .gauss_newton import Residual
@@ -73,7 +78,8 @@ def check(Z: np.ndarray, residual: Residual, layout: Layout, n_fitted: int, opti
 
     ``ln(|Z| / |measured|)`` (:mod:`fe_core.inference.residual`: multiplicative noise is additive there) against the
     configured noise, or the noise estimated from second differences along frequency on the lines where every
-    channel is kept; an estimate above ``max_noise`` is not believed. Noise when the test passes or the rms is
+    channel is kept (``estimate_noise``, its p from ``estimated_noise_test``); an estimate above ``max_noise`` is
+    not believed. Noise when the test passes or the rms is
     within ``noise_ratio`` times the noise (a wrong basin leaves several times the noise: 10-40 % against
     1 % on the benchmark's suite).
     """
@@ -89,12 +95,15 @@ def check(Z: np.ndarray, residual: Residual, layout: Layout, n_fitted: int, opti
     complete = np.all(np.isfinite(grid), axis=1)
     if options.noise is not None:
         sigma, source = float(options.noise), "configured"
+        T, dof, p_chi2 = chi_square_test(r, sigma, n_fitted)
     else:
         sigma, source = estimate_noise(grid[complete], layout.freqs_hz[complete]), "estimated"
         if not (np.isfinite(sigma) and sigma > 0):
             return Check(False, "the noise cannot be estimated (no band of three complete lines) and is not "
                                 "configured: treated as structure", rms, float("nan"), "none", 0.0)
-    T, dof, p_chi2 = chi_square_test(r, sigma, n_fitted)
+        # The level's own spread counted: P(T >= T_observed) over white-noise residuals of the complete lines.
+        _, _, _, p_chi2 = estimated_noise_test(grid[complete], layout.freqs_hz[complete], n_fitted)
+        T, dof = float(np.sum(r**2) / sigma**2), r.size - int(n_fitted)
     at_floor = p_chi2 >= options.significance or rms <= options.noise_ratio * sigma
     if source == "estimated" and (sigma > options.max_noise or not at_floor):
         source = STRUCTURED_ESTIMATE  # a level estimated from a residual that is structure bounds the noise only
