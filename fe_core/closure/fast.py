@@ -47,7 +47,7 @@ from . import fits
 from .effects import LinearisedResponse, extended_matrices, sensor_gain
 from .effects.extended import segment_stiffness
 
-__all__ = ["fit_update", "enabled", "install", "ReducedBasis", "AGREE", "MAX_ROUNDS"]
+__all__ = ["fit_update", "enabled", "disabled", "install", "uninstall", "ReducedBasis", "AGREE", "MAX_ROUNDS"]
 
 log = logging.getLogger(__name__)
 
@@ -217,6 +217,7 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
     alpha, value, applied = np.asarray(alpha0, float), value0, list(prior)
     reduced_evals = 0
     start = _held(model, alpha, freqs, _with(applied, effect, location, value))
+    prev = None  # the fit that ended at ``start`` (a round's), if any
     if start is None and basis.V.shape[1] > 0:  # round 0: on the basis as it is, no full space at the start
         quick = _round0(basis, model, freqs, u, alpha, effect, location, value, applied, max_evaluations, tol,
                         alpha_bounds)
@@ -226,7 +227,7 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
             if tol >= COARSE and _rss_agrees(fit.rss, full, u, tol):
                 return _ended(fit, full, u, built, t0, 0, reduced_evals, basis)
             alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
-            start = full
+            start, prev = full, fit
     if start is None:
         start = full_response(model, alpha, freqs, _with(applied, effect, location, value))
     for k in range(1, MAX_ROUNDS + 1):
@@ -237,12 +238,20 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
             basis.holds.add(start.fast_key)
         rss_start = float(np.sum(fits.log_residual(start.amplitude, u) ** 2))
         try:
+            if prev is not None:  # the reduced model's own sum of squares at the start, its gain's reference
+                held = _ReducedLinearised(basis, model, prev.alpha, freqs, prev.applied)
+                rss_held = float(np.sum(fits.log_residual(held.amplitude, u) ** 2))
             fit, n = _reduced_fit(basis, model, freqs, u, alpha, effect, location, value, applied, max_evaluations,
                                   tol, alpha_bounds)
         except (np.linalg.LinAlgError, ValueError) as error:  # a reduced pencil that is not definite, say
             log.info("reduced fit failed (%s): the plain fit takes over", error)
             break
         reduced_evals += n
+        # From a start the basis holds exactly (the full model's value and gradient there) the reduced fit
+        # gains next to nothing: the start, the previous round's end, was (to the fit's tolerance) a
+        # stationary point of the full model; the fit ends there, with the full residual already computed.
+        if prev is not None and rss_held - fit.rss <= max(tol, 1e-9) * rss_held:
+            return _ended(prev, start, u, built, t0, k - 1, reduced_evals, basis)
         alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
         full = full_response(model, alpha, freqs, fit.applied)
         gap = float(np.max(np.abs(np.log(full.amplitude) - np.log(fit.model_amplitude))))
@@ -255,7 +264,7 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
             return _ended(fit, full, u, built, t0, k, reduced_evals, basis)
         if tol >= COARSE and _rss_agrees(fit.rss, full, u, tol):  # a coarse fit: its sum of squares is right
             return _ended(fit, full, u, built, t0, k, reduced_evals, basis)
-        start = full
+        start, prev = full, fit
     else:
         log.info("reduced fit did not agree with the full model after %d rounds: the plain fit finishes it",
                  MAX_ROUNDS)
@@ -379,33 +388,51 @@ _USERS = ("fe_core.closure.fits", "fe_core.closure.screening", "fe_core.closure.
 
 
 def install():
-    """Switch the closure's fits to the reduced model for the rest of the process (``MRGP_CLOSURE_FAST=1``
-    does it when :mod:`fe_core.closure` is imported, in the flow's worker processes too)."""
-    import importlib
-
-    for name in _USERS:
-        importlib.import_module(name).fit_update = fit_update
-    importlib.import_module("fe_core.closure.screening").LinearisedResponse = full_response
+    """Switch the closure's fits to the reduced model for the rest of the process (the default: importing
+    :mod:`fe_core.closure` does it unless ``MRGP_CLOSURE_FAST=0``, in the flow's worker processes too)."""
+    _set(fit_update, full_response)
 
 
-@contextlib.contextmanager
-def enabled():
-    """Within the block, the closure's fits (``fit_update`` as the fits, screening and selection modules
-    call it) run on the reduced model; the plain path is restored after."""
+def uninstall():
+    """Switch the closure's fits back to the plain path for the rest of the process."""
+    _set(_PLAIN_FIT, LinearisedResponse)
+
+
+def _set(fit, response) -> tuple:
+    """Set the closure's fit and the screen's full response; returns what was there."""
     import importlib
 
     mods = [importlib.import_module(name) for name in _USERS]
-    saved = [m.fit_update for m in mods]
     screening = importlib.import_module("fe_core.closure.screening")
-    saved_response = screening.LinearisedResponse
+    saved = ([m.fit_update for m in mods], screening.LinearisedResponse)
     for m in mods:
-        m.fit_update = fit_update
-    screening.LinearisedResponse = full_response
+        m.fit_update = fit
+    screening.LinearisedResponse = response
+    return saved
+
+
+@contextlib.contextmanager
+def _switched(fit, response):
+    import importlib
+
+    saved_fits, saved_response = _set(fit, response)
     try:
         yield
     finally:
-        for m, f in zip(mods, saved):
-            m.fit_update = f
-        screening.LinearisedResponse = saved_response
+        for name, f in zip(_USERS, saved_fits):
+            importlib.import_module(name).fit_update = f
+        importlib.import_module("fe_core.closure.screening").LinearisedResponse = saved_response
         _FULL.clear()
         _BASES.clear()
+
+
+def enabled():
+    """Within the block, the closure's fits (``fit_update`` as the fits, screening and selection modules
+    call it) run on the reduced model; what was there before is restored after."""
+    return _switched(fit_update, full_response)
+
+
+def disabled():
+    """Within the block, the closure's fits run on the plain path (a full Krylov space per evaluation);
+    what was there before is restored after."""
+    return _switched(_PLAIN_FIT, LinearisedResponse)
