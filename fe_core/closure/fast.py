@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import time
 
 import numpy as np
@@ -385,6 +386,12 @@ def _with(applied, effect, location, value):
 
 #: Modules whose ``fit_update`` the closure calls through their own name.
 _USERS = ("fe_core.closure.fits", "fe_core.closure.screening", "fe_core.closure.selection")
+
+
+def by_default() -> bool:
+    """Whether the closure's fits run on the reduced model in this process: yes unless
+    ``MRGP_CLOSURE_FAST=0`` (the plain path)."""
+    return os.environ.get("MRGP_CLOSURE_FAST", "1") != "0"
 
 
 def install():

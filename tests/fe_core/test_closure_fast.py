@@ -87,7 +87,8 @@ def test_a_coarse_fit_on_the_basis_ends_with_the_full_residual(beam):
 
 def test_enabled_and_disabled_switch_the_closure_fits_and_restore_them():
     default = fits.fit_update  # the fast path unless MRGP_CLOSURE_FAST=0
-    assert default is (fast._PLAIN_FIT if os.environ.get("MRGP_CLOSURE_FAST") == "0" else fast.fit_update)
+    assert default is (fast.fit_update if fast.by_default() else fast._PLAIN_FIT)
+    assert fast.by_default() == (os.environ.get("MRGP_CLOSURE_FAST") != "0")
     with fast.disabled():
         assert fits.fit_update is fast._PLAIN_FIT and screening.fit_update is fast._PLAIN_FIT
         assert screening.LinearisedResponse is LinearisedResponse
