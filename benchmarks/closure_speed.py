@@ -96,11 +96,9 @@ def main(argv=None) -> int:
     t0, c0 = time.perf_counter(), time.process_time()
     if prof:
         prof.enable()
-    import contextlib
-
     from fe_core.closure import fast
 
-    with fast.enabled() if args.path == "fast" else contextlib.nullcontext():
+    with fast.enabled() if args.path == "fast" else fast.disabled():
         if args.stages:
             res = _stages(model, freqs, u, truth, library, args.check)
         else:

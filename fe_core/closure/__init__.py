@@ -57,9 +57,9 @@ The candidates' ranking is by extended BIC for checked candidates, then by
 the extended BIC predicted by the linearisation.
 """
 
-import os as _os
+# Issue 28: every closure fit on the growing reduced model (:mod:`.fast`), by default; ``MRGP_CLOSURE_FAST=0``
+# (also in the flow's worker processes, which inherit it) keeps the plain path: a full Krylov space per evaluation.
+from .fast import by_default as _by_default, install as _install  # noqa: E402
 
-if _os.environ.get("MRGP_CLOSURE_FAST", "0") == "1":  # issue 28: every closure fit on the growing reduced model
-    from .fast import install as _install
-
+if _by_default():
     _install()

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import time
 
 import numpy as np
@@ -47,12 +48,16 @@ from . import fits
 from .effects import LinearisedResponse, extended_matrices, sensor_gain
 from .effects.extended import segment_stiffness
 
-__all__ = ["fit_update", "enabled", "install", "ReducedBasis", "AGREE", "MAX_ROUNDS"]
+__all__ = ["fit_update", "enabled", "disabled", "install", "uninstall", "ReducedBasis", "AGREE", "MAX_ROUNDS"]
 
 log = logging.getLogger(__name__)
 
 #: Largest |ln|Z_reduced| - ln|Z_full|| at a fit's end for the reduced fit to stand.
 AGREE = 1e-6
+#: A fit to this tolerance or looser is coarse (a restart, another start of a joint fit: ranked by its sum of
+#: squares, the best refined after): it starts on the basis as it is and ends where the reduced and the full
+#: sum of squares agree to its tolerance.
+COARSE = 1e-5
 #: Rounds (full evaluations that enlarge the basis) before the plain path takes over.
 MAX_ROUNDS = 6
 
@@ -163,6 +168,14 @@ class _ReducedLinearised(LinearisedResponse):
         self.Z = self.reduced.Z
 
     def alpha_derivatives(self) -> np.ndarray:
+        """``d ln|Z| / d alpha_i``, shape (p * n_s, m): ``ReducedResponse.dlog`` of each segment's projected
+        stiffness, with the modal vectors taken back to the basis once (``u^T phi^T dK phi v`` as
+        ``(phi u)^T dK (phi v)``: one product per segment of the basis's size instead of two)."""
+        red = self.reduced
+        phi = red.phi
+        ub = red._u @ phi.T  # (p, n_s, d)
+        vb = red._v @ phi.T  # (p, d)
+        c = (1.0 + 1j * red.omegas * red.b)[:, None]
         cols = []
         for i in range(self.model.n_segments):
             dK = self.basis.segments[i]
@@ -170,8 +183,8 @@ class _ReducedLinearised(LinearisedResponse):
                 extra = item.effect.alpha_derivative(self.alpha, item.location, item.values, i)
                 if extra is not None and extra.stiffness is not None:
                     dK = dK + self.basis.project(extra.stiffness)
-            phi = self.reduced.phi
-            cols.append(self.reduced.dlog(dK=phi.T @ dK @ phi).ravel())
+            dZ = c * np.einsum("psd,pd->ps", ub, vb @ dK.T, optimize=False)
+            cols.append(np.real(-dZ / red.Z).ravel())
         return np.column_stack(cols)
 
 
@@ -204,7 +217,20 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
     basis = shared_basis(model, freqs)
     alpha, value, applied = np.asarray(alpha0, float), value0, list(prior)
     reduced_evals = 0
-    start = full_response(model, alpha, freqs, _with(applied, effect, location, value))
+    start = _held(model, alpha, freqs, _with(applied, effect, location, value))
+    prev = None  # the fit that ended at ``start`` (a round's), if any
+    if start is None and basis.V.shape[1] > 0:  # round 0: on the basis as it is, no full space at the start
+        quick = _round0(basis, model, freqs, u, alpha, effect, location, value, applied, max_evaluations, tol,
+                        alpha_bounds)
+        if quick is not None:
+            fit, full, n = quick
+            reduced_evals += n
+            if tol >= COARSE and _rss_agrees(fit.rss, full, u, tol):
+                return _ended(fit, full, u, built, t0, 0, reduced_evals, basis)
+            alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
+            start, prev = full, fit
+    if start is None:
+        start = full_response(model, alpha, freqs, _with(applied, effect, location, value))
     for k in range(1, MAX_ROUNDS + 1):
         if start.fast_key not in basis.holds:  # the round starts with the full model's value and gradient
             if basis.V.shape[1] + start.reduced.W.shape[1] > MAX_BASIS:  # start afresh from this point's space
@@ -212,20 +238,21 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
             basis.add(start.reduced.W)
             basis.holds.add(start.fast_key)
         rss_start = float(np.sum(fits.log_residual(start.amplitude, u) ** 2))
-        count = [0]
-
-        def factory(model_, alpha_, freqs_, applied_=()):
-            count[0] += 1
-            return _ReducedLinearised(basis, model_, alpha_, freqs_, applied_)
-
         try:
-            with _responses(factory):
-                fit = _PLAIN_FIT(model, freqs, u, alpha, effect, location, value, max_evaluations=max_evaluations,
-                                 tol=tol, alpha_bounds=alpha_bounds, prior=applied)
+            if prev is not None:  # the reduced model's own sum of squares at the start, its gain's reference
+                held = _ReducedLinearised(basis, model, prev.alpha, freqs, prev.applied)
+                rss_held = float(np.sum(fits.log_residual(held.amplitude, u) ** 2))
+            fit, n = _reduced_fit(basis, model, freqs, u, alpha, effect, location, value, applied, max_evaluations,
+                                  tol, alpha_bounds)
         except (np.linalg.LinAlgError, ValueError) as error:  # a reduced pencil that is not definite, say
             log.info("reduced fit failed (%s): the plain fit takes over", error)
             break
-        reduced_evals += count[0]
+        reduced_evals += n
+        # From a start the basis holds exactly (the full model's value and gradient there) the reduced fit
+        # gains next to nothing: the start, the previous round's end, was (to the fit's tolerance) a
+        # stationary point of the full model; the fit ends there, with the full residual already computed.
+        if prev is not None and rss_held - fit.rss <= max(tol, 1e-9) * rss_held:
+            return _ended(prev, start, u, built, t0, k - 1, reduced_evals, basis)
         alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
         full = full_response(model, alpha, freqs, fit.applied)
         gap = float(np.max(np.abs(np.log(full.amplitude) - np.log(fit.model_amplitude))))
@@ -235,13 +262,10 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
         # Done when the reduced model is right at the end and, from a start it held exactly, found next to
         # nothing to gain: the start was (to the fit's tolerance) a stationary point of the full model too.
         if gap <= AGREE and rss_start - float(np.sum(r**2)) <= max(tol, 1e-9) * rss_start:
-            fit.residual, fit.model_amplitude = r, np.exp(r) * u
-            fit.evaluations = _BUILT[0] - built
-            fit.seconds = time.perf_counter() - t0
-            fit.message += (f" (reduced model: {k} round(s), {reduced_evals} reduced evaluations, "
-                            f"basis {basis.V.shape[1]})")
-            return fit
-        start = full
+            return _ended(fit, full, u, built, t0, k, reduced_evals, basis)
+        if tol >= COARSE and _rss_agrees(fit.rss, full, u, tol):  # a coarse fit: its sum of squares is right
+            return _ended(fit, full, u, built, t0, k, reduced_evals, basis)
+        start, prev = full, fit
     else:
         log.info("reduced fit did not agree with the full model after %d rounds: the plain fit finishes it",
                  MAX_ROUNDS)
@@ -250,6 +274,57 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
     plain.evaluations += _BUILT[0] - built
     plain.seconds = time.perf_counter() - t0
     return plain
+
+
+def _reduced_fit(basis, model, freqs, u, alpha, effect, location, value, applied, max_evaluations, tol,
+                 alpha_bounds):
+    """``fits.fit_update`` with every evaluation on the basis; (fit, reduced evaluations)."""
+    count = [0]
+
+    def factory(model_, alpha_, freqs_, applied_=()):
+        count[0] += 1
+        return _ReducedLinearised(basis, model_, alpha_, freqs_, applied_)
+
+    with _responses(factory):
+        fit = _PLAIN_FIT(model, freqs, u, alpha, effect, location, value, max_evaluations=max_evaluations,
+                         tol=tol, alpha_bounds=alpha_bounds, prior=applied)
+    return fit, count[0]
+
+
+def _round0(basis, model, freqs, u, alpha, effect, location, value, applied, max_evaluations, tol, alpha_bounds):
+    """A fit's first round on the basis as it is, without its start's full space: (fit, the full response at
+    its end, reduced evaluations), or None if the reduced fit failed or its end is, in full, no better than
+    the reduced model's start (the basis was not good enough there: the rounds start from the start)."""
+    try:
+        at_start = _ReducedLinearised(basis, model, alpha, freqs, _with(applied, effect, location, value))
+        rss0 = float(np.sum(fits.log_residual(at_start.amplitude, u) ** 2))
+        fit, n = _reduced_fit(basis, model, freqs, u, alpha, effect, location, value, applied, max_evaluations,
+                              tol, alpha_bounds)
+    except (np.linalg.LinAlgError, ValueError) as error:
+        log.info("reduced fit on the basis as it is failed (%s): rounds from its start", error)
+        return None
+    full = full_response(model, fit.alpha, freqs, fit.applied)
+    if float(np.sum(fits.log_residual(full.amplitude, u) ** 2)) > rss0:
+        log.info("reduced fit on the basis as it is ended worse than it started: rounds from its start")
+        return None
+    return fit, full, n + 1
+
+
+def _rss_agrees(rss_reduced: float, full, u, tol: float) -> bool:
+    """The reduced fit's sum of squares is the full model's at its end, to the fit's tolerance."""
+    rss = float(np.sum(fits.log_residual(full.amplitude, u) ** 2))
+    return abs(rss - rss_reduced) <= tol * rss
+
+
+def _ended(fit, full, u, built, t0, rounds, reduced_evals, basis):
+    """The fit with the full model's residual at its end, its counts and its message."""
+    r = fits.log_residual(full.amplitude, u)
+    fit.residual, fit.model_amplitude = r, np.exp(r) * u
+    fit.evaluations = _BUILT[0] - built
+    fit.seconds = time.perf_counter() - t0
+    fit.message += (f" (reduced model: {rounds} round(s), {reduced_evals} reduced evaluations, "
+                    f"basis {basis.V.shape[1]})")
+    return fit
 
 
 #: Full evaluations built (Krylov spaces), for the fits' counts.
@@ -274,6 +349,12 @@ def shared_basis(model, freqs_hz) -> ReducedBasis:
 #: point its fit ended, where the fit's last round built the same full space.
 _FULL: dict = {}
 _FULL_SIZE = 2
+
+
+def _held(model, alpha, freqs_hz, applied=()):
+    """The full response of a point if it is held (no new evaluation), else None."""
+    held = _FULL.get(_key(model, alpha, freqs_hz, applied))
+    return held if held is not None and held.model is model else None
 
 
 def _key(model, alpha, freqs, applied) -> tuple:
@@ -307,34 +388,58 @@ def _with(applied, effect, location, value):
 _USERS = ("fe_core.closure.fits", "fe_core.closure.screening", "fe_core.closure.selection")
 
 
+def by_default() -> bool:
+    """Whether the closure's fits run on the reduced model in this process: yes unless
+    ``MRGP_CLOSURE_FAST=0`` (the plain path)."""
+    return os.environ.get("MRGP_CLOSURE_FAST", "1") != "0"
+
+
 def install():
-    """Switch the closure's fits to the reduced model for the rest of the process (``MRGP_CLOSURE_FAST=1``
-    does it when :mod:`fe_core.closure` is imported, in the flow's worker processes too)."""
-    import importlib
-
-    for name in _USERS:
-        importlib.import_module(name).fit_update = fit_update
-    importlib.import_module("fe_core.closure.screening").LinearisedResponse = full_response
+    """Switch the closure's fits to the reduced model for the rest of the process (the default: importing
+    :mod:`fe_core.closure` does it unless ``MRGP_CLOSURE_FAST=0``, in the flow's worker processes too)."""
+    _set(fit_update, full_response)
 
 
-@contextlib.contextmanager
-def enabled():
-    """Within the block, the closure's fits (``fit_update`` as the fits, screening and selection modules
-    call it) run on the reduced model; the plain path is restored after."""
+def uninstall():
+    """Switch the closure's fits back to the plain path for the rest of the process."""
+    _set(_PLAIN_FIT, LinearisedResponse)
+
+
+def _set(fit, response) -> tuple:
+    """Set the closure's fit and the screen's full response; returns what was there."""
     import importlib
 
     mods = [importlib.import_module(name) for name in _USERS]
-    saved = [m.fit_update for m in mods]
     screening = importlib.import_module("fe_core.closure.screening")
-    saved_response = screening.LinearisedResponse
+    saved = ([m.fit_update for m in mods], screening.LinearisedResponse)
     for m in mods:
-        m.fit_update = fit_update
-    screening.LinearisedResponse = full_response
+        m.fit_update = fit
+    screening.LinearisedResponse = response
+    return saved
+
+
+@contextlib.contextmanager
+def _switched(fit, response):
+    import importlib
+
+    saved_fits, saved_response = _set(fit, response)
     try:
         yield
     finally:
-        for m, f in zip(mods, saved):
-            m.fit_update = f
-        screening.LinearisedResponse = saved_response
+        for name, f in zip(_USERS, saved_fits):
+            importlib.import_module(name).fit_update = f
+        importlib.import_module("fe_core.closure.screening").LinearisedResponse = saved_response
         _FULL.clear()
         _BASES.clear()
+
+
+def enabled():
+    """Within the block, the closure's fits (``fit_update`` as the fits, screening and selection modules
+    call it) run on the reduced model; what was there before is restored after."""
+    return _switched(fit_update, full_response)
+
+
+def disabled():
+    """Within the block, the closure's fits run on the plain path (a full Krylov space per evaluation);
+    what was there before is restored after."""
+    return _switched(_PLAIN_FIT, LinearisedResponse)

@@ -8,6 +8,7 @@ plain path's full Krylov evaluations and fits (``fe_core.closure.fits.fit_update
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -52,7 +53,7 @@ def test_the_reduced_fit_ends_where_the_plain_fit_ends_with_fewer_fe_evaluations
     model, freqs, u, truth = beam
     mass = PointMass(model)
     start = np.asarray(truth["alpha"]) + 0.05  # the alpha-only update's factors absorb the mass: start off
-    plain = fits.fit_update(model, freqs, u, start, mass, "node 208", [0.1], tol=1e-8)
+    plain = fast._PLAIN_FIT(model, freqs, u, start, mass, "node 208", [0.1], tol=1e-8)
     quick = fast.fit_update(model, freqs, u, start, mass, "node 208", [0.1], tol=1e-8)
     # The same optimum to the optimiser's tolerance (ftol = xtol = 1e-8 on a well-posed 7-parameter fit).
     assert quick.rss == pytest.approx(plain.rss, rel=1e-6)
@@ -65,8 +66,35 @@ def test_the_reduced_fit_ends_where_the_plain_fit_ends_with_fewer_fe_evaluations
     assert "reduced model" in quick.message
 
 
-def test_enabled_switches_the_closure_fits_and_restores_them():
+def test_a_coarse_fit_on_the_basis_ends_with_the_full_residual(beam):
+    """A restart (coarse tolerance) starts on the basis an earlier fit left, without its own start's space,
+    and ends where the reduced and the full sum of squares agree to its tolerance; its residual is the full
+    model's at its end point, and the restarts' best, refined, is the plain path's optimum."""
+    model, freqs, u, truth = beam
+    start = np.asarray(truth["alpha"]) + 0.05
     with fast.enabled():
-        assert fits.fit_update is fast.fit_update
-        assert screening.fit_update is fast.fit_update and selection.fit_update is fast.fit_update
-    assert fits.fit_update is fast._PLAIN_FIT and screening.fit_update is fast._PLAIN_FIT
+        fast.fit_update(model, freqs, u, start, tol=1e-8)  # the basis
+        built = fast._BUILT[0]
+        coarse = fast.fit_update(model, freqs, u, start - 0.1, tol=1e-4)
+        assert fast._BUILT[0] - built == coarse.evaluations
+        full = LinearisedResponse(model, coarse.alpha, freqs)
+        assert np.allclose(coarse.residual, np.log(full.amplitude / u), rtol=0, atol=1e-9)
+        best = fits.multistart_update(model, freqs, u, start, n_starts=2)
+    plain = fast._PLAIN_FIT(model, freqs, u, start, tol=1e-8)
+    assert best.rss == pytest.approx(plain.rss, rel=1e-6)
+    assert np.max(np.abs(best.alpha - plain.alpha)) < 1e-4
+
+
+def test_enabled_and_disabled_switch_the_closure_fits_and_restore_them():
+    default = fits.fit_update  # the fast path unless MRGP_CLOSURE_FAST=0
+    assert default is (fast.fit_update if fast.by_default() else fast._PLAIN_FIT)
+    assert fast.by_default() == (os.environ.get("MRGP_CLOSURE_FAST") != "0")
+    with fast.disabled():
+        assert fits.fit_update is fast._PLAIN_FIT and screening.fit_update is fast._PLAIN_FIT
+        assert screening.LinearisedResponse is LinearisedResponse
+        with fast.enabled():
+            assert fits.fit_update is fast.fit_update
+            assert screening.fit_update is fast.fit_update and selection.fit_update is fast.fit_update
+            assert screening.LinearisedResponse is fast.full_response
+        assert fits.fit_update is fast._PLAIN_FIT and selection.fit_update is fast._PLAIN_FIT
+    assert fits.fit_update is default and screening.fit_update is default and selection.fit_update is default
