@@ -265,7 +265,9 @@ def emulated_candidate(found: EmulatedSearch, effect: Effect) -> "Candidate":
     c = Candidate(effect=effect.kind, location=found.location, n_locations=len(effect.locations()),
                   linear_values=np.asarray(found.best_values, float), linear_rss=np.nan, linear_explained=np.nan,
                   fit=found.fit, moved_from=[m.split(" at ", 1)[1].split(" -> ")[0] for m in found.moves])
-    found.fit.start = f"emulated search ({found.fe_runs} FE solves), then the exact joint fit"
+    found.fit.start = (f"emulated search ({found.fe_runs} FE solves, {found.iterations} iterations; its best run "
+                       f"{found.best_location} = {found.best_values[0]:.4g}), then the exact joint fit")
+    found.fit.evaluations = found.fe_runs + found.fit_evaluations  # the search's FE solves count as the check's
     return c
 
 
