@@ -76,7 +76,7 @@ class EmulatorOptions:
     seed: int = 0
     n_jobs: int = 1
     trainer: str = "gradient"
-    local_steps: int = 4
+    local_steps: int = 0
 
     def paper(self, threshold: float) -> PaperOptions:
         return PaperOptions(q=self.q, s=self.s, z=self.z, w=self.w, threshold=threshold,
