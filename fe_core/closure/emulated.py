@@ -41,7 +41,7 @@ from mrgp_core.strategies.paper import PaperLoop, PaperOptions
 from ..inference.residual import log_residual
 from ..model import ParametricModel
 from .effects import Applied, Effect, extended_frf
-from .fits import ALPHA_BOUNDS, Fit, fit_update, joint_fit
+from .fits import ALPHA_BOUNDS, Fit, fit_update, joint_fit, log_sized
 
 __all__ = ["EmulatorOptions", "EffectSpace", "EmulatedSearch", "emulated_search", "emulated_candidate", "first_round",
            "SIZE_FLOOR"]
@@ -107,7 +107,10 @@ class EffectSpace:
         hi = float(np.min(effect.bounds_at(self.locations[0])[1]))
         if not np.isfinite(hi) or hi <= 0:
             hi = 1e3 * float(effect.scale_at(self.locations[0])[0])
-        self.log_size = (np.log10(size_floor * hi), np.log10(hi))
+        low = size_floor * hi
+        if log_sized(effect)[0]:  # a size searched in e-folds (a spring, soft to rigid): from a tenth of its scale
+            low = min(low, 0.1 * float(effect.scale_at(self.locations[0])[0]))
+        self.log_size = (np.log10(low), np.log10(hi))
         self.m = self.alpha_low.size
         self.dim = self.m + self.axes.size + 1
 
