@@ -17,7 +17,8 @@ effect together, globally, with the project's MRGP loop (the paper's loop, :clas
 * **the emulator**: the MRGP over those residual vectors (``emulate = "errors"``, the paper's choice), which
   predicts every candidate's mean ``|r|`` (Eq. 6b of the log residual), selects the next batch and narrows;
 * **the end**: the exact joint fit (:func:`fe_core.closure.fits.joint_fit`, alpha and the size together,
-  exact Jacobians) at the best FE run's node from its alpha and size, and from the update's alpha, then the
+  exact Jacobians) at the best FE run's node from its alpha and from the update's, each with the run's size and
+  3 and 10 times it (:data:`fe_core.closure.fits.SIZE_MULTIPLES`: a loop's best run may be a small mass), then the
   closure's relocation (:func:`fe_core.closure.selection.refine`: moves to a neighbour while they help).
 
 Used by :func:`fe_core.closure.loop.close_loop` with ``emulator=True`` (an explicit option, not automatic):
@@ -41,7 +42,7 @@ from mrgp_core.strategies.paper import PaperLoop, PaperOptions
 from ..inference.residual import log_residual
 from ..model import ParametricModel
 from .effects import Applied, Effect, extended_frf
-from .fits import ALPHA_BOUNDS, Fit, fit_update, joint_fit, log_sized
+from .fits import ALPHA_BOUNDS, SIZE_MULTIPLES, Fit, fit_update, joint_fit, log_sized
 
 __all__ = ["EmulatorOptions", "EffectSpace", "EmulatedSearch", "emulated_search", "emulated_candidate", "first_round",
            "SIZE_FLOOR"]
@@ -240,7 +241,7 @@ def emulated_search(model: ParametricModel, freqs_hz, amplitude, effect: Effect,
     log.info("emulated search: the loop's best run has %s at %s = %.4g, alpha %s (mean |r| %.4g); %s",
              effect.kind, location, values[0], np.round(alpha, 3), e_best, loop.stop().reason)
     starts = {"emulator": np.clip(alpha, *alpha_bounds), "update": np.clip(a0, *alpha_bounds)}
-    fit = joint_fit(model, freqs, u, starts, effect, location, values, multiples=(1.0,), primary=values,
+    fit = joint_fit(model, freqs, u, starts, effect, location, values, multiples=SIZE_MULTIPLES, primary=values,
                     alpha_bounds=alpha_bounds)
     evaluations = fit.evaluations
     moves: list[str] = []
