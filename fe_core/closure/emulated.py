@@ -307,7 +307,12 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
         searches[kind] = emulated_search(model, freqs, u, effect, base.alpha, options=options, noise=noise,
                                          alpha_bounds=alpha_bounds, refine_moves=max_moves)
         checked.append(emulated_candidate(searches[kind], effect))
+    emulated = [c for c in checked if c.fit.start.startswith("emulated search")]
     checked = dedupe(checked)
+    for e in emulated:  # a check that ended where the search did keeps its fit, and counts the search's FE solves
+        if all(c is not e for c in checked):
+            twin = next(c for c in checked if (c.effect, c.location) == (e.effect, e.location))
+            twin.fit.evaluations += e.fit.evaluations
     chosen = decide(base, before, checked)
     out: dict = {"searches": searches}
     if chosen is None:
