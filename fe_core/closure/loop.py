@@ -90,6 +90,9 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     sel = forward_select(model, freqs, u, handed.pop("start", base), handed.pop("analysis", before), library,
                          significance=significance, per_type=per_type, max_moves=max_moves, check_noise=check_noise,
                          alpha_bounds=alpha_bounds, max_effects=max_effects, times=times, swaps=swaps, **handed)
+    for c in (handed.get("rounds") or [[]])[0]:  # the implausible fits of a first round made with the emulator
+        if c.fit is not None and c.implausible and all(c is not d for d in sel.implausible):
+            sel.implausible.insert(0, c)
     return ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
                          sel.final, sel.after, times, sel.steps,
                          verdict(before, sel.after, len(sel.steps), sel.identified), sel.implausible, sel.rounds,
