@@ -45,6 +45,7 @@ from .effects import Applied, Effect, extended_frf
 from .fits import ALPHA_BOUNDS, SIZE_MULTIPLES, Fit, fit_update, joint_fit, log_sized
 
 __all__ = ["EmulatorOptions", "EffectSpace", "EmulatedSearch", "emulated_search", "emulated_candidate", "first_round",
+           "dedupe_counting",
            "SIZE_FLOOR"]
 
 log = logging.getLogger(__name__)
@@ -275,6 +276,20 @@ def emulated_candidate(found: EmulatedSearch, effect: Effect) -> "Candidate":
     return c
 
 
+def dedupe_counting(checked: Sequence["Candidate"]) -> list:
+    """:func:`fe_core.closure.decisions.dedupe`, and a check that ended where the emulated search did (and kept
+    its fit) counts the search's FE solves."""
+    from .decisions import dedupe
+
+    emulated = [c for c in checked if c.fit is not None and c.fit.start.startswith("emulated search")]
+    kept = dedupe(checked)
+    for e in emulated:
+        if all(c is not e for c in kept):
+            twin = next(c for c in kept if (c.effect, c.location) == (e.effect, e.location))
+            twin.fit.evaluations += e.fit.evaluations
+    return kept
+
+
 def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, library: Sequence[Effect], *,
                 options: EmulatorOptions = EmulatorOptions(), kinds: Sequence[str] = ("point_mass",),
                 noise: float | None = None, significance: float = 0.01, per_type: int = 2, max_moves: int = 6,
@@ -288,7 +303,7 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
     ``forward_select`` (``start``, ``analysis``, ``steps``, ``rounds``; empty when nothing is added) and
     ``searches``, the :class:`EmulatedSearch` of each kind.
     """
-    from .decisions import decide, dedupe, merge, rank
+    from .decisions import decide, merge, rank
     from .fits import checks_per_type
     from .screening import check, pick_for_check, screen
     from ..inference.residual import analyse_residual
@@ -307,12 +322,7 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
         searches[kind] = emulated_search(model, freqs, u, effect, base.alpha, options=options, noise=noise,
                                          alpha_bounds=alpha_bounds, refine_moves=max_moves)
         checked.append(emulated_candidate(searches[kind], effect))
-    emulated = [c for c in checked if c.fit.start.startswith("emulated search")]
-    checked = dedupe(checked)
-    for e in emulated:  # a check that ended where the search did keeps its fit, and counts the search's FE solves
-        if all(c is not e for c in checked):
-            twin = next(c for c in checked if (c.effect, c.location) == (e.effect, e.location))
-            twin.fit.evaluations += e.fit.evaluations
+    checked = dedupe_counting(checked)
     chosen = decide(base, before, checked)
     out: dict = {"searches": searches}
     if chosen is None:

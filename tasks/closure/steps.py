@@ -260,7 +260,9 @@ def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: 
                                      json.loads(r.values), r.evaluations, r.seconds, r.message)
         c.fit.start = str(getattr(r, "start", "") or "")  # stores written before the joint fit's starts lack it
         checked.append(c)
-    checked = decisions.dedupe(checked)
+    from fe_core.closure.emulated import dedupe_counting  # a tie with the emulated search keeps its FE solves
+
+    checked = dedupe_counting(checked)
     chosen = decisions.decide(base, before, checked)
     final = chosen.fit if chosen is not None else base
     # Tested against the configured noise, else the level estimated from this residual itself (never the first
