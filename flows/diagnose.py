@@ -288,10 +288,14 @@ def add_closure_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--per-type", type=int, help="candidates per effect type given a full FE check (default 1)")
     p.add_argument("--restarts", type=int, help="extra Sobol starts of the alpha-only baseline fit (default 8)")
     p.add_argument("--closure-name", metavar="NAME", help="sub-folder of the run for the closure (default closure)")
+    p.add_argument("--closure-emulator", action="store_true",
+                   help="where the baseline is far off, also search a point mass globally with the MRGP over "
+                        "(alpha, position, log size) and check its fit (docs/closure-emulator.md)")
 
 
 def closure_options(args) -> dict:
     return dict(noise=args.noise, significance=args.significance, per_type=args.per_type, restarts=args.restarts,
+                emulator=True if getattr(args, "closure_emulator", False) else None,
                 effects=None if args.effects is None else [e.strip() for e in args.effects.split(",") if e.strip()])
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from ..model import ParametricModel
 from .effects import Effect, build_library
 from .decisions import ClosureResult, verdict
-from .fits import ALPHA_BOUNDS, baseline
+from .fits import ALPHA_BOUNDS, baseline, far_off
 from .selection import forward_select
 
 __all__ = ["close_loop"]
@@ -28,7 +28,7 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
                noise: float | None = None, significance: float = 0.01, per_type: int = 2,
                max_moves: int = 6, restarts: int = 0, seed: int = 0, check_noise: bool = False,
                alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, max_effects: int = 3,
-               swaps: bool = True) -> ClosureResult:
+               swaps: bool = True, emulator=None) -> ClosureResult:
     """Baseline fit, residual analysis, then forward selection: screening, checks and a decision per step.
 
     Parameters
@@ -64,6 +64,10 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
         no effect improves the extended BIC).
     swaps : bool
         Swap passes after each addition (:func:`fe_core.closure.selection.swap_pass`).
+    emulator : EmulatorOptions or True, optional
+        Where the baseline is structure and far off (:func:`fe_core.closure.fits.far_off`), the first round
+        also checks the MRGP's global search over (alpha, point mass position, log size)
+        (:func:`fe_core.closure.emulated.first_round`); an explicit option, off by default.
     """
     times = {"baseline": 0.0, "screen": 0.0, "check": 0.0}
     t = time.perf_counter()
@@ -73,9 +77,22 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     base, before = baseline(model, freqs, u, alpha_start, noise, significance, restarts, seed, alpha_bounds)
     times["baseline"] = time.perf_counter() - t
     log.info("baseline: %s", before.summary())
-    sel = forward_select(model, freqs, u, base, before, library, significance=significance, per_type=per_type,
-                         max_moves=max_moves, check_noise=check_noise, alpha_bounds=alpha_bounds,
-                         max_effects=max_effects, times=times, swaps=swaps)
+    handed = {}
+    if emulator is not None and emulator is not False and before.structured and far_off(base):
+        from .emulated import EmulatorOptions, first_round
+
+        t = time.perf_counter()
+        handed = first_round(model, freqs, u, base, before, library, noise=noise, significance=significance,
+                             options=EmulatorOptions() if emulator is True else emulator, per_type=per_type,
+                             max_moves=max_moves, alpha_bounds=alpha_bounds)
+        handed.pop("searches")
+        times["emulator"] = time.perf_counter() - t
+    sel = forward_select(model, freqs, u, handed.pop("start", base), handed.pop("analysis", before), library,
+                         significance=significance, per_type=per_type, max_moves=max_moves, check_noise=check_noise,
+                         alpha_bounds=alpha_bounds, max_effects=max_effects, times=times, swaps=swaps, **handed)
+    for c in (handed.get("rounds") or [[]])[0]:  # the implausible fits of a first round made with the emulator
+        if c.fit is not None and c.implausible and all(c is not d for d in sel.implausible):
+            sel.implausible.insert(0, c)
     return ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
                          sel.final, sel.after, times, sel.steps,
                          verdict(before, sel.after, len(sel.steps), sel.identified), sel.implausible, sel.rounds,

@@ -41,6 +41,7 @@ __all__ = [
     "screen_task",
     "check_candidate",
     "check_task",
+    "emulated_check",
     "decide_task",
 ]
 
@@ -52,12 +53,13 @@ class ClosureSettings(dict):
     Keys: ``model``, ``measured``, ``alpha_start`` (list), ``noise`` (float or
     None = estimated), ``significance``, ``per_type``, ``max_moves``,
     ``restarts``, ``seed``, ``effects`` (list of registered names or None),
-    ``alpha_bounds`` (pair), ``n_jobs``, ``max_effects`` (forward selection).
+    ``alpha_bounds`` (pair), ``n_jobs``, ``max_effects`` (forward selection), ``emulator`` (the emulated
+    search's point mass among the checks where the baseline is far off: :func:`emulated_check`).
     """
 
     DEFAULTS = dict(noise=None, significance=0.01, per_type=1, max_moves=6, restarts=8, seed=0, effects=None,
                     alpha_bounds=list(fits.ALPHA_BOUNDS), n_jobs=1, check_noise=False,
-                    max_effects=3)
+                    max_effects=3, emulator=False)
 
     @classmethod
     def make(cls, **kwargs) -> "ClosureSettings":
@@ -187,12 +189,41 @@ def check_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndar
                                 len(picked), k + 1, record["effect"], record["location"], record["rss"],
                                 record["evaluations"])
         parts = [pd.read_parquet(store.path("check", f"check={k:03d}")) for k in range(len(picked))]
+        if picked and settings.get("emulator") and fits.far_off(base):
+            if not store.path("check", "check=emulated").exists():
+                record = emulated_check(model, settings, base, freqs, u)
+                if record is not None:
+                    store.write_table("check", "check=emulated", pd.DataFrame([record]))
+            if store.path("check", "check=emulated").exists():
+                parts.append(pd.read_parquet(store.path("check", "check=emulated")))
         checks = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(
             columns=["effect", "screened_location", "location", "moved_from", "values", "alpha", "rss",
                      "evaluations", "seconds", "message", "start"])
         store.write_table("check", "checks", checks)
         store.finish("check", ["checks"], {"n": len(checks)})
     return store.info("check")
+
+
+def emulated_check(model, settings: dict, base, freqs, u) -> dict | None:
+    """The emulated search's point mass (:func:`fe_core.closure.emulated.emulated_search`, in this process) as a
+    check record; its ``evaluations`` count the search's FE runs. None where the library has no point mass or its
+    nodes no positions (a matrices model)."""
+    from fe_core.closure.emulated import EmulatorOptions, emulated_candidate, emulated_search
+
+    effect = _library(model, settings).get("point_mass")
+    if effect is None or not effect.locations() or effect.position(effect.locations()[0]) is None:
+        _logger().info("closure: no emulated search (no point mass with node positions in the library)")
+        return None
+    found = emulated_search(model, freqs, u, effect, base.alpha, noise=settings["noise"],
+                            options=EmulatorOptions(seed=settings.get("seed", 0)),
+                            alpha_bounds=tuple(settings["alpha_bounds"]), refine_moves=settings["max_moves"])
+    c = emulated_candidate(found, effect)
+    f = c.fit
+    _logger().info("closure: %s", found.summary())
+    return {"effect": c.effect, "screened_location": c.location, "location": c.location,
+            "moved_from": json.dumps(c.moved_from), "values": json.dumps(list(map(float, f.values))),
+            "alpha": json.dumps(list(map(float, f.alpha))), "rss": f.rss, "evaluations": f.evaluations,
+            "seconds": found.seconds, "message": f.message, "start": f.start}
 
 
 def _indexed(k, *args):
@@ -229,7 +260,9 @@ def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: 
                                      json.loads(r.values), r.evaluations, r.seconds, r.message)
         c.fit.start = str(getattr(r, "start", "") or "")  # stores written before the joint fit's starts lack it
         checked.append(c)
-    checked = decisions.dedupe(checked)
+    from fe_core.closure.emulated import dedupe_counting  # a tie with the emulated search keeps its FE solves
+
+    checked = dedupe_counting(checked)
     chosen = decisions.decide(base, before, checked)
     final = chosen.fit if chosen is not None else base
     # Tested against the configured noise, else the level estimated from this residual itself (never the first

@@ -196,7 +196,7 @@ def test_update_help_lists_the_close_loop_options(capsys):
     with pytest.raises(SystemExit):
         update.main(["--help"])
     out = capsys.readouterr().out
-    for flag in ("--close-loop", "--noise", "--effects", "--restarts"):
+    for flag in ("--close-loop", "--noise", "--effects", "--restarts", "--closure-emulator"):
         assert flag in out
 
 
