@@ -58,16 +58,22 @@ def read_matrix(path: str | Path) -> sp.csr_matrix:
     return A
 
 
-def read_dof_table(path: str | Path) -> np.ndarray:
-    """The DOF table, shape (n, 2), int: node id and direction (0, 1, 2) of each matrix row."""
-    path = Path(path)
+def _csv_rows(path: Path, what: str, header: list[str]) -> list[list[str]]:
+    """The rows of a CSV table, its header checked (:class:`MatrixFileError` naming the file otherwise)."""
     try:
         with open(path, newline="") as fh:
             rows = list(csv.reader(fh))
     except OSError as exc:
-        raise MatrixFileError(f"{path}: cannot read the DOF table ({exc.strerror})") from None
-    if not rows or [c.strip() for c in rows[0]] != ["node", "direction"]:
-        raise MatrixFileError(f"{path}: the DOF table needs the header 'node,direction'")
+        raise MatrixFileError(f"{path}: cannot read {what} ({exc.strerror})") from None
+    if not rows or [c.strip() for c in rows[0]] != header:
+        raise MatrixFileError(f"{path}: {what} needs the header '{','.join(header)}'")
+    return rows
+
+
+def read_dof_table(path: str | Path) -> np.ndarray:
+    """The DOF table, shape (n, 2), int: node id and direction (0, 1, 2) of each matrix row."""
+    path = Path(path)
+    rows = _csv_rows(path, "the DOF table", ["node", "direction"])
     out = np.empty((len(rows) - 1, 2), dtype=np.int64)
     for i, row in enumerate(rows[1:]):
         try:
@@ -92,13 +98,7 @@ def read_node_table(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     (:class:`MatrixFileError` naming the file and the line).
     """
     path = Path(path)
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
-    except OSError as exc:
-        raise MatrixFileError(f"{path}: cannot read the node table ({exc.strerror})") from None
-    if not rows or [c.strip() for c in rows[0]] != ["node", "x", "y", "z"]:
-        raise MatrixFileError(f"{path}: the node table needs the header 'node,x,y,z'")
+    rows = _csv_rows(path, "the node table", ["node", "x", "y", "z"])
     ids = np.empty(len(rows) - 1, dtype=np.int64)
     xyz = np.empty((len(rows) - 1, 3))
     line_of: dict[int, int] = {}
