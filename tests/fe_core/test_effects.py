@@ -291,7 +291,8 @@ def test_a_model_given_as_matrices_gets_the_nodal_effects_and_refuses_the_cell_o
     assert tuple(table[cantilever.free_dofs[row]]) == (233, 1)
     # The sensors' nodes come from the output vectors (the model file's sensor nodes).
     assert lib["sensor_mass"].nodes.tolist() == [173, 188, 203, 218, 233]
-    assert lib["point_mass"].describe("node 233") == {"node": 233}
+    # Placed with the model's node table (nodes.csv): node 233 is on the sensors' edge at the free end, x = 1 m.
+    assert lib["point_mass"].describe("node 233") == pytest.approx({"node": 233, "x_m": 1.0, "y_m": 0.08, "z_m": 0.05})
     assert "node 232" in lib["point_mass"].neighbours("node 233")  # coupled through K
     with pytest.raises(ValueError, match="'patch' does not apply to the model .*model.toml: it needs a mesh"):
         E.build_library(cantilever, ["patch"])
