@@ -60,6 +60,9 @@ AGREE = 1e-6
 COARSE = 1e-5
 #: Rounds (full evaluations that enlarge the basis) before the plain path takes over.
 MAX_ROUNDS = 6
+#: A change touching more rows than this (a segment's mass) is kept projected on the basis and reused for any
+#: later change of the same pattern proportional to it (the same segment's mass at another factor).
+REMEMBER_ROWS = 64
 
 _PLAIN_FIT = fits.fit_update
 
@@ -78,6 +81,7 @@ class ReducedBasis:
         self._proj = [np.zeros((0, 0)) for _ in self._mats]
         self.V = np.zeros((K0.shape[0], 0))
         self.holds: set = set()  # keys of the points whose full spaces the basis holds
+        self._remembered: dict = {}  # pattern -> (values, V^T A V) of large changes on this basis
         self.segments: list[np.ndarray] = []
         self.fixed = None
 
@@ -99,6 +103,7 @@ class ReducedBasis:
             P = self._proj[t]
             self._proj[t] = np.block([[P, cross], [cross.T, 0.5 * (new + new.T)]])
         self.V = np.hstack([V, Q])
+        self._remembered = {}
         m = self.model.n_segments
         self.segments = self._proj[:m]
         self.fixed = self._proj[m] - sum(self.segments)  # K(alpha) = fixed + sum (1 + alpha_i) K_i
@@ -111,10 +116,25 @@ class ReducedBasis:
         self.V = self.V[:, :0]
         self._proj = [np.zeros((0, 0)) for _ in self._mats]
         self.holds = set()
+        self._remembered = {}
 
     def project(self, A) -> np.ndarray:
-        """``V^T A V`` of a sparse change through its non-empty rows."""
-        return project_rows(A, self.V)
+        """``V^T A V`` of a sparse change through its non-empty rows; a change of more than
+        ``REMEMBER_ROWS`` rows proportional to one projected before on this basis (same pattern, values a
+        multiple to 1e-13) is that projection times the factor."""
+        A = sp.csr_matrix(A)
+        if np.count_nonzero(np.diff(A.indptr)) <= REMEMBER_ROWS:
+            return project_rows(A, self.V)
+        key = (A.shape, A.nnz, hash(A.indptr.tobytes()), hash(A.indices.tobytes()))
+        held = self._remembered.get(key)
+        if held is not None:
+            values, P = held
+            c = float(A.data @ values) / float(values @ values)
+            if np.max(np.abs(A.data - c * values)) <= 1e-13 * np.max(np.abs(A.data)):
+                return c * P
+        P = project_rows(A, self.V)
+        self._remembered[key] = (A.data.copy(), P)
+        return P
 
 
 class _ReducedModal(ReducedResponse):

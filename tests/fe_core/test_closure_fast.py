@@ -98,3 +98,23 @@ def test_enabled_and_disabled_switch_the_closure_fits_and_restore_them():
             assert screening.LinearisedResponse is fast.full_response
         assert fits.fit_update is fast._PLAIN_FIT and selection.fit_update is fast._PLAIN_FIT
     assert fits.fit_update is default and screening.fit_update is default and selection.fit_update is default
+
+
+def test_a_segment_mass_at_another_factor_is_projected_from_the_held_projection(beam):
+    """A change of many rows (a segment's mass) is projected once per basis and scaled after; the scaled one
+    is the direct projection ``V^T A V`` (dense products: independent of the row-wise one), and a change of
+    the same pattern that is not a multiple is projected afresh."""
+    from fe_core.closure.effects import SegmentMass
+
+    model, freqs, u, truth = beam
+    basis = fast.ReducedBasis(model, freqs)
+    basis.add(LinearisedResponse(model, np.asarray(truth["alpha"]), freqs).reduced.W)
+    effect = SegmentMass(model)
+    location = effect.locations()[-1]
+    first = effect.terms(np.zeros(model.n_segments), location, [0.2]).mass
+    assert np.count_nonzero(np.diff(first.tocsr().indptr)) > fast.REMEMBER_ROWS
+    V = basis.V
+    basis.project(first)
+    for A in (effect.terms(np.zeros(model.n_segments), location, [-0.7]).mass, first.multiply(first)):
+        direct = V.T @ (A.toarray() @ V)
+        assert np.max(np.abs(basis.project(A) - direct)) < 1e-12 * np.max(np.abs(direct))
