@@ -133,7 +133,8 @@ class ReducedBasis:
             if np.max(np.abs(A.data - c * values)) <= 1e-13 * np.max(np.abs(A.data)):
                 return c * P
         P = project_rows(A, self.V)
-        self._remembered[key] = (A.data.copy(), P)
+        if np.any(A.data):  # a change whose stored values are all zero is no multiple to scale
+            self._remembered[key] = (A.data.copy(), P)
         return P
 
 
