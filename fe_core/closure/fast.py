@@ -226,7 +226,7 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
             fit, full, n = quick
             reduced_evals += n
             if tol >= COARSE and _rss_agrees(fit.rss, full, u, tol):
-                return _ended(fit, full, u, built, t0, 0, reduced_evals, basis)
+                return _ended(fit, full, u, built, t0, 0, reduced_evals, basis, "coarse, sums of squares agree")
             alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
             start, prev = full, fit
     if start is None:
@@ -252,7 +252,7 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
         # gains next to nothing: the start, the previous round's end, was (to the fit's tolerance) a
         # stationary point of the full model; the fit ends there, with the full residual already computed.
         if prev is not None and rss_held - fit.rss <= max(tol, 1e-9) * rss_held:
-            return _ended(prev, start, u, built, t0, k - 1, reduced_evals, basis)
+            return _ended(prev, start, u, built, t0, k - 1, reduced_evals, basis, "no gain from the held end")
         alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
         full = full_response(model, alpha, freqs, fit.applied)
         gap = float(np.max(np.abs(np.log(full.amplitude) - np.log(fit.model_amplitude))))
@@ -262,9 +262,9 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
         # Done when the reduced model is right at the end and, from a start it held exactly, found next to
         # nothing to gain: the start was (to the fit's tolerance) a stationary point of the full model too.
         if gap <= AGREE and rss_start - float(np.sum(r**2)) <= max(tol, 1e-9) * rss_start:
-            return _ended(fit, full, u, built, t0, k, reduced_evals, basis)
+            return _ended(fit, full, u, built, t0, k, reduced_evals, basis, "agreed, no gain")
         if tol >= COARSE and _rss_agrees(fit.rss, full, u, tol):  # a coarse fit: its sum of squares is right
-            return _ended(fit, full, u, built, t0, k, reduced_evals, basis)
+            return _ended(fit, full, u, built, t0, k, reduced_evals, basis, "coarse, sums of squares agree")
         start, prev = full, fit
     else:
         log.info("reduced fit did not agree with the full model after %d rounds: the plain fit finishes it",
@@ -273,6 +273,8 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
                        alpha_bounds=alpha_bounds, prior=applied)
     plain.evaluations += _BUILT[0] - built
     plain.seconds = time.perf_counter() - t0
+    plain.message += f" (reduced model: ended by the plain fit, {reduced_evals} reduced evaluations)"
+    log.debug("fast fit: %s", plain.message)
     return plain
 
 
@@ -316,14 +318,15 @@ def _rss_agrees(rss_reduced: float, full, u, tol: float) -> bool:
     return abs(rss - rss_reduced) <= tol * rss
 
 
-def _ended(fit, full, u, built, t0, rounds, reduced_evals, basis):
-    """The fit with the full model's residual at its end, its counts and its message."""
+def _ended(fit, full, u, built, t0, rounds, reduced_evals, basis, why):
+    """The fit with the full model's residual at its end, its counts and its message (``why`` it ended)."""
     r = fits.log_residual(full.amplitude, u)
     fit.residual, fit.model_amplitude = r, np.exp(r) * u
     fit.evaluations = _BUILT[0] - built
     fit.seconds = time.perf_counter() - t0
     fit.message += (f" (reduced model: {rounds} round(s), {reduced_evals} reduced evaluations, "
-                    f"basis {basis.V.shape[1]})")
+                    f"basis {basis.V.shape[1]}; {why})")
+    log.debug("fast fit: %d full evaluation(s); %s", fit.evaluations, fit.message)
     return fit
 
 
