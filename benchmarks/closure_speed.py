@@ -196,6 +196,8 @@ class Trace:
                            location=args[5] if len(args) > 5 else kwargs.get("location"),
                            tol=kwargs.get("tol", 1e-8), rss=out.rss, message=out.message, notes=list(self.notes))
             self.rows.append(row)
+            print(f"trace: {row['full']} full, {kind} {row.get('effect') or ''} {row.get('location') or ''} "
+                  f"tol {row.get('tol', '')} {row['stage']}: {row.get('message', '')}", flush=True)
             return out
 
         return wrapped
