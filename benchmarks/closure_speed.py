@@ -3,6 +3,7 @@
     python -m benchmarks.make.bracket_mass                       # the data, once
     nice -n 10 python -m benchmarks.closure_speed                # the closure as fe_core.closure.close_loop runs it
     nice -n 10 python -m benchmarks.closure_speed --profile out.prof --restarts 0
+    nice -n 10 python -m benchmarks.closure_speed --max-effects 3 --trace fits.jsonl  # full evaluations by stage
 
 The closure starts from the true factors (what a good update returns; the flow's ``--close-loop`` starts
 from the update's result). It prints the wall and CPU time of the baseline (alpha-only fit and restarts),
