@@ -3,6 +3,7 @@
     python -m benchmarks.make.bracket_mass                       # the data, once
     nice -n 10 python -m benchmarks.closure_speed                # the closure as fe_core.closure.close_loop runs it
     nice -n 10 python -m benchmarks.closure_speed --profile out.prof --restarts 0
+    nice -n 10 python -m benchmarks.closure_speed --max-effects 3 --trace fits.jsonl  # full evaluations by stage
 
 The closure starts from the true factors (what a good update returns; the flow's ``--close-loop`` starts
 from the update's result). It prints the wall and CPU time of the baseline (alpha-only fit and restarts),
@@ -69,6 +70,8 @@ def main(argv=None) -> int:
     p.add_argument("--check", action="store_true", help="with --stages: the point mass's check with its moves too")
     p.add_argument("--profile", metavar="FILE", help="write cProfile stats and print the top 25 by cumulative time")
     p.add_argument("--json", metavar="FILE", help="append the result as a JSON line")
+    p.add_argument("--trace", metavar="FILE", help="with --path fast: every fit and full evaluation with its stage "
+                                                   "(JSON lines), and a table of full evaluations by stage")
     args = p.parse_args(argv)
 
     from fe_core.closure.loop import close_loop
@@ -99,6 +102,7 @@ def main(argv=None) -> int:
     from fe_core.closure import fast
 
     with fast.enabled() if args.path == "fast" else fast.disabled():
+        trace = Trace(fast) if args.trace and args.path == "fast" else None
         if args.stages:
             res = _stages(model, freqs, u, truth, library, args.check)
         else:
@@ -123,6 +127,8 @@ def main(argv=None) -> int:
                                      "counts": {c.name: [c.calls, c.seconds] for c in counters},
                                      "pardiso": dict(pardiso.stats)}) + "\n")
         return 0
+    if trace is not None:
+        trace.report(args.trace)
     chosen = res.steps[0] if res.steps else None
     found = "-" if chosen is None else f"{chosen.effect} at {chosen.location} = {chosen.fit.values[0]:.4g}"
     print(f"closure: {wall:.1f} s wall, {cpu:.1f} s CPU; stages {', '.join(f'{k} {v:.1f} s' for k, v in res.seconds.items())}")
@@ -142,6 +148,72 @@ def main(argv=None) -> int:
                                  "pardiso": dict(pardiso.stats) if args.path == "fast" else None,
                                  "library": [e.kind for e in library], "lines": int(freqs.size)}) + "\n")
     return 0
+
+
+class Trace:
+    """Full evaluations of the fast path by the closure's stage: every fit (``fit_update`` as the closure's modules
+    call it) and every full response outside fits (the screens, the relocation screens), each with the chain of
+    closure functions that asked for it, its full evaluations and what the fast fit logged."""
+
+    SKIP = ("fast.py", "closure_speed.py")
+
+    def __init__(self, fast):
+        import importlib
+
+        from fe_core.closure import screening
+
+        self.fast, self.rows, self.depth, self.notes = fast, [], 0, []
+        handler = logging.Handler(logging.DEBUG)
+        handler.emit = lambda record: self.notes.append(record.getMessage())
+        fast.log.addHandler(handler)
+        fast.log.setLevel(logging.DEBUG)
+        fast.log.propagate = False
+        for name in fast._USERS:
+            mod = importlib.import_module(name)
+            mod.fit_update = self._wrap(mod.fit_update, "fit")
+        screening.LinearisedResponse = self._wrap(screening.LinearisedResponse, "response")
+
+    def _stage(self) -> str:
+        import inspect
+
+        names = [f.function for f in inspect.stack(0)[2:]
+                 if "fe_core/closure/" in f.filename and not f.filename.endswith(self.SKIP)]
+        return ">".join(n for n in reversed(names) if n != "close_loop")
+
+    def _wrap(self, original, kind):
+        def wrapped(*args, **kwargs):
+            if self.depth:  # inside a traced fit: counted there
+                return original(*args, **kwargs)
+            stage, before, self.notes[:] = self._stage(), self.fast._BUILT[0], []
+            self.depth += 1
+            try:
+                out = original(*args, **kwargs)
+            finally:
+                self.depth -= 1
+            row = {"kind": kind, "stage": stage, "full": self.fast._BUILT[0] - before}
+            if kind == "fit":
+                effect = args[4] if len(args) > 4 else kwargs.get("effect")
+                row.update(effect=None if effect is None else effect.kind,
+                           location=args[5] if len(args) > 5 else kwargs.get("location"),
+                           tol=kwargs.get("tol", 1e-8), rss=out.rss, message=out.message, notes=list(self.notes))
+            self.rows.append(row)
+            print(f"trace: {row['full']} full, {kind} {row.get('effect') or ''} {row.get('location') or ''} "
+                  f"tol {row.get('tol', '')} {row['stage']}: {row.get('message', '')}", flush=True)
+            return out
+
+        return wrapped
+
+    def report(self, path):
+        with open(path, "w") as fh:
+            for row in self.rows:
+                fh.write(json.dumps(row) + "\n")
+        by = {}
+        for row in self.rows:
+            n, fits_, full = by.get(row["stage"], (0, 0, 0))
+            by[row["stage"]] = (n + 1, fits_ + (row["kind"] == "fit"), full + row["full"])
+        print(f"full evaluations by stage (total {sum(r['full'] for r in self.rows)}; built {self.fast._BUILT[0]}):")
+        for stage, (n, fits_, full) in by.items():
+            print(f"  {full:4d} in {fits_:3d} fits, {n - fits_:3d} responses: {stage or '-'}")
 
 
 def _stages(model, freqs, u, truth, library, full_check=False) -> dict:

@@ -247,7 +247,8 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
             fit, full, n = quick
             reduced_evals += n
             if tol >= COARSE and _rss_agrees(fit.rss, full, u, tol):
-                return _ended(fit, full, u, built, t0, 0, reduced_evals, basis)
+                return _ended(fit, full, u, built, t0, 0, reduced_evals, basis, "coarse, sums of squares agree",
+                              fine=False)
             alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
             start, prev = full, fit
     if start is None:
@@ -273,7 +274,8 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
         # gains next to nothing: the start, the previous round's end, was (to the fit's tolerance) a
         # stationary point of the full model; the fit ends there, with the full residual already computed.
         if prev is not None and rss_held - fit.rss <= max(tol, 1e-9) * rss_held:
-            return _ended(prev, start, u, built, t0, k - 1, reduced_evals, basis)
+            return _ended(prev, start, u, built, t0, k - 1, reduced_evals, basis, "no gain from the held end",
+                          fine=tol < COARSE)
         alpha, value, applied = fit.alpha, (fit.values if effect is not None else None), list(fit.prior)
         full = full_response(model, alpha, freqs, fit.applied)
         gap = float(np.max(np.abs(np.log(full.amplitude) - np.log(fit.model_amplitude))))
@@ -283,9 +285,10 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
         # Done when the reduced model is right at the end and, from a start it held exactly, found next to
         # nothing to gain: the start was (to the fit's tolerance) a stationary point of the full model too.
         if gap <= AGREE and rss_start - float(np.sum(r**2)) <= max(tol, 1e-9) * rss_start:
-            return _ended(fit, full, u, built, t0, k, reduced_evals, basis)
+            return _ended(fit, full, u, built, t0, k, reduced_evals, basis, "agreed, no gain", fine=tol < COARSE)
         if tol >= COARSE and _rss_agrees(fit.rss, full, u, tol):  # a coarse fit: its sum of squares is right
-            return _ended(fit, full, u, built, t0, k, reduced_evals, basis)
+            return _ended(fit, full, u, built, t0, k, reduced_evals, basis, "coarse, sums of squares agree",
+                          fine=False)
         start, prev = full, fit
     else:
         log.info("reduced fit did not agree with the full model after %d rounds: the plain fit finishes it",
@@ -294,6 +297,8 @@ def fit_update(model, freqs_hz, amplitude, alpha0, effect=None, location=None, v
                        alpha_bounds=alpha_bounds, prior=applied)
     plain.evaluations += _BUILT[0] - built
     plain.seconds = time.perf_counter() - t0
+    plain.message += f" (reduced model: ended by the plain fit, {reduced_evals} reduced evaluations)"
+    log.debug("fast fit: %s", plain.message)
     return plain
 
 
@@ -337,14 +342,22 @@ def _rss_agrees(rss_reduced: float, full, u, tol: float) -> bool:
     return abs(rss - rss_reduced) <= tol * rss
 
 
-def _ended(fit, full, u, built, t0, rounds, reduced_evals, basis):
-    """The fit with the full model's residual at its end, its counts and its message."""
+def _ended(fit, full, u, built, t0, rounds, reduced_evals, basis, why, fine=True):
+    """The fit with the full model's residual at its end, its counts and its message (``why`` it ended);
+    the full response at a fine fit's end is kept (a check's relocation screen is linearised there, after
+    the joint fit's coarse starts)."""
+    if fine:
+        _ENDS.pop(full.fast_key, None)
+        _ENDS[full.fast_key] = full
+        while len(_ENDS) > _FULL_SIZE:
+            _ENDS.pop(next(iter(_ENDS)))
     r = fits.log_residual(full.amplitude, u)
     fit.residual, fit.model_amplitude = r, np.exp(r) * u
     fit.evaluations = _BUILT[0] - built
     fit.seconds = time.perf_counter() - t0
     fit.message += (f" (reduced model: {rounds} round(s), {reduced_evals} reduced evaluations, "
-                    f"basis {basis.V.shape[1]})")
+                    f"basis {basis.V.shape[1]}; {why})")
+    log.debug("fast fit: %d full evaluation(s); %s", fit.evaluations, fit.message)
     return fit
 
 
@@ -370,12 +383,19 @@ def shared_basis(model, freqs_hz) -> ReducedBasis:
 #: point its fit ended, where the fit's last round built the same full space.
 _FULL: dict = {}
 _FULL_SIZE = 2
+#: The full responses at the last fine fits' ends (as many).
+_ENDS: dict = {}
 
 
 def _held(model, alpha, freqs_hz, applied=()):
     """The full response of a point if it is held (no new evaluation), else None."""
-    held = _FULL.get(_key(model, alpha, freqs_hz, applied))
+    held = _lookup(_key(model, alpha, freqs_hz, applied))
     return held if held is not None and held.model is model else None
+
+
+def _lookup(key):
+    held = _FULL.get(key)
+    return _ENDS.get(key) if held is None else held
 
 
 def _key(model, alpha, freqs, applied) -> tuple:
@@ -386,7 +406,7 @@ def _key(model, alpha, freqs, applied) -> tuple:
 def full_response(model, alpha, freqs_hz, applied=()) -> LinearisedResponse:
     """:class:`LinearisedResponse` (a full Krylov space), the same object again for the same point."""
     key = _key(model, alpha, freqs_hz, applied)
-    held = _FULL.get(key)
+    held = _lookup(key)
     if held is None or held.model is not model:
         while len(_FULL) >= _FULL_SIZE:
             _FULL.pop(next(iter(_FULL)))
@@ -451,6 +471,7 @@ def _switched(fit, response):
             importlib.import_module(name).fit_update = f
         importlib.import_module("fe_core.closure.screening").LinearisedResponse = saved_response
         _FULL.clear()
+        _ENDS.clear()
         _BASES.clear()
 
 

@@ -119,3 +119,22 @@ def test_a_segment_mass_at_another_factor_is_projected_from_the_held_projection(
     for A in (zero, first, effect.terms(np.zeros(model.n_segments), location, [-0.7]).mass, first.multiply(first)):
         direct = V.T @ (A.toarray() @ V)
         assert np.max(np.abs(basis.project(A) - direct)) <= 1e-12 * np.max(np.abs(direct))
+
+
+def test_a_check_relocation_screen_at_a_fine_fit_end_builds_no_new_space(beam):
+    """A check's relocation screen is linearised at its fit's end after the joint fit's coarse starts have
+    built full spaces of their own: the full response at the last fine fits' ends is kept, so the screen
+    costs no FE evaluation, and it is that point's (its receptance is the fit's model)."""
+    model, freqs, u, truth = beam
+    mass = PointMass(model)
+    start = np.asarray(truth["alpha"]) + 0.05
+    with fast.enabled():
+        fine = fast.fit_update(model, freqs, u, start, mass, "node 208", [0.1], tol=1e-6)
+        built = fast._BUILT[0]
+        for shift in (-0.1, 0.1, 0.2):  # coarse starts elsewhere: their full spaces pass through the cache
+            fast.fit_update(model, freqs, u, start + shift, mass, "node 208", [0.3], tol=1e-4)
+        assert fast._BUILT[0] - built >= fast._FULL_SIZE
+        built = fast._BUILT[0]
+        lin = screening.LinearisedResponse(model, fine.alpha, freqs, fine.applied)
+        assert fast._BUILT[0] == built
+        assert np.allclose(np.log(lin.amplitude / u), fine.residual, rtol=0, atol=1e-9)
