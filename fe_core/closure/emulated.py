@@ -305,15 +305,18 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
     """
     from .decisions import decide, merge, rank
     from .fits import checks_per_type
-    from .screening import check, pick_for_check, screen
+    from .screening import check, pick_in_waves, screen, second_wave
     from ..inference.residual import analyse_residual
 
     freqs, u = np.asarray(freqs_hz, float), np.asarray(amplitude, float)
     by_kind = {e.kind: e for e in library}
     always = [k for k in always if k in by_kind]
     screened = screen(model, freqs, base, library)
+    first, rest = pick_in_waves(screened, per_type, checks_per_type(base, per_type), always=always)
     checked = [check(model, freqs, u, base, by_kind[c.effect], c, max_moves, alpha_bounds, max_evaluations=100)
-               for c in pick_for_check(screened, checks_per_type(base, per_type), always=always)]
+               for c in first]
+    checked += [check(model, freqs, u, base, by_kind[c.effect], c, max_moves, alpha_bounds, max_evaluations=100)
+                for c in second_wave(rest, [(c.effect, c.fit.rss) for c in checked], base.rss)]
     searches = {}
     for kind in kinds:
         effect = by_kind.get(kind)

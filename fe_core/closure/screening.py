@@ -5,7 +5,7 @@ candidate, whose searched location may then move (:func:`check`, with the linear
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,6 +20,8 @@ __all__ = [
     "Candidate",
     "screen",
     "pick_for_check",
+    "pick_in_waves",
+    "second_wave",
     "check",
     "scores",
 ]
@@ -170,6 +172,29 @@ def pick_for_check(candidates: Sequence[Candidate], per_type: int = 2, factor: f
             if first is not None:
                 picked.append(first)
     return picked
+
+
+def pick_in_waves(candidates: Sequence[Candidate], per_type: int, far_per_type: int,
+                  always: Sequence[str] = ("sensor_mass",)) -> tuple[list[Candidate], list[Candidate]]:
+    """The checks in two waves: ``(first, rest)``. ``first`` is :func:`pick_for_check` with ``per_type``;
+    ``rest`` the further candidates of ``far_per_type`` per kind (where the residual is far off), from which
+    :func:`second_wave` takes those worth a full check once the first wave's fits are known."""
+    first = pick_for_check(candidates, per_type, always=always)
+    if far_per_type <= per_type:
+        return first, []
+    held = {id(c) for c in first}
+    return first, [c for c in pick_for_check(candidates, far_per_type, always=always) if id(c) not in held]
+
+
+def second_wave(rest: Sequence[Candidate], fitted: Iterable[tuple[str, float]], base_rss: float,
+                contender: float = 0.5) -> list[Candidate]:
+    """Of ``rest``, the candidates of the kinds the first wave made a contender of (a full fit ``(kind, rss)``
+    explaining at least ``contender`` of ``base_rss``, as :func:`check` moves only contenders): far off, the
+    linear screen ranks a large effect's own place below its neighbours, so the kind that explains the residual
+    gets its further candidates checked; a kind whose best candidate explains little does not. Where no kind
+    made a contender, all of ``rest``."""
+    kinds = {kind for kind, rss in fitted if rss <= (1.0 - contender) * base_rss}
+    return [c for c in rest if c.effect in kinds] if kinds else list(rest)
 
 
 def _start_value(effect: Effect, location: str, linear: np.ndarray) -> np.ndarray:

@@ -167,28 +167,24 @@ def check_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndar
         screened = _screened(store)
         model = problem.model
         base = _baseline_fit(store, model, freqs, u)
-        picked = screening.pick_for_check(screened, fits.checks_per_type(base, settings["per_type"]))
+        first, rest = screening.pick_in_waves(screened, settings["per_type"],
+                                              fits.checks_per_type(base, settings["per_type"]))
         if not (analysis["structured"] or settings.get("check_noise")):
             logger.info("closure: the residual is noise (chi-square p = %.3g); no candidate is checked",
                         analysis["p_chi2"])
-            picked = []
-        todo = [(k, c) for k, c in enumerate(picked) if not store.path("check", f"check={k:03d}").exists()]
-        if len(todo) < len(picked):
-            logger.info("closure: %d of %d checks found on disk", len(picked) - len(todo), len(picked))
-        jobs = (delayed(_indexed)(k, problem.ref, settings.get("effects"), c.effect, c.location,
-                                  c.linear_values, base.alpha, freqs, u, settings["max_moves"],
-                                  settings["alpha_bounds"]) for k, c in todo)
-        if todo:
-            parallel = Parallel(n_jobs=settings.get("n_jobs", 1), backend="loky", return_as="generator_unordered")
-            count = [len(picked) - len(todo)]
-            with heartbeat("closure checks", lambda: f"{count[0]} of {len(picked)} candidates checked"):
-                for k, record in parallel(jobs):
-                    store.write_table("check", f"check={k:03d}", pd.DataFrame([record]))
-                    count[0] += 1
-                    logger.info("closure check %d of %d (candidate %d): %s at %s, rss %.3g (%d FE solves)", count[0],
-                                len(picked), k + 1, record["effect"], record["location"], record["rss"],
-                                record["evaluations"])
-        parts = [pd.read_parquet(store.path("check", f"check={k:03d}")) for k in range(len(picked))]
+            first, rest = [], []
+        wave = list(enumerate(first))
+        _run_checks(store, problem, settings, base, freqs, u, wave)
+        parts = [pd.read_parquet(store.path("check", f"check={k:03d}")) for k, _ in wave]
+        if rest:  # far off: the further candidates of the kinds the first wave made a contender of
+            fitted = [(str(p["effect"].iloc[0]), float(p["rss"].iloc[0])) for p in parts]
+            chosen = {id(c) for c in screening.second_wave(rest, fitted, base.rss)}
+            wave = [(len(first) + i, c) for i, c in enumerate(rest) if id(c) in chosen]
+            logger.info("closure: far off, %d further candidates checked of %d (kinds: %s)", len(wave), len(rest),
+                        ", ".join(sorted({c.effect for _, c in wave})) or "-")
+            _run_checks(store, problem, settings, base, freqs, u, wave)
+            parts += [pd.read_parquet(store.path("check", f"check={k:03d}")) for k, _ in wave]
+        picked = first + rest
         if picked and settings.get("emulator") and fits.far_off(base):
             if not store.path("check", "check=emulated").exists():
                 record = emulated_check(model, settings, base, freqs, u)
@@ -224,6 +220,26 @@ def emulated_check(model, settings: dict, base, freqs, u) -> dict | None:
             "moved_from": json.dumps(c.moved_from), "values": json.dumps(list(map(float, f.values))),
             "alpha": json.dumps(list(map(float, f.alpha))), "rss": f.rss, "evaluations": f.evaluations,
             "seconds": found.seconds, "message": f.message, "start": f.start}
+
+
+def _run_checks(store, problem, settings: dict, base, freqs, u, wave) -> None:
+    """Check the ``(index, candidate)`` pairs of ``wave`` not yet on disk, in parallel, each stored as it ends."""
+    logger = _logger()
+    todo = [(k, c) for k, c in wave if not store.path("check", f"check={k:03d}").exists()]
+    if len(todo) < len(wave):
+        logger.info("closure: %d of %d checks found on disk", len(wave) - len(todo), len(wave))
+    if not todo:
+        return
+    jobs = (delayed(_indexed)(k, problem.ref, settings.get("effects"), c.effect, c.location, c.linear_values,
+                              base.alpha, freqs, u, settings["max_moves"], settings["alpha_bounds"]) for k, c in todo)
+    parallel = Parallel(n_jobs=settings.get("n_jobs", 1), backend="loky", return_as="generator_unordered")
+    count = [len(wave) - len(todo)]
+    with heartbeat("closure checks", lambda: f"{count[0]} of {len(wave)} candidates checked"):
+        for k, record in parallel(jobs):
+            store.write_table("check", f"check={k:03d}", pd.DataFrame([record]))
+            count[0] += 1
+            logger.info("closure check %d of %d (candidate %d): %s at %s, rss %.3g (%d FE solves)", count[0],
+                        len(wave), k + 1, record["effect"], record["location"], record["rss"], record["evaluations"])
 
 
 def _indexed(k, *args):
