@@ -1,4 +1,4 @@
-"""Far off, the closure checks a kind's further candidates only when its best one made a contender
+"""Far off, the closure checks further candidates only when the best of each kind made no contender
 (fe_core.closure.screening.pick_in_waves / second_wave): hand-built screens, the expected picks by hand."""
 
 from __future__ import annotations
@@ -30,14 +30,14 @@ def test_the_first_wave_is_the_best_of_each_kind_and_the_rest_the_far_off_furthe
     assert pick_in_waves(SCREEN, per_type=1, far_per_type=1)[1] == []  # not far off: one wave
 
 
-def test_only_the_kinds_whose_first_check_explains_half_get_their_further_candidates_checked():
+def test_a_contender_in_the_first_wave_makes_the_further_candidates_unneeded():
     _, rest = pick_in_waves(SCREEN, per_type=1, far_per_type=5)
     base_rss = 10.0
-    # the point mass's full fit leaves 3.0 of 10 (explains 70 %), the patch 6.0 (40 %), the transducers 9.9
-    second = second_wave(rest, [("point_mass", 3.0), ("patch", 6.0), ("sensor_mass", 9.9)], base_rss)
-    assert [c.location for c in second] == ["node 6", "node 7", "node 8", "node 9"]
-    # exactly half explained is a contender
-    assert {c.effect for c in second_wave(rest, [("patch", 5.0)], base_rss)} == {"patch"}
+    # the point mass's full fit leaves 3.0 of 10 (explains 70 %): its moves re-screen at the fitted size
+    assert second_wave(rest, [("point_mass", 3.0), ("patch", 6.0), ("sensor_mass", 9.9)], base_rss) == []
+    # exactly half explained is a contender; just under half is not
+    assert second_wave(rest, [("patch", 5.0)], base_rss) == []
+    assert second_wave(rest, [("patch", 5.001)], base_rss) == rest
 
 
 def test_where_no_kind_made_a_contender_every_further_candidate_is_checked():
