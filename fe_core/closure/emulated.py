@@ -305,7 +305,7 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
     """
     from .decisions import decide, merge, rank
     from .fits import checks_per_type
-    from .screening import check, pick_in_waves, screen, second_wave
+    from .screening import check_in_waves, pick_in_waves, screen
     from ..inference.residual import analyse_residual
 
     freqs, u = np.asarray(freqs_hz, float), np.asarray(amplitude, float)
@@ -313,10 +313,7 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
     always = [k for k in always if k in by_kind]
     screened = screen(model, freqs, base, library)
     first, rest = pick_in_waves(screened, per_type, checks_per_type(base, per_type), always=always)
-    checked = [check(model, freqs, u, base, by_kind[c.effect], c, max_moves, alpha_bounds, max_evaluations=100)
-               for c in first]
-    checked += [check(model, freqs, u, base, by_kind[c.effect], c, max_moves, alpha_bounds, max_evaluations=100)
-                for c in second_wave(rest, [(c.effect, c.fit.rss) for c in checked], base.rss)]
+    checked = check_in_waves(model, freqs, u, base, by_kind, first, rest, max_moves, alpha_bounds, 100)
     searches = {}
     for kind in kinds:
         effect = by_kind.get(kind)

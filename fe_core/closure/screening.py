@@ -22,6 +22,7 @@ __all__ = [
     "pick_for_check",
     "pick_in_waves",
     "second_wave",
+    "check_in_waves",
     "check",
     "scores",
 ]
@@ -186,16 +187,28 @@ def pick_in_waves(candidates: Sequence[Candidate], per_type: int, far_per_type: 
     return first, [c for c in pick_for_check(candidates, far_per_type, always=always) if id(c) not in held]
 
 
-def second_wave(rest: Sequence[Candidate], fitted: Iterable[tuple[str, float]], base_rss: float,
+def second_wave(rest: Sequence[Candidate], first_rss: Iterable[float], base_rss: float,
                 contender: float = 0.5) -> list[Candidate]:
-    """``rest`` where the first wave made no contender (no full fit ``(kind, rss)`` explains ``contender`` of
-    ``base_rss``), else nothing. Far off, the linear screen (at zero effect) ranks a large effect's own place
-    below its neighbours; a contender's check corrects that itself: its moves screen every location again
-    at the fitted size and fit the best (:func:`check`). Only where no check got that far are the further
-    candidates worth their fits (the own cases' frame with a -88 % patch: its fifth candidate is the true
-    place); where one did, a kind's further candidates ended at its first's place (docs/performance.md)."""
-    made = any(rss <= (1.0 - contender) * base_rss for _, rss in fitted)
+    """``rest`` where the first wave made no contender (no full fit's sum of squares in ``first_rss`` explains
+    ``contender`` of ``base_rss``), else nothing. Far off, the linear screen (at zero effect) ranks a large
+    effect's own place below its neighbours; a contender's check corrects that itself: its moves screen every
+    location again at the fitted size and fit the best (:func:`check`). Only where no check got that far are
+    the further candidates worth their fits (the own cases' frame with a -88 % patch: its fifth candidate is
+    the true place); where one did, a kind's further candidates ended at its first's place
+    (docs/performance.md)."""
+    made = any(rss <= (1.0 - contender) * base_rss for rss in first_rss)
     return [] if made else list(rest)
+
+
+def check_in_waves(model: ParametricModel, freqs_hz, amplitude, base: Fit, by_kind: dict, first, rest,
+                   max_moves: int, alpha_bounds: tuple[float, float], max_evaluations: int) -> list[Candidate]:
+    """:func:`check` of the candidates of ``first``, then of those :func:`second_wave` takes from ``rest``."""
+    def run(c):
+        return check(model, freqs_hz, amplitude, base, by_kind[c.effect], c, max_moves, alpha_bounds,
+                     max_evaluations=max_evaluations)
+
+    checked = [run(c) for c in first]
+    return checked + [run(c) for c in second_wave(rest, [c.fit.rss for c in checked], base.rss)]
 
 
 def _start_value(effect: Effect, location: str, linear: np.ndarray) -> np.ndarray:

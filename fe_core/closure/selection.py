@@ -39,8 +39,8 @@ import numpy as np
 
 from .decisions import decide, dedupe, merge, rank, score
 from .fits import ALPHA_BOUNDS, Fit, checks_per_type, fit_update
-from .screening import (Candidate, _relocation_fits, _relocation_target, _start_value, check, pick_for_check,
-                        pick_in_waves, screen, second_wave)
+from .screening import (Candidate, _relocation_fits, _relocation_target, _start_value, check, check_in_waves,
+                        pick_for_check, pick_in_waves, screen)
 from .effects import Effect
 from ..inference.residual import ResidualAnalysis, analyse_residual
 
@@ -401,12 +401,8 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         checked = []
         if analysis.structured or (check_noise and not steps):
             first, rest = pick_in_waves(screened, per_type, checks_per_type(current, per_type), always=always)
-            for c in first:
-                checked.append(check(model, freqs, u, current, by_kind[c.effect], c, max_moves, alpha_bounds,
-                                     max_evaluations=CHECK_EVALUATIONS))
-            for c in second_wave(rest, [(c.effect, c.fit.rss) for c in checked], current.rss):
-                checked.append(check(model, freqs, u, current, by_kind[c.effect], c, max_moves, alpha_bounds,
-                                     max_evaluations=CHECK_EVALUATIONS))
+            checked = check_in_waves(model, freqs, u, current, by_kind, first, rest, max_moves, alpha_bounds,
+                                     CHECK_EVALUATIONS)
         checked = dedupe(checked)
         if steps and analysis.structured:
             move_log += _refine_contenders(model, freqs, u, current, checked, max_moves, alpha_bounds)

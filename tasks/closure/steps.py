@@ -177,8 +177,8 @@ def check_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndar
         _run_checks(store, problem, settings, base, freqs, u, wave)
         parts = [pd.read_parquet(store.path("check", f"check={k:03d}")) for k, _ in wave]
         if rest:  # far off: the further candidates, where the first wave made no contender
-            fitted = [(str(p["effect"].iloc[0]), float(p["rss"].iloc[0])) for p in parts]
-            chosen = {id(c) for c in screening.second_wave(rest, fitted, base.rss)}
+            first_rss = [float(p["rss"].iloc[0]) for p in parts]
+            chosen = {id(c) for c in screening.second_wave(rest, first_rss, base.rss)}
             wave = [(len(first) + i, c) for i, c in enumerate(rest) if id(c) in chosen]
             logger.info("closure: far off, %d further candidates checked of %d (%s)", len(wave), len(rest),
                         "no contender in the first wave" if wave else "a contender's moves re-screened its kind")

@@ -34,12 +34,12 @@ def test_a_contender_in_the_first_wave_makes_the_further_candidates_unneeded():
     _, rest = pick_in_waves(SCREEN, per_type=1, far_per_type=5)
     base_rss = 10.0
     # the point mass's full fit leaves 3.0 of 10 (explains 70 %): its moves re-screen at the fitted size
-    assert second_wave(rest, [("point_mass", 3.0), ("patch", 6.0), ("sensor_mass", 9.9)], base_rss) == []
+    assert second_wave(rest, [3.0, 6.0, 9.9], base_rss) == []
     # exactly half explained is a contender; just under half is not
-    assert second_wave(rest, [("patch", 5.0)], base_rss) == []
-    assert second_wave(rest, [("patch", 5.001)], base_rss) == rest
+    assert second_wave(rest, [5.0], base_rss) == []
+    assert second_wave(rest, [5.001], base_rss) == rest
 
 
 def test_where_no_kind_made_a_contender_every_further_candidate_is_checked():
     _, rest = pick_in_waves(SCREEN, per_type=1, far_per_type=5)
-    assert second_wave(rest, [("point_mass", 8.0), ("patch", 7.0)], 10.0) == rest
+    assert second_wave(rest, [8.0, 7.0], 10.0) == rest
