@@ -347,10 +347,7 @@ def _ended(fit, full, u, built, t0, rounds, reduced_evals, basis, why, fine=True
     the full response at a fine fit's end is kept (a check's relocation screen is linearised there, after
     the joint fit's coarse starts)."""
     if fine:
-        _ENDS.pop(full.fast_key, None)
-        _ENDS[full.fast_key] = full
-        while len(_ENDS) > _FULL_SIZE:
-            _ENDS.pop(next(iter(_ENDS)))
+        _keep(_ENDS, full.fast_key, full)
     r = fits.log_residual(full.amplitude, u)
     fit.residual, fit.model_amplitude = r, np.exp(r) * u
     fit.evaluations = _BUILT[0] - built
@@ -393,6 +390,15 @@ def _held(model, alpha, freqs_hz, applied=()):
     return held if held is not None and held.model is model else None
 
 
+def _keep(cache: dict, key, value):
+    """``value`` under ``key`` in ``cache``, which keeps the last ``_FULL_SIZE`` entries (the oldest go first)."""
+    cache.pop(key, None)
+    cache[key] = value
+    while len(cache) > _FULL_SIZE:
+        cache.pop(next(iter(cache)))
+    return value
+
+
 def _lookup(key):
     held = _FULL.get(key)
     return _ENDS.get(key) if held is None else held
@@ -408,9 +414,7 @@ def full_response(model, alpha, freqs_hz, applied=()) -> LinearisedResponse:
     key = _key(model, alpha, freqs_hz, applied)
     held = _lookup(key)
     if held is None or held.model is not model:
-        while len(_FULL) >= _FULL_SIZE:
-            _FULL.pop(next(iter(_FULL)))
-        _FULL[key] = held = LinearisedResponse(model, alpha, freqs_hz, applied)
+        held = _keep(_FULL, key, LinearisedResponse(model, alpha, freqs_hz, applied))
         held.fast_key = key
         _BUILT[0] += 1
     return held
