@@ -37,7 +37,7 @@ from benchmarks.make import bracket_example as mb  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
-CACHE = REPO / "data" / "runs" / "bracket-sensors"
+CACHE = REPO / "runs" / "bracket-sensors"
 
 #: Candidate sensors (name, point [m], direction), on the surface of both meshes. The ribs' hypotenuse is
 #: x + z = 0.07 m (normal (1, 0, 1)); their outer faces are y = 0 and y = 0.08 m.

@@ -1,17 +1,17 @@
-"""Closing the loop on the data sets of ``data/effects``: found effect against the truth, and time.
+"""Closing the loop on the data sets of ``data/cases/three_plate_effects``: found effect against the truth, and time.
 
     OMP_NUM_THREADS=1 python -m benchmarks.closure                  # every data set
     OMP_NUM_THREADS=1 python -m benchmarks.closure point_mass.csv    # one
     OMP_NUM_THREADS=1 python -m benchmarks.closure --speed           # FRF with each effect vs base
-    OMP_NUM_THREADS=1 python -m benchmarks.closure --table           # data/effects2: docs/closure2.md
+    OMP_NUM_THREADS=1 python -m benchmarks.closure --table           # data/cases/three_plate_closure_table: docs/closure2.md
     OMP_NUM_THREADS=1 python -m benchmarks.closure --time            # the two-effect closure, by stage
     OMP_NUM_THREADS=1 python -m benchmarks.closure --discretisation  # a finer mesh as the reference
-    OMP_NUM_THREADS=1 python -m benchmarks.closure --seeds 3         # data/effects2 cases, other noise seeds
+    OMP_NUM_THREADS=1 python -m benchmarks.closure --seeds 3         # data/cases/three_plate_closure_table cases, other noise seeds
 
 Each closure starts from the nominal model (alpha = 0) with the cheap
 multi-start least-squares update of :func:`fe_core.closure.multistart_update`
 (the start plus eight Sobol points) in place of an MRGP run, with the noise
-level configured at 0.5 %. The truth (``data/effects/truth.json``) is read
+level configured at 0.5 %. The truth (``data/cases/three_plate_effects/truth.json``) is read
 here, for the comparison only.
 """
 
@@ -30,7 +30,7 @@ from fe_core.closure.loop import close_loop
 from fe_core.inference.residual import overall_error
 from tasks.io.measured import read_measured
 
-DATA = Path(__file__).resolve().parents[1] / "data" / "effects"
+DATA = Path(__file__).resolve().parents[1] / "data" / "cases" / "three_plate_effects"
 #: Settings of the tables (the tests use fewer restarts where the data allow: tests/fe_core/test_closure.py).
 SETTINGS = dict(noise=0.005, restarts=8, per_type=1)
 
@@ -133,15 +133,15 @@ def speed(repeats: int = 21) -> list[dict]:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.closure", description=__doc__.splitlines()[0])
-    p.add_argument("files", nargs="*", help="data file names in data/effects (default: all)")
+    p.add_argument("files", nargs="*", help="data file names in data/cases/three_plate_effects (default: all)")
     p.add_argument("--speed", action="store_true", help="time the extended FRF and the screening instead")
     p.add_argument("--table", action="store_true",
-                   help="forward selection on every data set of data/effects2; markdown table to docs/closure2.md")
+                   help="forward selection on every data set of data/cases/three_plate_closure_table; markdown table to docs/closure2.md")
     p.add_argument("--time", action="store_true", help="time the two-effect closure (CPU and wall) by stage")
     p.add_argument("--discretisation", action="store_true",
                    help="the benchmark mesh against finer meshes of the same plates (alpha-only residual)")
     p.add_argument("--seeds", type=int, metavar="N",
-                   help="the data/effects2 cases again with N other noise seeds each: verdict counts")
+                   help="the data/cases/three_plate_closure_table cases again with N other noise seeds each: verdict counts")
     args = p.parse_args(argv)
     if args.seeds:
         return seeds(args.seeds, args.files)
@@ -220,7 +220,7 @@ def table(files: list[str] | None = None) -> int:
     """The issue-18 table: truth, verdict, effects found (in order), rivals, error before -> after, time."""
     import os
 
-    data2 = DATA.parent / "effects2"
+    data2 = DATA.parent / "three_plate_closure_table"
     truth = json.loads((data2 / "truth.json").read_text())["data"]
     model = three_plate()
     from fe_core.closure.effects import build_library
@@ -259,7 +259,7 @@ def table(files: list[str] | None = None) -> int:
         _, _, tail = rest.partition(marker)
         text = head + block + tail
     else:
-        text = "# Closing the loop, second round (data/effects2)\n\n" + block + "\n"
+        text = "# Closing the loop, second round (data/cases/three_plate_closure_table)\n\n" + block + "\n"
     out.write_text(text)
     print(f"wrote {out}")
     return 0
@@ -272,7 +272,7 @@ def timing(name: str = "two_effects.csv") -> int:
     from fe_core.closure.effects import build_library
 
     model = three_plate()
-    measured = read_measured(DATA.parent / "effects2" / name)
+    measured = read_measured(DATA.parent / "three_plate_closure_table" / name)
     load0 = os.getloadavg()
     t0, c0 = time.perf_counter(), time.process_time()
     library = build_library(model)
@@ -286,10 +286,10 @@ def timing(name: str = "two_effects.csv") -> int:
 
 
 def seeds(n: int, names: list[str] | None = None) -> int:
-    """The cases of ``benchmarks.make.effects2`` with ``n`` other noise seeds each (1000 + case seed * 10 + k):
+    """The cases of ``benchmarks.make.closure_table`` with ``n`` other noise seeds each (1000 + case seed * 10 + k):
     how often each verdict comes out, and whether the first effect found is the true kind within 20 mm."""
     from benchmarks.make.effects import noisy
-    from benchmarks.make.effects2 import CASES, place
+    from benchmarks.make.closure_table import CASES, place
     from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ as F
     from fe_core.closure.effects import Applied, build_library, extended_frf
 

@@ -1,11 +1,11 @@
-"""The closure with and without the emulated search (fe_core/closure/emulated.py) on sizeable point masses.
+"""The closure with and without the emulated search (strategies/closure_emulator.py) on sizeable point masses.
 
     OMP_NUM_THREADS=1 nice -n 10 python -m benchmarks.closure_emulated               # every case
     OMP_NUM_THREADS=1 nice -n 10 python -m benchmarks.closure_emulated --only benchmark-5%
     OMP_NUM_THREADS=1 nice -n 10 python -m benchmarks.closure_emulated --search-only # the search alone
 
-Cases: ``benchmark-5%`` (``data/far_off/benchmark-5pc.csv``: the three-plate benchmark with 0.292 kg at node 337),
-``benchmark-2%`` (``data/effects/point_mass.csv``: 0.12 kg at node 337). Per case, from the nominal model with the
+Cases: ``benchmark-5%`` (``data/cases/far_off_masses/benchmark-5pc.csv``: the three-plate benchmark with 0.292 kg at node 337),
+``benchmark-2%`` (``data/cases/three_plate_effects/point_mass.csv``: 0.12 kg at node 337). Per case, from the nominal model with the
 benchmark tables' settings (``benchmarks.closure.SETTINGS``: noise 0.5 %, 8 alpha-only restarts, one check per kind):
 the closure without the emulator, then with it (``close_loop(..., emulator=...)``: used where the baseline is far
 off), and the search alone from the closure's baseline (``emulated_search``): FE solves, whether it named node 337
@@ -22,20 +22,20 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-CASES = {"benchmark-5%": ("data/far_off/benchmark-5pc.csv", 337, 0.05 * 5.84),
-         "benchmark-2%": ("data/effects/point_mass.csv", 337, 0.12)}
+CASES = {"benchmark-5%": ("data/cases/far_off_masses/benchmark-5pc.csv", 337, 0.05 * 5.84),
+         "benchmark-2%": ("data/cases/three_plate_effects/point_mass.csv", 337, 0.12)}
 
 
 def _truth(case: str) -> tuple[str, int, float]:
     path, node, mass = CASES[case]
     if case == "benchmark-5%":
-        t = json.loads((REPO / "data/far_off/truth.json").read_text())["benchmark-5%"]
+        t = json.loads((REPO / "data/cases/far_off_masses/truth.json").read_text())["benchmark-5%"]
         node, mass = t["node"], t["mass_kg"]
     return path, node, mass
 
 
 def _options(args):
-    from fe_core.closure.emulated import EmulatorOptions
+    from strategies.closure_emulator import EmulatorOptions
 
     return EmulatorOptions(q=args.q, s=args.s, max_iterations=args.iterations, local_steps=args.local_steps,
                            alpha_radius=args.alpha_radius, n_jobs=args.n_jobs)
@@ -61,7 +61,7 @@ def run_case(case: str, args) -> list[dict]:
     from benchmarks.closure import SETTINGS
     from fe_core.benchmark import three_plate
     from fe_core.closure.effects import PointMass
-    from fe_core.closure.emulated import emulated_search
+    from strategies.closure_emulator import emulated_search, emulator
     from fe_core.closure.fits import baseline
     from fe_core.closure.loop import close_loop
     from tasks.io.measured import read_measured
@@ -72,9 +72,9 @@ def run_case(case: str, args) -> list[dict]:
     f, u = measured.frequencies_hz, measured.amplitude
     rows = []
     if not args.search_only:
-        for label, emulator in (("closure", None), ("closure + emulator", _options(args))):
+        for label, first_round in (("closure", None), ("closure + emulator", emulator(_options(args)))):
             t0 = time.perf_counter()
-            result = close_loop(model, f, u, np.zeros(model.n_segments), emulator=emulator, **SETTINGS)
+            result = close_loop(model, f, u, np.zeros(model.n_segments), emulator=first_round, **SETTINGS)
             rows.append(_closure_row(case, label, result, time.perf_counter() - t0, node, mass))
             print(json.dumps(rows[-1]), flush=True)
     t0 = time.perf_counter()

@@ -1,15 +1,15 @@
 """Far-off models (issue 28): the plain command with ``--close-loop`` on data carrying a sizeable undeclared effect.
 
-    python -m benchmarks.closure_far_off --make      # (re)write data/far_off/*.csv and truth.json
+    python -m benchmarks.closure_far_off --make      # (re)write data/cases/far_off_masses/*.csv and truth.json
     nice -n 10 python -m benchmarks.closure_far_off  # the table (docs/closure-far-off.md)
 
-Cases (truths in ``data/far_off/truth.json``; measured data from a model other than the one fitted):
+Cases (truths in ``data/cases/far_off_masses/truth.json``; measured data from a model other than the one fitted):
 
 * ``cantilever-1.9%``: ``data/examples/cantilever_matrices/measured_point_mass.csv``, scikit-fem's own FRF of the
   beam carrying a 0.6 kg point mass at node 208 (1.9 % of its 31.4 kg), 0.5 % noise;
 * ``cantilever-5%``, ``cantilever-10%``: the exported matrices with a point mass of 5 % / 10 % of the beam's mass at
   node 208 added (direct solve), the truth's alpha, 0.5 % noise (``--make``);
-* ``benchmark-2%``: ``data/effects/point_mass.csv`` (three-plate benchmark, 0.12 kg, 2.1 %, 0.5 % noise);
+* ``benchmark-2%``: ``data/cases/three_plate_effects/point_mass.csv`` (three-plate benchmark, 0.12 kg, 2.1 %, 0.5 % noise);
 * ``benchmark-5%``: the benchmark at the SPEC's alpha with 0.29 kg (5 %) at node 337 (direct solve), 0.5 % noise;
 * ``cantilever-spring``: the exported matrices with a 3e5 N/m spring to ground along y at node 208 (a stiff mount;
   direct solve), 0.5 % noise.
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-OUT = REPO / "data" / "far_off"
+OUT = REPO / "data" / "cases" / "far_off_masses"
 CANTILEVER = "data/examples/cantilever_matrices/model.toml"
 NOISE = 0.005
 
@@ -37,19 +37,19 @@ NOISE = 0.005
 def _cases() -> list[dict]:
     truth = json.loads((OUT / "truth.json").read_text())
     skfem = json.loads((REPO / "data/examples/cantilever_matrices/truth.json").read_text())["point_mass"]
-    effects = json.loads((REPO / "data/effects/truth.json").read_text())["data"]["point_mass.csv"]
+    effects = json.loads((REPO / "data/cases/three_plate_effects/truth.json").read_text())["data"]["point_mass.csv"]
     cases = [{"case": "cantilever-1.9%", "model": CANTILEVER,
               "measured": "data/examples/cantilever_matrices/measured_point_mass.csv",
               "node": skfem["node"], "mass_kg": skfem["mass_kg"]},
-             {"case": "benchmark-2%", "model": "three_plate", "measured": "data/effects/point_mass.csv",
+             {"case": "benchmark-2%", "model": "three_plate", "measured": "data/cases/three_plate_effects/point_mass.csv",
               "node": effects["node"], "mass_kg": effects["value"]}]
-    cases += [{"case": name, "model": t["model"], "measured": f"data/far_off/{t['file']}", "node": t["node"],
+    cases += [{"case": name, "model": t["model"], "measured": f"data/cases/far_off_masses/{t['file']}", "node": t["node"],
                "mass_kg": t.get("mass_kg", t.get("k_N_per_m")), "effect": t["effect"]} for name, t in truth.items()]
     return cases
 
 
 def make() -> None:
-    """Write the generated cases' data and truths (data/far_off/)."""
+    """Write the generated cases' data and truths (data/cases/far_off_masses/)."""
     from fe_core.benchmark import ALPHA_ACTUAL, three_plate
     from fe_core.closure.effects import Applied, GroundedSpring, PointMass, extended_frf
     from flows.problem import load_model
@@ -58,7 +58,7 @@ def make() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     beam = load_model(CANTILEVER)[0]
     skfem = json.loads((REPO / "data/examples/cantilever_matrices/truth.json").read_text())
-    bench_lines = read_measured(REPO / "data/effects/point_mass.csv").frequencies_hz
+    bench_lines = read_measured(REPO / "data/cases/three_plate_effects/point_mass.csv").frequencies_hz
     beam_lines = np.asarray(skfem["point_mass"]["frequencies_hz"], float)
     specs = [("cantilever-5%", beam, CANTILEVER, np.asarray(skfem["alpha"]), 208, 0.05, beam_lines, 21),
              ("cantilever-10%", beam, CANTILEVER, np.asarray(skfem["alpha"]), 208, 0.10, beam_lines, 22),
@@ -116,7 +116,7 @@ def run_case(case: dict, work: Path) -> dict:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.closure_far_off", description=__doc__.split("\n\n")[0])
-    p.add_argument("--make", action="store_true", help="write data/far_off/ and stop")
+    p.add_argument("--make", action="store_true", help="write data/cases/far_off_masses/ and stop")
     p.add_argument("--only", nargs="+", help="case names")
     args = p.parse_args(argv)
     if args.make:

@@ -1,10 +1,10 @@
 """Issue 28's own cases: the plain command with ``--close-loop`` on three structures that are not the benchmark.
 
-    python -m benchmarks.make.own_cases                  # (re)write data/own_cases/ (scikit-fem, truth.json)
+    python -m benchmarks.make.own_cases                  # (re)write data/cases/own_structures/ (scikit-fem, truth.json)
     nice -n 10 python -m benchmarks.closure_own_cases    # the table of docs/closure-far-off.md
     nice -n 10 python -m benchmarks.closure_own_cases --only plate-mass-5% --keep runs/own
 
-Per case (``data/own_cases/truth.json``): the update's evidence decision, its FE runs (FE-run equivalents) and
+Per case (``data/cases/own_structures/truth.json``): the update's evidence decision, its FE runs (FE-run equivalents) and
 the closure's FE solves, the verdict, the effect found (kind, location), the location error (distance between
 the found and the true node, or the patches' centroids, as % of the structure's size: its bounding box's
 largest side), the size error (relative, of the mass, the spring's k or the patch's beta), the closure's final
@@ -26,7 +26,7 @@ import numpy as np
 
 from benchmarks.closure_far_off import REPO, run_case
 
-TRUTH = REPO / "data" / "own_cases" / "truth.json"
+TRUTH = REPO / "data" / "cases" / "own_structures" / "truth.json"
 LOCATED, SIZED = 0.05, 0.10
 
 

@@ -30,7 +30,7 @@ Runs, in one process, on the same measured data and the same FE model:
 
 Every FE run of every method is counted in evaluation order, so "FE runs to
 reach 1 %" is read off each method's own history. Data sets: the benchmark
-measurement (noise-free, SPEC's actual alpha) and ``data/compare/far_noisy.csv``
+measurement (noise-free, SPEC's actual alpha) and ``data/cases/three_plate_far_noisy/far_noisy.csv``
 (a true alpha far from the nominal model, 1 % multiplicative noise; written by
 :func:`make_far_noisy` when missing). The noise floor of a data set is the
 overall error at its true parameters (0 for noise-free data, where 1e-4 is
@@ -104,7 +104,7 @@ def datasets(names: list[str]) -> list[Dataset]:
     if "benchmark" in names:
         out.append(Dataset("benchmark", REPO / "data" / "benchmark" / "measured.csv", ALPHA_ACTUAL, 1e-4))
     if "far-noisy" in names:
-        path = REPO / "data" / "compare" / "far_noisy.csv"
+        path = REPO / "data" / "cases" / "three_plate_far_noisy" / "far_noisy.csv"
         if not path.exists():
             make_far_noisy(path)
         oracle = Oracle(path)
@@ -151,7 +151,7 @@ def run_default(ds: Dataset, seed: int) -> list[tuple]:
     from tasks.runstore import RunStore
 
     run_id = f"{ds.name}-default-seed{seed}"
-    runs_dir = REPO / "data" / "runs" / "compare"
+    runs_dir = REPO / "runs" / "compare"
     config = UpdateConfig(run_id=run_id, runs_dir=str(runs_dir), measured=str(ds.path), seed=seed, n_jobs=2,
                           true_parameters=ds.truth.tolist())
     assert config.strategy == "hybrid", config.strategy
@@ -168,7 +168,7 @@ def run_adaptive(ds: Dataset, seed: int, trainer: str, strategy: str = "adaptive
     from tasks.runstore import RunStore
 
     run_id = f"{ds.name}-{strategy}-{trainer}-seed{seed}" + ("" if polish else "-no-polish")
-    runs_dir = REPO / "data" / "runs" / "compare"
+    runs_dir = REPO / "runs" / "compare"
     config = UpdateConfig(run_id=run_id, runs_dir=str(runs_dir), measured=str(ds.path), trainer=trainer,
                           strategy=strategy, seed=seed, n_jobs=2, true_parameters=ds.truth.tolist(),
                           polish=polish)

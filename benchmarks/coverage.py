@@ -9,7 +9,7 @@ For each noise level (0.5 % and 1 % by default) and each data set k:
   ``seed + k``; at least 0.3 from the search box [-0.999, 1], where the
   linearisation is not in question: near a bound the flow flags the interval);
 * a measurement ``u = |Z(alpha_true)| (1 + sigma e)``, ``e ~ N(0, 1)`` (the
-  noise model of ``data/compare/far_noisy.csv``), from the direct-solver FRF
+  noise model of ``data/cases/three_plate_far_noisy/far_noisy.csv``), from the direct-solver FRF
   of the same FE model that is fitted: coverage asks whether the interval is
   right when the model is, so the data are not from another mesh here (model
   error is the closure's business, ``flows.diagnose``);

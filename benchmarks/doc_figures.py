@@ -9,7 +9,7 @@ temporary runs folder, the commands the docs show and copies the figures their r
 2. ``python -m flows.update --measured data/benchmark/hammer.uff`` and its report: ``docs/hammer-frf.png``
    (the hammer test's channels, initial and updated model) and ``docs/hammer-lines.png`` (the lines used,
    those left out for coherence, the coherence);
-3. ``python -m flows.update --measured data/effects/point_mass.csv --close-loop --noise 0.005``:
+3. ``python -m flows.update --measured data/cases/three_plate_effects/point_mass.csv --close-loop --noise 0.005``:
    ``docs/closure-residuals.png`` (the residual per sensor before and after the closure adds the point mass);
 4. ``python -m flows.correlation --samples 10000``: ``docs/correlation.png`` (Pearson correlation of each
    parameter with each sensor's amplitude; ``--correlation-samples`` sets N; 10,000 FE runs: 6 CPU-min, 13 min wall).
@@ -36,7 +36,7 @@ FIGURES = {
     "report": ([], [("report/frf_overview.png", "report-frf.png"), ("report/error_overall.png", "report-error.png")]),
     "hammer": (["--measured", "data/benchmark/hammer.uff"],
                [("report/frf_overview.png", "hammer-frf.png"), ("report/line_selection.png", "hammer-lines.png")]),
-    "closure": (["--measured", "data/effects/point_mass.csv", "--close-loop", "--noise", "0.005"],
+    "closure": (["--measured", "data/cases/three_plate_effects/point_mass.csv", "--close-loop", "--noise", "0.005"],
                 [("closure/residuals.png", "closure-residuals.png")]),
     "correlation": (None, [("correlation/correlation.png", "correlation.png")]),
 }

@@ -21,8 +21,8 @@ Two parts, both against the truth:
 
 ``runs``
     Real updating runs (``python -m flows.update``, default settings, seeds 0 and 1) on
-    ``data/compare/far_noisy.csv`` (truth ``ALPHA_FAR``, 1 % noise) and
-    ``data/effects/clean-seed{0..4}.csv`` (truth ``ALPHA_ACTUAL``, 0.5 % noise), with the
+    ``data/cases/three_plate_far_noisy/far_noisy.csv`` (truth ``ALPHA_FAR``, 1 % noise) and
+    ``data/cases/three_plate_effects/clean-seed{0..4}.csv`` (truth ``ALPHA_ACTUAL``, 0.5 % noise), with the
     polish and with ``--no-polish``: the reported ``parameters`` (the FE run with the
     lowest Eq. 6b error) against the least-squares optimum nearest them (a trust-region fit
     from them, :func:`fe_core.inference.intervals.fit_log_amplitudes`; after the polish it is where
@@ -148,8 +148,8 @@ def _cases():
     from benchmarks.compare import ALPHA_FAR
     from fe_core.benchmark import ALPHA_ACTUAL
 
-    cases = [("data/compare/far_noisy.csv", ALPHA_FAR, 0.01)]
-    cases += [(f"data/effects/clean-seed{k}.csv", ALPHA_ACTUAL, 0.005) for k in range(5)]
+    cases = [("data/cases/three_plate_far_noisy/far_noisy.csv", ALPHA_FAR, 0.01)]
+    cases += [(f"data/cases/three_plate_effects/clean-seed{k}.csv", ALPHA_ACTUAL, 0.005) for k in range(5)]
     return cases
 
 

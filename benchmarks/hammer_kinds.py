@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 HAMMER = REPO / "data" / "benchmark" / "hammer.uff"
-WORK = REPO / "data" / "runs" / "hammer-kinds"
+WORK = REPO / "runs" / "hammer-kinds"
 KINDS = ("accelerance", "mobility", "receptance")
 #: The issue's targets.
 SAME_TOL = 1e-6

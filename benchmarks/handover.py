@@ -5,7 +5,7 @@
 
 For each data set, trainer and seed it runs the paper's loop alone (``flows.update
 --no-polish``) for 3 iterations (60 FE runs), then, for k = 1, 2, 3, polishes
-(``mrgp_core.strategies.polish`` with the flow's settings: target 1e-4) from the best
+(``strategies.polish`` with the flow's settings: target 1e-4) from the best
 sample after k iterations and counts the FE runs, loop and polish, until the
 overall error first reaches the data set's noise floor (as in
 ``benchmarks.compare``). This is how the default ``polish_max_fe`` (the hand-over
@@ -50,7 +50,7 @@ def loop_runs(ds, trainer: str, seed: int, runs_dir: Path):
 
 def polish_from(ds, x0: np.ndarray, r0: np.ndarray) -> int | None:
     """FE runs of the polish from ``x0`` until the floor (None if not within the budget)."""
-    from mrgp_core.strategies.polish import polish
+    from strategies.polish import polish
 
     oracle = Oracle(ds.path)
     polish(lambda pts: [oracle.residuals(p) for p in pts], x0, np.full(6, LOWER), np.full(6, UPPER),
@@ -67,7 +67,7 @@ def main(argv=None) -> int:
     p.add_argument("--datasets", nargs="+", default=["benchmark", "far-noisy"], choices=["benchmark", "far-noisy"])
     p.add_argument("--out", default=str(REPO / "docs" / "handover.md"))
     args = p.parse_args(argv)
-    runs_dir = REPO / "data" / "runs" / "handover"
+    runs_dir = REPO / "runs" / "handover"
     lines = ["| data set | trainer | seed | k | loop FE runs | best error at hand-over | its distance to the truth "
              "| polish FE runs to the floor | total |", "|" + "---|" * 9]
     totals: dict[tuple[str, int], list] = {}

@@ -14,7 +14,7 @@ x F equally spaced lines
 over (0, 400] Hz (the band of a 1,601-line hammer test): F = 12, 333 and 1,667,
 so k = 72, 1,998 and 10,002. Every line is computed by the FE model (the
 Krylov FRF costs about the same at 1,667 lines as at 12); nothing is
-interpolated. The data set is cached in ``data/runs/benchmark-cache/``.
+interpolated. The data set is cached in ``runs/benchmark-cache/``.
 
 One iteration = training with the default trainer (``gradient``, isotropic,
 linear mean, fitted nugget) + predicting 10,000 candidates (drawn as the loop

@@ -203,7 +203,7 @@ def write_table(bench: dict, bracket: dict) -> Path:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.mesh_pictures", description=__doc__.splitlines()[0])
     p.add_argument("--run-id", default="mesh-pictures", help="the benchmark run to draw (made when missing)")
-    p.add_argument("--runs-dir", default=str(REPO / "data" / "runs"))
+    p.add_argument("--runs-dir", default=str(REPO / "runs"))
     p.add_argument("--bracket-model", type=Path, default=None,
                    help="the bracket's model.toml (default data/examples/bracket/model.toml when it exists)")
     p.add_argument("--bracket-run", metavar="ID",

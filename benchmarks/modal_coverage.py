@@ -83,7 +83,7 @@ def main(argv=None) -> int:
     p.add_argument("--sets", type=int, default=20)
     p.add_argument("--cases", nargs="+", default=["ema", "oma"])
     p.add_argument("--frequency-sigma", type=float, default=0.002)
-    p.add_argument("--out", default="data/runs/modal-coverage")
+    p.add_argument("--out", default="runs/modal-coverage")
     args = p.parse_args(argv)
     result = run(args.source, args.sets, tuple(args.cases), args.frequency_sigma)
     folder = Path(args.out)

@@ -49,7 +49,7 @@ def _run(argv) -> float:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.modal_vs_frf")
-    p.add_argument("--runs-dir", default="data/runs/modal-vs-frf")
+    p.add_argument("--runs-dir", default="runs/modal-vs-frf")
     p.add_argument("--starts", type=int, default=1, help="local fits of the modal update (default 1: the nominal "
                                                          "start, as the FRF hybrid's first cycle)")
     p.add_argument("--only", default="frf,modal,paper", help="paths to run, of frf, modal, paper (default all)")

@@ -11,7 +11,7 @@ with ``alpha`` drawn the way the adaptive loop sees it: 20 uniform in
 ``(-1, 1]^6``, then 11 stages of 20 from normal distributions whose mean moves
 from 0 to the true ``alpha`` and whose spread shrinks (``0.7**t`` and
 ``0.5 * 0.8**t``). The held-out runs come from the same 12 stages (5 each).
-The data set is cached in ``data/runs/benchmark-cache/`` (git-ignored) and
+The data set is cached in ``runs/benchmark-cache/`` (git-ignored) and
 regenerated when the FE model's measured response changes.
 
 Reported, all in one run: one likelihood evaluation at r = 240; training time
@@ -46,7 +46,7 @@ from benchmarks.timing import median_time  # noqa: E402
 from mrgp_core import ProfileLikelihood, fit, predicted_overall_error, standardise  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-CACHE_DIR = REPO / "data" / "runs" / "benchmark-cache"
+CACHE_DIR = REPO / "runs" / "benchmark-cache"
 
 N_UNIFORM = 20
 N_STAGES = 11

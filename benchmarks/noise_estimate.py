@@ -8,7 +8,7 @@ Two estimators side by side: the one before (mean square of second differences i
 step changes, clipped at 3 standard deviations). On white noise of 0.5 % on the benchmark's 12 lines and two own
 cases' layouts: the estimate's mean and spread over draws (in units of sigma), and how often pure noise is called
 structure at 1 % -- against the chi-square with each estimate, and with the new test's p
-(:func:`fe_core.inference.residual.estimated_noise_test`). On the own cases (``data/own_cases``): our model's
+(:func:`fe_core.inference.residual.estimated_noise_test`). On the own cases (``data/cases/own_structures``): our model's
 residual at the truth with the effect (noise only) and without it (structure), each estimate beside the rms.
 Tables for docs/noise-estimate.md.
 """
@@ -62,7 +62,7 @@ def own_cases() -> list[str]:
     from fe_core.io import read_model
     from tasks.io.measured import read_measured
 
-    truth = json.loads((REPO / "data/own_cases/truth.json").read_text())
+    truth = json.loads((REPO / "data/cases/own_structures/truth.json").read_text())
     rows, models = [], {}
     for case, t in truth["cases"].items():
         model = models.setdefault(t["model"], read_model(REPO / t["model"]))
@@ -92,7 +92,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ
 
-    truth = json.loads((REPO / "data/own_cases/truth.json").read_text())["cases"]
+    truth = json.loads((REPO / "data/cases/own_structures/truth.json").read_text())["cases"]
     rng = np.random.default_rng(2026)
     print(f"white noise {SIGMA:.1%}, {args.draws} draws; estimate mean / sd in sigma; pure noise called structure "
           "at 1 % (4 parameters fitted): chi-square with the old estimate, with the new one, the new test's p")

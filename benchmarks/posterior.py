@@ -12,7 +12,7 @@ and, where it fails, the importance-sampled posterior on the FE model (``--budge
 Coverage of the truth and mean widths per parameter, for the Laplace intervals and for the
 reported ones (sampled where the check failed).
 
-Truths: ``far``, the truth of ``data/compare/far_noisy.csv`` (alpha_4 = 0.8 near the upper
+Truths: ``far``, the truth of ``data/cases/three_plate_far_noisy/far_noisy.csv`` (alpha_4 = 0.8 near the upper
 bound 1, alpha_3 and alpha_4 anti-correlated and wide: the check fails there), and
 ``actual``, the benchmark's truth (all inside, where the coverage study found the
 linearisation right: how often the check fires for nothing). Writes ``docs/posterior.md``

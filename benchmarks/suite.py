@@ -21,7 +21,7 @@ Methods, all on the relative amplitude residuals of Eq. 5 in the box
   (Table 2: 20 uniform samples, 20 per iteration, 240 FE runs), trainer ``--trainer``;
 * ``dfo-ls-nominal`` / ``dfo-ls-random``: DFO-LS 1.6 (library defaults) from
   alpha = 0 / from one uniform random start per truth (core-level calls);
-* ``least-squares-nominal``: :func:`mrgp_core.strategies.polish.polish` (trust-region
+* ``least-squares-nominal``: :func:`strategies.polish.polish` (trust-region
   least squares, forward-difference Jacobian in one batch) from alpha = 0.
 
 Scoring: the floor is 1e-4 on noise-free data and the overall error at the
@@ -153,7 +153,7 @@ def run_method(method: str, prob: Problem, budget: int, seed: int, trainer: str,
         np.random.seed(0)
         dfols.solve(lambda x: prob.evaluate([x])[0], x0, bounds=(lower, upper), maxfun=budget, do_logging=False)
     elif method == "least-squares-nominal":
-        from mrgp_core.strategies.polish import polish
+        from strategies.polish import polish
 
         polish(prob.evaluate, np.zeros(6), lower, upper, target=1e-4, max_evaluations=budget)
     else:

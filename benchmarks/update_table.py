@@ -2,7 +2,7 @@
 
     python -m flows.update --run-id table-gradient --trainer gradient --repeats 5
     ...                                                 # likewise sao, pso, --strategy conventional
-    python -m benchmarks.update_table data/runs/table-gradient data/runs/table-sao ...
+    python -m benchmarks.update_table runs/table-gradient runs/table-sao ...
 
 One row per seed: iterations, FE runs (and how many of them the polish made),
 final overall error (Eq. 6b) and each
@@ -37,7 +37,7 @@ def rows(run_dir: Path) -> list[str]:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.update_table",
                                      description="Print the markdown table of docs/update-results.md from run folders.")
-    parser.add_argument("runs", nargs="+", type=Path, help="run folders (data/runs/<run-id>, --repeats folders)")
+    parser.add_argument("runs", nargs="+", type=Path, help="run folders (runs/<run-id>, --repeats folders)")
     dirs = parser.parse_args(sys.argv[1:] if argv is None else argv).runs
     print("| strategy / trainer | seed | iterations | FE runs | of which polish | overall error | "
           + " | ".join(f"\\|err\\| alpha_{i}" for i in range(1, 7)) + " | largest |")

@@ -20,10 +20,10 @@ __all__ = ["UpdateConfig", "ConfigError", "load_config", "stored_settings", "TRA
 REPO = Path(__file__).resolve().parents[1]
 TRAINERS = ("sao", "pso", "gradient")
 STRATEGIES = ("hybrid", "adaptive", "conventional")
-EMULATES = ("modes", "errors")  # what the paper loop's MRGP emulates (mrgp_core.strategies.paper)
+EMULATES = ("modes", "errors")  # what the paper loop's MRGP emulates (strategies.paper)
 MODELS = ("three_plate",)
 FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
-OUTPUTS = ("full", "reduced", "auto")  # mrgp_core.strategies.emulation.reduced_outputs
+OUTPUTS = ("full", "reduced", "auto")  # strategies.emulation.reduced_outputs
 LINES = ("all", "windows", "resonances")  # tasks.lines.LINE_MODES
 RESIDUALS = ("auto", "amplitude", "complex")  # tasks.update_data.RESIDUALS
 
@@ -166,14 +166,14 @@ class UpdateConfig:
         How the MRGP emulates the k responses: ``full`` (the paper's k x k
         ``Q``), ``reduced`` (a reduced output basis, :mod:`mrgp_core.reduced`)
         or ``auto`` (default): reduced when k > 200
-        (:data:`mrgp_core.strategies.emulation.AUTO_REDUCED_ABOVE`), so the benchmark's k = 72
+        (:data:`strategies.emulation.AUTO_REDUCED_ABOVE`), so the benchmark's k = 72
         keeps the full MRGP.
     starts : int
         Parallel Gauss-Newton runs of a global cycle of the hybrid strategy,
         started from the emulator's best distinct candidates.
     emulate : {"modes", "errors"}
         What the MRGP of the adaptive strategy's paper loop emulates.
-        ``modes`` (default, :mod:`mrgp_core.strategies.modal_emulation`, a change to the
+        ``modes`` (default, :mod:`strategies.modal_emulation`, a change to the
         paper's loop): the lowest modes of each FE run and the remainder of
         its receptance, one length scale per parameter; a candidate's error
         is computed from the receptance they give, Gauss-Newton end points on
@@ -184,7 +184,7 @@ class UpdateConfig:
     """
 
     run_id: str | None = None
-    runs_dir: str = "data/runs"
+    runs_dir: str = "runs"
     measured: str = "data/benchmark/measured.csv"
     model: str = "three_plate"
     strategy: str = "hybrid"

@@ -38,7 +38,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--measured", required=True, metavar="PATH", help="measured modes: .uff/.unv or .csv")
     p.add_argument("--parameters", metavar="P1,P2,...", help="the model's parameter values (default nominal, 0)")
     p.add_argument("--threshold", type=float, default=0.6, help="lowest MAC of a pair (default 0.6)")
-    p.add_argument("--out", metavar="DIR", help="output folder (default data/runs/correlate-<time>)")
+    p.add_argument("--out", metavar="DIR", help="output folder (default runs/correlate-<time>)")
     return p
 
 
@@ -56,7 +56,7 @@ def run_correlation(model_name: str, measured: str, theta=None, threshold: float
     result = modal.correlate(data, model, theta, n_model, threshold)
     result.update(model=str(model_name), measured=str(measured), parameter_names=model.parameter_names)
     if out is None:
-        out = REPO / "data" / "runs" / f"correlate-{dt.datetime.now(dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')}"
+        out = REPO / "runs" / f"correlate-{dt.datetime.now(dt.timezone.utc).strftime('%Y%m%dT%H%M%SZ')}"
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     modal.write_json(out / "correlation.json", result)

@@ -18,7 +18,7 @@ Examples::
     python -m flows.correlation --samples 2000 --run-id pso-3        # frequencies and updated point of a run
     python -m flows.correlation --samples 10000 --n-jobs 2 --seed 1
 
-Output: ``data/runs/<run-id>/correlation/`` (``correlation-seed<seed>`` by
+Output: ``runs/<run-id>/correlation/`` (``correlation-seed<seed>`` by
 default), with ``correlation.html`` (printed at the end).
 """
 
@@ -186,7 +186,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--run-id", metavar="ID",
                    help="folder under --runs-dir; if it is an updating run, its model, measured frequencies and "
                         "updated parameters are used (default correlation-seed<seed>, the benchmark)")
-    p.add_argument("--runs-dir", default="data/runs", metavar="PATH")
+    p.add_argument("--runs-dir", default="runs", metavar="PATH")
     p.add_argument("--n-jobs", type=int, default=2, help="parallel FE processes, -1 = all cores (default 2)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--noise", type=float, default=0.01,

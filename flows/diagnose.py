@@ -29,7 +29,7 @@ Examples::
 
     python -m flows.diagnose --run-id pso-3
     python -m flows.diagnose --run-id pso-3 --noise 0.005 --effects point_mass,grounded_spring
-    python -m flows.update --measured data/effects/point_mass.csv --close-loop --noise 0.005
+    python -m flows.update --measured data/cases/three_plate_effects/point_mass.csv --close-loop --noise 0.005
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ class DiagnoseError(ValueError):
     """A run folder or setting the diagnosis cannot use; the message names the file or key."""
 
 
-def run_folder(run_id: str, runs_dir: str | Path = "data/runs") -> tuple[Path, dict, dict]:
+def run_folder(run_id: str, runs_dir: str | Path = "runs") -> tuple[Path, dict, dict]:
     """The folder of a finished single run, its summary and manifest.
 
     For a run with repeats, the repeat with the smallest overall error is used.
@@ -135,7 +135,7 @@ def diagnose_flow(run_id: str, closure_root: str, settings: dict, run_info: dict
     return summary
 
 
-def diagnose(run_id: str, runs_dir: str | Path = "data/runs", name: str = "closure", measured: str | None = None,
+def diagnose(run_id: str, runs_dir: str | Path = "runs", name: str = "closure", measured: str | None = None,
              **options) -> dict:
     """Diagnose a finished run (see the module docstring); ``options`` are :class:`tasks.closure.ClosureSettings`."""
     root, summary, manifest = run_folder(run_id, runs_dir)
@@ -304,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
                                 description="Trace the residual of a finished updating run to a missing effect, "
                                             "add it and update again.")
     p.add_argument("--run-id", required=True, metavar="ID")
-    p.add_argument("--runs-dir", default="data/runs", metavar="PATH")
+    p.add_argument("--runs-dir", default="runs", metavar="PATH")
     p.add_argument("--measured", metavar="PATH", help="measured data (default: the run's)")
     p.add_argument("--n-jobs", type=int, help="parallel FE checks (default: the run's n_jobs)")
     add_closure_arguments(p)

@@ -3,7 +3,7 @@
 Cycle 1 (subflow ``cycle-1``): ``local`` (Gauss-Newton from the nominal model with exact Jacobians) then
 ``check`` (is what is left noise?). While the check finds structure and the budget lasts, cycle k
 (``cycle-<k>``): ``global`` (space-filling round, MRGP emulator, parallel Gauss-Newton runs) then
-``check``. The strategy's pieces are :mod:`mrgp_core.strategies.hybrid`, its tasks :mod:`tasks.hybrid`.
+``check``. The strategy's pieces are :mod:`strategies.hybrid`, its tasks :mod:`tasks.hybrid`.
 
 Wrong basin or missing effect (issue 28, :mod:`tasks.evidence`): when cycle 1's check finds structure, the
 effect library is screened at the nominal model and at the local fit (stage ``evidence``); when the first global
@@ -113,7 +113,7 @@ def _to_closure(store: RunStore, problem, iteration: int, last: dict, evidence: 
 def stop_reason(iteration: int, last: dict, reported, at_best=None) -> tuple[str, bool]:
     """(why the run stopped, whether it converged): the last cycle's stage and check, or, when the reported
     point (``reported``: the best FE run, a row of the run record) is not the one the last check looked at, the
-    check at the reported point (``at_best``: a :class:`mrgp_core.strategies.hybrid.Check`)."""
+    check at the reported point (``at_best``: a :class:`strategies.hybrid.Check`)."""
     where = f"cycle {iteration} ({'local' if iteration == 1 else 'global'}): {last['phase']['status']}"
     if at_best is None:
         return f"{where}; check: {last['check']['reason']}", bool(last["check"]["at_floor"])

@@ -263,7 +263,7 @@ def modal_flow(job: "ModalJob", true_parameters=None, identified=None, stabilisa
 
 def paper_options(config):
     """The paper loop's settings from the config (Table 2: q, s, z, w, budgets, trainer, outputs, seed)."""
-    from mrgp_core.strategies.paper import PaperOptions
+    from strategies.paper import PaperOptions
 
     return PaperOptions(q=config.q, s=config.s, z=config.z, w=config.w, max_iterations=config.max_iterations,
                         max_fe=config.max_fe_evaluations, min_distance_factor=config.min_distance_factor,

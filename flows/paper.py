@@ -2,7 +2,7 @@
 
 Each iteration is a subflow ``iteration-<k>`` with the tasks
 ``samples -> fe -> errors -> (stop?) -> distribution -> train -> predict -> select`` (:mod:`tasks.paper`,
-each wrapping one step of :mod:`mrgp_core.strategies.paper`); the adaptive strategy then hands the best
+each wrapping one step of :mod:`strategies.paper`); the adaptive strategy then hands the best
 sample to the polish (:mod:`tasks.polish`) unless ``polish = false`` (the paper's procedure alone).
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from prefect import flow
 
-from mrgp_core.strategies import paper as steps
+from strategies import paper as steps
 from tasks import paper as tasks
 from tasks import record
 from tasks.polish import polish_task

@@ -56,7 +56,7 @@ def prepare_data(config: UpdateConfig, measured, model) -> UpdateData:
 
 
 def emulates_modes(config: UpdateConfig) -> bool:
-    """The adaptive strategy's paper loop with ``emulate = "modes"`` (:mod:`mrgp_core.strategies.modal_emulation`)."""
+    """The adaptive strategy's paper loop with ``emulate = "modes"`` (:mod:`strategies.modal_emulation`)."""
     return config.strategy == "adaptive" and config.emulate == "modes"
 
 

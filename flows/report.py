@@ -9,7 +9,7 @@ Examples::
 
     python -m flows.report --run-id pso-3
     python -m flows.report --run-id repeats-5                 # a --repeats run: Figures 10-13
-    python -m flows.report --run-id my-run --runs-dir /data/runs --out /tmp/my-report
+    python -m flows.report --run-id my-run --runs-dir /runs --out /tmp/my-report
 
 What it draws depends on the folder: every run, of any strategy, gets Figures 3-9 (FRF,
 errors, samples, parameters; sampling distributions and training time where the
@@ -114,7 +114,7 @@ def _parser() -> argparse.ArgumentParser:
                     "training time; statistics of --repeats runs; close-the-loop results when present.")
     p.add_argument("--run-id", required=True, metavar="ID",
                    help="run folder name under --runs-dir (a repeat of a --repeats run: ID/repeat=0)")
-    p.add_argument("--runs-dir", default="data/runs", metavar="PATH", help="where run folders are (default data/runs)")
+    p.add_argument("--runs-dir", default="runs", metavar="PATH", help="where run folders are (default runs)")
     p.add_argument("--out", metavar="PATH", help="report folder (default <run folder>/report)")
     return p
 

@@ -7,7 +7,7 @@ adaptive MRGP loop (``--strategy adaptive``): each iteration is a subflow run
 named ``iteration-<k>`` with the tasks
 ``samples -> fe -> errors -> distribution -> train -> predict -> select``
 (see :mod:`tasks.paper`). Everything is written under
-``data/runs/<run-id>/``; running again with the same ``--run-id`` resumes
+``runs/<run-id>/``; running again with the same ``--run-id`` resumes
 where the last run stopped. The path of one run: config -> problem
 (:mod:`flows.problem`) -> strategy (:mod:`flows.hybrid`, :mod:`flows.paper`) ->
 stages -> run folder -> summary (:mod:`flows.run`, :mod:`flows.summary`).
@@ -78,8 +78,8 @@ def _run_parser() -> argparse.ArgumentParser:
                                                        "model file model.toml (docs/model-files.md)")
     p.add_argument("--measured", metavar="PATH", help="measured FRFs: .csv, .parquet or .uff (docs/measured-formats.md) "
                                                       "(default data/benchmark/measured.csv)")
-    p.add_argument("--run-id", metavar="ID", help="run folder name under data/runs; an existing id resumes that run")
-    p.add_argument("--runs-dir", metavar="PATH", help="where run folders go (default data/runs)")
+    p.add_argument("--run-id", metavar="ID", help="run folder name under runs; an existing id resumes that run")
+    p.add_argument("--runs-dir", metavar="PATH", help="where run folders go (default runs)")
     p.add_argument("--trainer", choices=TRAINERS, help="MRGP hyper-parameter trainer (default gradient)")
     p.add_argument("--strategy", choices=STRATEGIES,
                    help="hybrid (default: Gauss-Newton from the nominal model, global with the MRGP emulator when "
@@ -149,7 +149,7 @@ def _rerun_parser() -> argparse.ArgumentParser:
                                             "folder beside the original. Stages: train, predict, intervals (the "
                                             "paper's loop); local, global, check, intervals (the hybrid).")
     p.add_argument("--run-id", required=True, metavar="ID", help="the run (a repeat of a --repeats run: ID/repeat=0)")
-    p.add_argument("--runs-dir", default="data/runs", metavar="PATH")
+    p.add_argument("--runs-dir", default="runs", metavar="PATH")
     p.add_argument("--iteration", type=int, default=1, help="the iteration (cycle of the hybrid) of the stage "
                                                             "(default 1)")
     p.add_argument("--stage", required=True, choices=sorted({"train", "predict", "local", "global", "check",

@@ -49,13 +49,13 @@ def finish(store: RunStore, iteration: int, stage: str, names: list[str], info: 
 
 
 def fitted(data):
-    """(:class:`~mrgp_core.strategies.gauss_newton.Residual`, :class:`~mrgp_core.strategies.hybrid.Layout`) of a
+    """(:class:`~strategies.gauss_newton.Residual`, :class:`~strategies.hybrid.Layout`) of a
     run's data: its residual of the receptance at the kept values (``data.cells``, frequency-major) and where
     those values sit."""
     import numpy as np
 
-    from mrgp_core.strategies.gauss_newton import Residual
-    from mrgp_core.strategies.hybrid import Layout
+    from strategies.gauss_newton import Residual
+    from strategies.hybrid import Layout
 
     line, channel = data.cells
     zeta = data.complex_frf[line, channel] if data.residual == "complex" else None

@@ -29,7 +29,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from fe_core.solvers.sensitivity import identifiability, log_amplitude_jacobian, pearson_correlation
-from mrgp_core.strategies import table2
+from strategies import table2
 from tasks.runstore import _parquet_bytes, atomic_write_bytes, atomic_write_json
 from tasks.fe_runs import evaluate_sample
 

@@ -29,7 +29,7 @@ import pyarrow.parquet as pq
 from joblib import delayed
 
 from mrgp_core.errors import overall_error
-from mrgp_core.strategies.base import Outcome
+from strategies.base import Outcome
 from tasks.faults import kill_point
 from tasks.common import finish
 from tasks.fe_backends import run_unordered

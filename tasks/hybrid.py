@@ -1,4 +1,4 @@
-"""Prefect tasks of the hybrid strategy (:mod:`mrgp_core.strategies.hybrid`): local, check, global.
+"""Prefect tasks of the hybrid strategy (:mod:`strategies.hybrid`): local, check, global.
 
 Stages (``HYBRID_STAGES``), cycle k being ``iteration=k``::
 
@@ -6,7 +6,7 @@ Stages (``HYBRID_STAGES``), cycle k being ``iteration=k``::
     iteration=2: global -> check           (only if the check found structure; and so on)
 
 The ``local`` and ``global`` stages drive one phase of the strategy (a generator of rounds,
-:mod:`mrgp_core.strategies.hybrid_phases`) with :func:`mrgp_core.strategies.ledger.drive`; their FE runs go
+:mod:`strategies.hybrid_phases`) with :func:`strategies.ledger.drive`; their FE runs go
 through :class:`tasks.fe_runs.FEStage` (stored as they finish, the complex receptance with its exact
 derivative where the phase asked for it; replayed on resume: the strategy is deterministic, so the k-th
 request of a stage is sample ``base + k``). A finished stage writes the run record's ``runs`` and
@@ -22,8 +22,8 @@ import pandas as pd
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from mrgp_core.strategies.hybrid import BudgetSpent, HybridOptions, Ledger, check, global_phase, local_phase
-from mrgp_core.strategies.ledger import drive
+from strategies.hybrid import BudgetSpent, HybridOptions, Ledger, check, global_phase, local_phase
+from strategies.ledger import drive
 from tasks import record
 from tasks.common import done, fitted, heartbeat, logger
 from tasks.fe_runs import JACOBIAN_COST, FEStage
@@ -41,7 +41,7 @@ RERUNNABLE = (LOCAL_STAGE, GLOBAL_STAGE, CHECK_STAGE)
 
 
 #: A budget that follows the evidence: a phase still running when ``max_fe_evaluations`` is spent goes on while its
-#: rounds improve its best error (:meth:`mrgp_core.strategies.ledger.Ledger.admit`), up to this factor times the
+#: rounds improve its best error (:meth:`strategies.ledger.Ledger.admit`), up to this factor times the
 #: budget (600 FE-run equivalents for the plain command's 240; docs/closure-far-off.md).
 CAP_FACTOR = 2.5
 
@@ -143,7 +143,7 @@ def global_task(root: str, problem, config, iteration: int, minima, output_stage
 
 
 def check_point(store: RunStore, problem, config, run):
-    """The check (:func:`mrgp_core.strategies.hybrid.check`) at one stored FE run (a row of the run record)."""
+    """The check (:func:`strategies.hybrid.check`) at one stored FE run (a row of the run record)."""
     data = problem.data
     p, n = data.amplitude.shape
     Z, _ = record.grid(record.responses(store, int(run["iteration"]), [int(run["sample_id"])]), p, n, problem.m)
@@ -154,7 +154,7 @@ def check_point(store: RunStore, problem, config, run):
 
 @task(name="check", task_run_name="iteration-{iteration}-check", cache_policy=NO_CACHE)
 def check_task(root: str, problem, config, iteration: int, output_stage: str = CHECK_STAGE) -> dict:
-    """Noise or structure at the best minimum of this cycle's stage (:func:`mrgp_core.strategies.hybrid.check`)."""
+    """Noise or structure at the best minimum of this cycle's stage (:func:`strategies.hybrid.check`)."""
     store = RunStore(root)
     if done(store, iteration, output_stage):
         return store.stage_info(iteration, output_stage)

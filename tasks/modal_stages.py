@@ -111,10 +111,10 @@ def closure_task(root: str, residual, theta, lower, upper, stated: bool, effects
 
 @task(name="paper", task_run_name="paper", cache_policy=NO_CACHE)
 def paper_task(root: str, residual, lower, upper, options) -> dict:
-    """The paper's MRGP loop on the modal residual (:func:`fe_core.modal_update.paper.run_modal_paper`), each
+    """The paper's MRGP loop on the modal residual (:func:`strategies.modal_paper.run_modal_paper`), each
     iteration stored as stage ``paper-<k>`` (its FE runs' parameters and residual rows) and replayed on a
     resume; every FE run computed goes to ``modal_runs.jsonl``."""
-    from fe_core.modal_update.paper import run_modal_paper
+    from strategies.modal_paper import run_modal_paper
 
     store = RunStore(root)
     t0 = time.perf_counter()

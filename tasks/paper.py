@@ -1,5 +1,5 @@
 """Prefect tasks of the paper's loop (strategies ``adaptive`` and ``conventional``); each wraps one step of
-:mod:`mrgp_core.strategies.paper`.
+:mod:`strategies.paper`.
 
 Stages of iteration k (``STAGES``)::
 
@@ -22,7 +22,7 @@ from prefect import task
 from prefect.cache_policies import NO_CACHE
 
 from mrgp_core.modal_outputs import ModalLayout
-from mrgp_core.strategies import paper as steps
+from strategies import paper as steps
 from tasks import record
 from tasks.common import beating, done, finish, fitted, logger
 from tasks.fe_runs import FEStage

@@ -1,6 +1,6 @@
 """The polish stage: local least squares on the FE model after the paper's MRGP loop (strategy ``adaptive``).
 
-Runs :func:`mrgp_core.strategies.polish.polish` from the loop's best FE run, inside the solver's box, with
+Runs :func:`strategies.polish.polish` from the loop's best FE run, inside the solver's box, with
 the FE runs of each finite-difference Jacobian in parallel (:class:`tasks.fe_runs.FEStage`: each written as
 soon as it finishes to ``iteration=<K>/stage=polish/sample=<id>.parquet`` and logged; the polish is
 deterministic, so a resumed polish asks for the same points and reads their results back). When it ends,
@@ -16,7 +16,7 @@ import numpy as np
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from mrgp_core.strategies.polish import polish
+from strategies.polish import polish
 from tasks import record
 from tasks.common import done, logger
 from tasks.fe_runs import FEStage

@@ -2,7 +2,7 @@
 
 Layout (hive-style names)::
 
-    data/runs/<run-id>/
+    runs/<run-id>/
         manifest.json                      config, seed, package versions, git commit
         iteration=1/stage=samples/samples.parquet
         iteration=1/stage=samples/_stage.json   written last: files and their SHA-256

@@ -23,7 +23,7 @@ DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 TOP = ("fe_core", "mrgp_core", "tasks", "flows", "benchmarks", "data", "docs", "tests", ".ci")
 TOP_FILES = ("README.md", "pyproject.toml")
 #: Paths the documented commands write, not files of the repository.
-GENERATED = ("data/runs/", "out/")
+GENERATED = ("runs/", "out/")
 
 COMMAND = re.compile(r"python3? -m ([A-Za-z_][\w.]*)((?:[ \t]+[^\s`|;&#\\]+|[ \t]*\\\n)*)")
 PATH = re.compile(r"(?<![\w./\-~$<])((?:%s)/[\w./\-=*]*|(?:%s))" % ("|".join(re.escape(t) for t in TOP),
@@ -56,7 +56,7 @@ def repo_paths(path: Path, text: str) -> list[str]:
         name = match.group(1).rstrip(".,:;)")
         after = text[match.end():match.end() + 1]
         if after == "<" or name.startswith(GENERATED):
-            continue                                   # a placeholder (data/runs/<id>/...) or a run's output
+            continue                                   # a placeholder (runs/<id>/...) or a run's output
         names.append(name + ("*" if after == "{" else ""))   # clean-seed{0..4}.csv: a glob
     for match in LINK.finditer(text):
         target = match.group(1)

@@ -1,6 +1,6 @@
 """Write measured data with an effect the benchmark model lacks, and clean noisy data.
 
-    python -m benchmarks.make.effects            # data/effects/*.csv, truth.json
+    python -m benchmarks.make.effects            # data/cases/three_plate_effects/*.csv, truth.json
 
 Each file is the FE model at the SPEC's actual alpha plus one effect (or none),
 solved with the direct solver, with 0.5 % multiplicative noise on the
@@ -22,7 +22,7 @@ from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ, three_pl
 from fe_core.closure.effects import Applied, build_library, extended_frf
 from tasks.io.measured import MeasuredFRF, write_measured
 
-OUT = Path(__file__).resolve().parents[2] / "data" / "effects"
+OUT = Path(__file__).resolve().parents[2] / "data" / "cases" / "three_plate_effects"
 NOISE = 0.005
 CLEAN_SEEDS = (0, 1, 2, 3, 4)
 

@@ -1,13 +1,13 @@
 """Issue 28's own cases: three structures that are not the three-plate benchmark, each measured (by scikit-fem,
 not by ``fe_core``) with an effect its model file does not declare, at 2 %, 5 % and 10 %.
 
-    python -m benchmarks.make.own_cases      # data/own_cases/: models, measured CSVs, truth.json
+    python -m benchmarks.make.own_cases      # data/cases/own_structures/: models, measured CSVs, truth.json
 
-Structures (``data/own_cases/README.md``):
+Structures (``data/cases/own_structures/README.md``):
 
 * ``cantilever``: ``data/examples/cantilever_matrices/model.toml`` (scikit-fem's hexahedra exported as matrices;
   ``benchmarks.make.matrix_example`` builds it again here and adds the effect to its matrices);
-* ``plate`` and ``frame``: tet4 meshes (:mod:`benchmarks.make.own_structures`), ``data/own_cases/<name>/``.
+* ``plate`` and ``frame``: tet4 meshes (:mod:`benchmarks.make.own_structures`), ``data/cases/own_structures/<name>/``.
 
 Sizes: a point mass of s of the structure's mass; a mount (a spring to ground along one axis) of s of the
 clamped structure's static stiffness at that node and axis; a damaged patch (the cells within 2 rings of a node,
@@ -29,7 +29,7 @@ import numpy as np
 from benchmarks.make import own_structures as st
 
 REPO = Path(__file__).resolve().parents[2]
-OUT = REPO / "data" / "own_cases"
+OUT = REPO / "data" / "cases" / "own_structures"
 NOISE = 0.005
 WINDOW = (0.8, 0.85, 0.9, 0.95, 1.0, 1.05, 1.1, 1.15, 1.2)
 CANTILEVER_MODEL = "data/examples/cantilever_matrices/model.toml"
@@ -177,7 +177,7 @@ def main() -> int:
         s = make()
         fem = st.skfem_model(s)
         s["damping"] = st.rayleigh(fem, s)
-        s["model"] = f"data/own_cases/{s['name']}/model.toml"
+        s["model"] = f"data/cases/own_structures/{s['name']}/model.toml"
         st.write_model(s, OUT / s["name"], s["damping"])
         built[s["name"]] = (s, fem)
     truth = {"noise": NOISE, "structures": {}, "cases": {}}
@@ -207,7 +207,7 @@ def main() -> int:
                                                f"{kind} at {label} = {value:.6g}, {NOISE:.1%} noise, seed {seed}"))
         centre = (np.asarray(s["nodes"])[s["cells"][st.patch_cells(s["cells"], node)]].mean(axis=(0, 1))
                   if kind == "patch" else np.asarray(s["nodes"])[node])
-        truth["cases"][case] = {"structure": name, "model": s["model"], "measured": f"data/own_cases/{file}",
+        truth["cases"][case] = {"structure": name, "model": s["model"], "measured": f"data/cases/own_structures/{file}",
                                 "effect": kind, "location": label, "node": node, "share": share,
                                 "value": float(value), "xyz_m": [float(v) for v in centre], "seed": seed,
                                 "frequencies_hz": [float(f) for f in freqs]}
@@ -220,7 +220,7 @@ def main() -> int:
         write_measured(OUT / file, MeasuredFRF(freqs, list(range(1, Z.shape[1] + 1)), amp, None,
                                                f"scikit-fem direct FRF of the {name} at alpha {s['alpha']}, "
                                                f"{entry['description']}, {NOISE:.1%} noise, seed {seed}"))
-        truth["cases"][case] = {"structure": name, "model": s["model"], "measured": f"data/own_cases/{file}",
+        truth["cases"][case] = {"structure": name, "model": s["model"], "measured": f"data/cases/own_structures/{file}",
                                 "effect": kind, "expected": expected, **entry, "seed": seed,
                                 "frequencies_hz": [float(f) for f in freqs]}
         print(f"{case}: {entry['description']}, lines {freqs.min():.1f}-{freqs.max():.1f} Hz", flush=True)

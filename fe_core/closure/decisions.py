@@ -25,6 +25,7 @@ __all__ = [
     "at_bound",
     "bound_hit",
     "verdict",
+    "dedupe_counting",
     "VERDICTS",
 ]
 
@@ -151,3 +152,15 @@ def merge(checked: Sequence[Candidate], screened: Sequence[Candidate]) -> list[C
     """Checked candidates plus the screened ones not checked (one entry per effect and location)."""
     keys = {(c.effect, c.location) for c in checked}
     return list(checked) + [c for c in screened if c.fit is None and (c.effect, c.location) not in keys]
+
+
+def dedupe_counting(checked: Sequence[Candidate]) -> list:
+    """:func:`dedupe`, and a check that ended where an emulated search did (and kept
+    its fit) counts the search's FE solves."""
+    emulated = [c for c in checked if c.fit is not None and c.fit.start.startswith("emulated search")]
+    kept = dedupe(checked)
+    for e in emulated:
+        if all(c is not e for c in kept):
+            twin = next(c for c in kept if (c.effect, c.location) == (e.effect, e.location))
+            twin.fit.evaluations += e.fit.evaluations
+    return kept

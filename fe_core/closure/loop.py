@@ -64,10 +64,12 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
         no effect improves the extended BIC).
     swaps : bool
         Swap passes after each addition (:func:`fe_core.closure.selection.swap_pass`).
-    emulator : EmulatorOptions or True, optional
-        Where the baseline is structure and far off (:func:`fe_core.closure.fits.far_off`), the first round
-        also checks the MRGP's global search over (alpha, point mass position, log size)
-        (:func:`fe_core.closure.emulated.first_round`); an explicit option, off by default.
+    emulator : callable, optional
+        Where the baseline is structure and far off (:func:`fe_core.closure.fits.far_off`), the first round is
+        ``emulator(model, freqs, u, base, before, library, noise=, significance=, per_type=, max_moves=,
+        alpha_bounds=)``, which also checks a global search (the MRGP's over alpha, point mass position and log
+        size: :func:`strategies.closure_emulator.first_round`, handed in since this package knows no MRGP);
+        an explicit option, off by default.
     """
     times = {"baseline": 0.0, "screen": 0.0, "check": 0.0}
     t = time.perf_counter()
@@ -78,13 +80,10 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     times["baseline"] = time.perf_counter() - t
     log.info("baseline: %s", before.summary())
     handed = {}
-    if emulator is not None and emulator is not False and before.structured and far_off(base):
-        from .emulated import EmulatorOptions, first_round
-
+    if emulator is not None and before.structured and far_off(base):
         t = time.perf_counter()
-        handed = first_round(model, freqs, u, base, before, library, noise=noise, significance=significance,
-                             options=EmulatorOptions() if emulator is True else emulator, per_type=per_type,
-                             max_moves=max_moves, alpha_bounds=alpha_bounds)
+        handed = emulator(model, freqs, u, base, before, library, noise=noise, significance=significance,
+                          per_type=per_type, max_moves=max_moves, alpha_bounds=alpha_bounds)
         handed.pop("searches")
         times["emulator"] = time.perf_counter() - t
     sel = forward_select(model, freqs, u, handed.pop("start", base), handed.pop("analysis", before), library,

@@ -1,7 +1,8 @@
 """Updating on measured modes (plain numpy/scipy): exact eigen-derivatives by Nelson's method
 (:mod:`.nelson`), the paired frequency and shape residual with mode tracking (:mod:`.residual`), and the
-local least-squares fit from several starts with Laplace intervals (:mod:`.fit`); the paper's MRGP loop over
-the modal residuals (:mod:`.paper`) and the closure by forward selection of effects (:mod:`.closure`)."""
+local least-squares fit from several starts with Laplace intervals (:mod:`.fit`) and the closure by forward
+selection of effects (:mod:`.closure`). The paper's MRGP loop over the modal residuals is a strategy
+(:mod:`strategies.modal_paper`), above this package."""
 
 from .fit import ModalFit, fit_modes, laplace_intervals
 from .nelson import eigen_derivatives

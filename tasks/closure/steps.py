@@ -201,10 +201,10 @@ def check_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndar
 
 
 def emulated_check(model, settings: dict, base, freqs, u) -> dict | None:
-    """The emulated search's point mass (:func:`fe_core.closure.emulated.emulated_search`, in this process) as a
+    """The emulated search's point mass (:func:`strategies.closure_emulator.emulated_search`, in this process) as a
     check record; its ``evaluations`` count the search's FE runs. None where the library has no point mass or its
     nodes no positions (a matrices model)."""
-    from fe_core.closure.emulated import EmulatorOptions, emulated_candidate, emulated_search
+    from strategies.closure_emulator import EmulatorOptions, emulated_candidate, emulated_search
 
     effect = _library(model, settings).get("point_mass")
     if effect is None or not effect.locations() or effect.position(effect.locations()[0]) is None:
@@ -276,7 +276,7 @@ def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: 
                                      json.loads(r.values), r.evaluations, r.seconds, r.message)
         c.fit.start = str(getattr(r, "start", "") or "")  # stores written before the joint fit's starts lack it
         checked.append(c)
-    from fe_core.closure.emulated import dedupe_counting  # a tie with the emulated search keeps its FE solves
+    from fe_core.closure.decisions import dedupe_counting  # a tie with the emulated search keeps its FE solves
 
     checked = dedupe_counting(checked)
     chosen = decisions.decide(base, before, checked)

@@ -18,7 +18,7 @@ import pytest
 from fe_core.assembly import DOFS_PER_NODE
 from fe_core.io import read_model
 from fe_core.inference.residual import relative_residual
-from mrgp_core.strategies.polish import polish
+from strategies.polish import polish
 from tasks.io.measured import read_measured
 
 FOLDER = Path(__file__).resolve().parents[2] / "data" / "examples" / "bracket"

@@ -1,4 +1,4 @@
-"""Closing the loop on data with an undeclared effect (data/effects), judged against its truth file.
+"""Closing the loop on data with an undeclared effect (data/cases/three_plate_effects), judged against its truth file.
 
 Each closure starts from the nominal model with the cheap multi-start
 least-squares update (no MRGP run), with the settings of
@@ -17,7 +17,7 @@ from fe_core.closure.loop import close_loop
 from fe_core.inference.residual import analyse_residual, overall_error
 from tasks.io.measured import read_measured
 
-DATA = Path(__file__).resolve().parents[2] / "data" / "effects"
+DATA = Path(__file__).resolve().parents[2] / "data" / "cases" / "three_plate_effects"
 SETTINGS = dict(noise=0.005, restarts=2, per_type=1)
 TRUTH = json.loads((DATA / "truth.json").read_text())
 EFFECT_FILES = [name for name, t in TRUTH["data"].items() if t["effect"]]
@@ -159,8 +159,8 @@ def test_the_exact_and_the_difference_jacobian_reach_the_same_optimum(benchmark_
         fit_update(benchmark_model, freqs, u, np.zeros(6), jacobian="secant")
 
 
-# -- issue 18: data/effects2 (full table: python -m benchmarks.closure --table) ---------------------------
-DATA2 = DATA.parent / "effects2"
+# -- issue 18: data/cases/three_plate_closure_table (full table: python -m benchmarks.closure --table) ---------------------------
+DATA2 = DATA.parent / "three_plate_closure_table"
 TRUTH2 = json.loads((DATA2 / "truth.json").read_text())["data"]
 
 

@@ -1,7 +1,7 @@
 """Candidate damaged patches (``fe_core.closure.effects.bands``): a patch round a node that is not among the coarse
 centres is found by the refinement round the best-screened ones.
 
-Data: issue 28's plate with 2 % damage (``data/own_cases``, plate-patch-2%): scikit-fem's own assembly and
+Data: issue 28's plate with 2 % damage (``data/cases/own_structures``, plate-patch-2%): scikit-fem's own assembly and
 direct solve with the cells within 2 rings of top-surface node 143 softened (beta = -0.0917), 0.5 % noise --
 not the model that is fitted here. The coarse centres (``patch_centres``, a box grid of mostly mid-plane nodes)
 do not hold node 143; alone they place the damage 53 mm away (the closure's answer before the refinement, 8.9 %
@@ -21,7 +21,7 @@ from fe_core.io import read_model
 from flows.config import REPO
 from tasks.io.measured import read_measured
 
-TRUTH = json.loads((REPO / "data/own_cases/truth.json").read_text())
+TRUTH = json.loads((REPO / "data/cases/own_structures/truth.json").read_text())
 CASE = TRUTH["cases"]["plate-patch-2%"]
 SIZE = TRUTH["structures"]["plate"]["size_m"]
 

@@ -40,7 +40,7 @@ def test_the_cantilever_reads_scikit_fems_coordinates(cantilever):
     assert {tuple(np.round(p, 9)) for p in xyz} == grid and len(xyz) == len(grid)
     assert model.size_m == pytest.approx(np.sqrt(LENGTH**2 + WIDTH**2 + HEIGHT**2), rel=1e-12)
     # The truth file's nodes (scikit-fem's p of the own cases on this model).
-    truth = json.loads((REPO / "data" / "own_cases" / "truth.json").read_text())
+    truth = json.loads((REPO / "data" / "cases" / "own_structures" / "truth.json").read_text())
     for t in truth["cases"].values():
         if t["structure"] == "cantilever":
             np.testing.assert_allclose(model.node_position(t["node"]), t["xyz_m"], atol=1e-12)

@@ -1,4 +1,4 @@
-"""Issue 28's own cases (``data/own_cases``, ``python -m benchmarks.make.own_cases``): measured by scikit-fem's own
+"""Issue 28's own cases (``data/cases/own_structures``, ``python -m benchmarks.make.own_cases``): measured by scikit-fem's own
 assembly and direct solve, with an effect the model file does not declare. Our model reads the same structure
 from its model file; with the truth's effect added through the closure's library, it must leave the noise and
 nothing else (the data differ from our model by the effect only), and the truth file's sizes must be what its
@@ -19,7 +19,7 @@ from fe_core.io import read_model
 from flows.config import REPO
 from tasks.io.measured import read_measured
 
-TRUTH = json.loads((REPO / "data/own_cases/truth.json").read_text())
+TRUTH = json.loads((REPO / "data/cases/own_structures/truth.json").read_text())
 #: The smallest structure with a node effect and the smallest with a patch (the cantilever has no cells).
 CASES = ("cantilever-mount-5%", "plate-patch-2%")
 

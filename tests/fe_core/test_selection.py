@@ -1,6 +1,6 @@
 """Forward selection with swaps, joint relocation and the evidence of each effect (fe_core.closure.selection).
 
-The full table on data/effects2 is ``python -m benchmarks.closure --table``; here the pieces, cheaply:
+The full table on data/cases/three_plate_closure_table is ``python -m benchmarks.closure --table``; here the pieces, cheaply:
 the evidence weights by hand, a relocation on noise-free data, and two closures with small libraries.
 """
 
@@ -20,7 +20,7 @@ from fe_core.closure.effects import Applied, GroundedSpring, PointMass, build_li
 from fe_core.closure.selection import IDENTIFIED, evidence, refine
 from tasks.io.measured import read_measured
 
-DATA2 = Path(__file__).resolve().parents[2] / "data" / "effects2"
+DATA2 = Path(__file__).resolve().parents[2] / "data" / "cases" / "three_plate_closure_table"
 TRUTH2 = json.loads((DATA2 / "truth.json").read_text())["data"]
 
 
@@ -61,7 +61,7 @@ def test_noise_after_with_a_rival_as_good_is_ambiguous_not_explained():
 
 def test_an_earlier_effect_placed_wrong_is_moved_back_by_the_joint_relocation(benchmark_model):
     """Noise-free data with a point mass at node 337 and a spring at node 919; the mass starts at node 457
-    (where it lands alone on data/effects2/two_effects.csv): relocation moves it back."""
+    (where it lands alone on data/cases/three_plate_closure_table/two_effects.csv): relocation moves it back."""
     from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ as F
 
     pm, gs = PointMass(benchmark_model), GroundedSpring(benchmark_model)
@@ -104,7 +104,7 @@ def test_a_point_mass_or_a_stiffer_patch_the_data_cannot_tell_is_ambiguous(bench
 
 def test_the_location_spread_says_how_far_the_evidence_reaches(benchmark_model):
     """A damaged patch is pinned to two overlapping patches; a point mass far from the sensors' strong
-    points spreads over tens of nodes (data/effects2, fitted at the true location from the true alpha)."""
+    points spreads over tens of nodes (data/cases/three_plate_closure_table, fitted at the true location from the true alpha)."""
     from fe_core.closure.selection import location_spread, spread_mm
 
     lib = {e.kind: e for e in build_library(benchmark_model, ["patch", "point_mass"])}

@@ -86,7 +86,7 @@ def in_memory_fe():
     makes them (an FRF, with its exact Jacobian where asked at the flow's cost), for the in-memory drivers
     (``run_loop``) that the flow tests compare with the flow's own runs."""
     from fe_core.solvers.sensitivity import frf_jacobian
-    from mrgp_core.strategies.base import Outcome
+    from strategies.base import Outcome
     from tasks.fe_runs import JACOBIAN_COST
 
     def evaluator(problem):

@@ -14,9 +14,9 @@ from flows.config import REPO, UpdateConfig
 from fe_core.inference.residual import STRUCTURED_ESTIMATE
 from tasks.closure.summary import STATUSES
 
-#: data/effects2's far point mass: the forward selection with every registered effect makes moves and a swap
+#: data/cases/three_plate_closure_table's far point mass: the forward selection with every registered effect makes moves and a swap
 #: (a patch replaced by a sensor gain), with the noise estimated (no --noise).
-DATA = REPO / "data" / "effects2" / "far_point_mass.csv"
+DATA = REPO / "data" / "cases" / "three_plate_closure_table" / "far_point_mass.csv"
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from flows import diagnose as dg
 from flows import update
 from flows.config import REPO, UpdateConfig
 
-DATA = REPO / "data" / "effects"
+DATA = REPO / "data" / "cases" / "three_plate_effects"
 # The flow's plumbing needs the true effect and two rivals to check (the choice among every
 # registered effect is tests/fe_core/test_closure.py's): a small library keeps the three closures cheap.
 OPTIONS = dict(noise=0.005, effects=["point_mass", "grounded_spring", "segment_mass"])

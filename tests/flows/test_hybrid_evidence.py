@@ -54,12 +54,12 @@ def test_an_undeclared_point_mass_ends_the_search_for_basins_with_the_mass_named
 
 
 def test_the_strategy_in_memory_weighs_the_same_evidence_after_the_same_fe_runs(point_mass_run, in_memory_fe):
-    """One strategy, two drivers (as ``test_hybrid_flow.py``): :class:`mrgp_core.strategies.hybrid.Hybrid` with
+    """One strategy, two drivers (as ``test_hybrid_flow.py``): :class:`strategies.hybrid.Hybrid` with
     the screen makes the flow's FE runs and stops on the same evidence."""
     from fe_core.closure.evidence import screen_points
     from flows.rerun import run_problem
-    from mrgp_core.strategies.base import run_loop
-    from mrgp_core.strategies.hybrid import Hybrid
+    from strategies.base import run_loop
+    from strategies.hybrid import Hybrid
     from tasks.common import fitted
     from tasks.hybrid import hybrid_options
     from tasks.record import history as run_history

@@ -170,12 +170,12 @@ def test_the_intervals_cost_is_measured_in_fe_runs_of_the_hybrid_update(hybrid_r
 
 
 def test_the_strategy_in_memory_makes_the_flows_fe_runs(hybrid_run, measured_file, in_memory_fe):
-    """One strategy, two drivers: :class:`mrgp_core.strategies.hybrid.Hybrid` through ``run_loop`` with FE runs
+    """One strategy, two drivers: :class:`strategies.hybrid.Hybrid` through ``run_loop`` with FE runs
     made here asks for the same points, in the same rounds, as the flow's stages did."""
     from tasks.record import history as run_history
     from flows.rerun import run_problem
-    from mrgp_core.strategies.base import run_loop
-    from mrgp_core.strategies.hybrid import Hybrid
+    from strategies.base import run_loop
+    from strategies.hybrid import Hybrid
     from tasks.common import fitted
     from tasks.hybrid import hybrid_options
 
@@ -215,7 +215,7 @@ def test_the_stop_reason_quotes_the_check_of_the_reported_point_when_the_last_cy
     """The case of the issue: a last global cycle ending on its budget at 25.5 %, the reported point at 1.79 %
     from cycle 2."""
     from flows.hybrid import stop_reason
-    from mrgp_core.strategies.hybrid import Check
+    from strategies.hybrid import Check
 
     last = {"phase": {"status": "budget"},
             "check": {"sample_id": 120, "at_floor": False, "reason": "rms 25.5% vs noise 1% (configured): structure"}}

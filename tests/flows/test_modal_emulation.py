@@ -7,8 +7,8 @@ import numpy as np
 from flows import update
 from mrgp_core.modal_outputs import BAND_FACTOR
 from flows.rerun import run_problem as resolve
-from mrgp_core.strategies import modal_emulation
-from mrgp_core.strategies.emulation import length_scales
+from strategies import modal_emulation
+from strategies.emulation import length_scales
 from tasks import paper
 from tasks.runstore import RunStore
 

@@ -1,5 +1,5 @@
 """The modal update's --strategy: hybrid (local fits) or adaptive/paper (the paper's loop, tested in memory in
-tests/fe_core/test_modal_paper.py); a strategy the modal path does not offer exits 2 naming the key."""
+tests/strategies/test_modal_paper.py); a strategy the modal path does not offer exits 2 naming the key."""
 
 from __future__ import annotations
 

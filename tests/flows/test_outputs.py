@@ -11,7 +11,7 @@ import pytest
 from flows import update
 from flows.config import ConfigError, UpdateConfig, load_config
 from flows.run import write_manifest
-from mrgp_core.strategies.emulation import AUTO_REDUCED_ABOVE, reduced_outputs
+from strategies.emulation import AUTO_REDUCED_ABOVE, reduced_outputs
 from tasks.runstore import RunStore
 
 TIMING_KEYS = {"wall_seconds", "run_folder"}

@@ -9,8 +9,8 @@ import pytest
 from flows import update
 from tasks.record import history as run_history
 from flows.rerun import run_problem
-from mrgp_core.strategies.base import Outcome, run_loop
-from mrgp_core.strategies.paper import PaperLoop
+from strategies.base import Outcome, run_loop
+from strategies.paper import PaperLoop
 from tasks.common import fitted
 from tasks.paper import modal_layout, paper_options
 

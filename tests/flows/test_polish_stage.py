@@ -15,7 +15,7 @@ from flows.problem import resolve
 from tasks.paper import loop_budget
 from flows.config import ConfigError, UpdateConfig
 from mrgp_core import errors
-from mrgp_core.strategies.polish import polish
+from strategies.polish import polish
 from tasks.io.measured import read_measured
 from tasks.polish import POLISH_STAGE, polish_task
 from tasks.runstore import RunStore
@@ -49,7 +49,7 @@ def test_on_noisy_data_the_polish_stops_where_the_error_levels_off_at_the_noise(
     noise floor (the error at the true parameters) instead of spending its budget."""
     from benchmarks.compare import ALPHA_FAR
 
-    noisy = read_measured(REPO / "data" / "compare" / "far_noisy.csv")
+    noisy = read_measured(REPO / "data" / "cases" / "three_plate_far_noisy" / "far_noisy.csv")
     freqs, amp = noisy.frequencies_hz, noisy.amplitude
 
     def evaluate(points):

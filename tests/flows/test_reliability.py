@@ -29,7 +29,7 @@ from flows import update
 from flows.config import REPO
 from flows.problem import resolve
 from flows.run import write_manifest
-from mrgp_core.strategies.emulation import merge_duplicates, train_mrgp
+from strategies.emulation import merge_duplicates, train_mrgp
 from tasks import paper
 from tasks.fe_runs import read_fe_log
 from tasks.io.measured import read_measured

@@ -81,7 +81,7 @@ ties and the order of outputs).
 
 from __future__ import annotations
 
-from ...assembly import DOFS_PER_NODE  # re-exported: benchmarks/make/effects2.py uses it
+from ...assembly import DOFS_PER_NODE  # re-exported: benchmarks/make/closure_table.py uses it
 from .bands import (
     ElementBand,
     PatchBands,
@@ -98,7 +98,7 @@ from .base import (
     Effect,
     EffectFactory,
     Terms,
-    _free_position,  # used by benchmarks/make/effects2.py
+    _free_position,  # used by benchmarks/make/closure_table.py
     build_library,
     candidate_nodes,
     node_rows,

@@ -1,6 +1,6 @@
 """Harder closure data (issue 18): several effects, transducer masses, damage, sensor faults, far alpha.
 
-    python -m benchmarks.make.effects2           # data/effects2/*.csv, truth.json
+    python -m benchmarks.make.closure_table           # data/cases/three_plate_closure_table/*.csv, truth.json
 
 As :mod:`benchmarks.make.effects`: the benchmark FE model with effects, solved with the direct
 solver (not the Krylov FRF the closure uses), 0.5 % multiplicative noise on the amplitude from a
@@ -22,7 +22,7 @@ from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ, three_pl
 from fe_core.closure.effects import DOFS_PER_NODE, Applied, Effect, Terms, _free_position, build_library, extended_frf
 from tasks.io.measured import MeasuredFRF, write_measured
 
-OUT = Path(__file__).resolve().parents[2] / "data" / "effects2"
+OUT = Path(__file__).resolve().parents[2] / "data" / "cases" / "three_plate_closure_table"
 #: Stiffness factors far from the nominal model (and from ALPHA_ACTUAL).
 ALPHA_FAR = np.array([-0.45, 0.55, 0.4, -0.35, 0.5, -0.4])
 
@@ -112,5 +112,5 @@ def main() -> int:
 if __name__ == "__main__":
     from benchmarks.make import parse_no_options
 
-    parse_no_options("benchmarks.make.effects2", __doc__)
+    parse_no_options("benchmarks.make.closure_table", __doc__)
     sys.exit(main())

@@ -1,11 +1,11 @@
 """The paper's adaptive MRGP loop (Zhou & Tang, Table 2) on measured modes.
 
-The loop is :class:`mrgp_core.strategies.paper.PaperLoop` itself (ask/tell), with the MRGP emulating the
+The loop is :class:`strategies.paper.PaperLoop` itself (ask/tell), with the MRGP emulating the
 *residual* outputs (``emulate = "errors"``, the paper's choice): each FE run is an eigen-solve whose output
 vector is the modal residual of :class:`~fe_core.modal_update.residual.ModalResidual` (paired frequencies
 ``(f_s - f_r)/(sigma_f f_r)`` and the scale-free shape terms ``(u_r - P_s u_r)/sigma_u``, |.|^2 = 1 - MAC),
 so the MRGP (separable ``Q x Sigma``; a reduced output basis above
-:data:`mrgp_core.strategies.emulation.AUTO_REDUCED_ABOVE` outputs) predicts every residual entry of the
+:data:`strategies.emulation.AUTO_REDUCED_ABOVE` outputs) predicts every residual entry of the
 candidates and their overall error ``mean |r|`` (Eq. 6b), and the loop samples, predicts, selects and
 narrows as on FRFs.
 
@@ -23,8 +23,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from mrgp_core.strategies.base import Outcome
-from mrgp_core.strategies.paper import PaperLoop, PaperOptions
+from strategies.base import Outcome
+from strategies.paper import PaperLoop, PaperOptions
 
 __all__ = ["noise_threshold", "modal_paper_options", "run_modal_paper"]
 

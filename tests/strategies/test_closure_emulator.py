@@ -1,4 +1,4 @@
-"""The emulated search (fe_core/closure/emulated.py): the MRGP over (alpha, point-mass position, log size) locates a
+"""The emulated search (strategies/closure_emulator.py): the MRGP over (alpha, point-mass position, log size) locates a
 sizeable point mass that the linearised screen misranks.
 
 Data from another model: scikit-fem assembles a small clamped steel strip (0.6 x 0.3 x 0.012 m, 8 x 3 x 1 boxes of
@@ -17,7 +17,7 @@ import pytest
 
 from benchmarks.make import own_structures as S
 from fe_core.closure.effects import PointMass
-from fe_core.closure.emulated import EffectSpace, EmulatorOptions
+from strategies.closure_emulator import EffectSpace, EmulatorOptions, emulator
 from fe_core.closure.fits import fit_update
 from fe_core.closure.loop import close_loop
 from fe_core.closure.screening import screen
@@ -70,7 +70,7 @@ def test_the_screen_misranks_the_mass_and_the_closure_with_the_emulated_search_f
     # the closure with the emulated search in its first round (close_loop's explicit option): the search's fit is
     # checked with the screen's five best point masses and wins the decision
     result = close_loop(model, freqs, u, np.zeros(2), [effect], noise=NOISE, max_effects=1,
-                        emulator=EmulatorOptions(q=20, s=10, max_iterations=6))
+                        emulator=emulator(EmulatorOptions(q=20, s=10, max_iterations=6)))
     assert result.verdict == "explained"
     (added,) = result.final.applied
     assert added.location == f"node {node}" and result.chosen.fit.start.startswith("emulated search")

@@ -8,8 +8,8 @@ Its derivative is analytic, so the strategy's Jacobian runs are exact.
 import numpy as np
 import pytest
 
-from mrgp_core.strategies.gauss_newton import Residual, TrustRegionGN, composite_model
-from mrgp_core.strategies.hybrid import HybridOptions, hybrid
+from strategies.gauss_newton import Residual, TrustRegionGN, composite_model
+from strategies.hybrid import HybridOptions, hybrid
 
 W = np.linspace(4.0, 9.0, 40)
 TRUTH = np.array([-0.75, 0.3])
@@ -99,7 +99,7 @@ def test_the_budget_is_never_exceeded():
 
 
 def test_global_points_are_uniform_in_the_square_root_of_the_factor():
-    from mrgp_core.strategies.hybrid_phases import _from_unit, _warped
+    from strategies.hybrid_phases import _from_unit, _warped
 
     lower, upper = np.array([-0.75, -0.96]), np.array([3.0, 0.44])  # sqrt(1 + x): [0.5, 2] and [0.2, 1.2]
     q = np.array([[0.0, 0.0], [0.5, 0.25], [1.0, 1.0]])
@@ -115,7 +115,7 @@ def test_global_points_are_uniform_in_the_square_root_of_the_factor():
 def test_a_noise_level_estimated_from_a_structured_residual_is_labelled_an_upper_bound():
     """Issue 33: the check's estimate from a residual it calls structure is not presented as the noise."""
     from fe_core.inference.residual import STRUCTURED_ESTIMATE
-    from mrgp_core.strategies.hybrid import Layout, check
+    from strategies.hybrid import Layout, check
 
     layout = Layout.grid(W, 1)
     wrong, _ = _toy(np.array([0.2, 0.0]))  # a wrong basin: smooth misfit far above any noise

@@ -10,9 +10,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mrgp_core.strategies.hybrid import HybridOptions, hybrid
-from mrgp_core.strategies.ledger import BudgetSpent, Ledger
-from mrgp_core.strategies.gauss_newton import Residual
+from strategies.hybrid import HybridOptions, hybrid
+from strategies.ledger import BudgetSpent, Ledger
+from strategies.gauss_newton import Residual
 
 # The toy of test_hybrid.py: Z = u (1 + r(x)), r = 0.3 (sin(W x_1) - sin(W t_1)) + 0.1 (x_2 - t_2), exact dZ.
 W = np.linspace(4.0, 9.0, 40)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mrgp_core import errors
-from mrgp_core.strategies import table2
+from strategies import table2
 
 
 def test_residual_layout_and_errors_follow_eqs_5_6b_15(rng):

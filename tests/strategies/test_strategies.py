@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mrgp_core.strategies.base import Batch, Outcome, StopDecision, run_loop
-from mrgp_core.strategies.gauss_newton import Residual
-from mrgp_core.strategies.hybrid import Hybrid, HybridOptions
-from mrgp_core.strategies.paper import PaperLoop, PaperOptions
+from strategies.base import Batch, Outcome, StopDecision, run_loop
+from strategies.gauss_newton import Residual
+from strategies.hybrid import Hybrid, HybridOptions
+from strategies.paper import PaperLoop, PaperOptions
 
 W = np.linspace(4.0, 9.0, 40)
 TRUTH = np.array([-0.55, 0.3])
@@ -17,7 +17,7 @@ LOWER, UPPER = -np.ones(2), np.ones(2)
 
 
 def _toy(x):
-    """A "receptance" with several basins in x_1 and its exact derivative (tests/mrgp_core/test_hybrid.py)."""
+    """A "receptance" with several basins in x_1 and its exact derivative (tests/strategies/test_hybrid.py)."""
     r = 0.3 * (np.sin(W * x[0]) - np.sin(W * TRUTH[0])) + 0.1 * (x[1] - TRUTH[1])
     dr = np.column_stack([0.3 * W * np.cos(W * x[0]), np.full(W.size, 0.1)])
     return U * (1.0 + r) + 0j, (U[:, None] * dr) + 0j

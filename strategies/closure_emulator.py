@@ -1,11 +1,11 @@
 """A global search over (alpha, effect position, log size) with the MRGP, for an effect not yet located.
 
-The closure's screen linearises every candidate at zero effect (:mod:`.screening`); a sizeable effect moves
+The closure's screen linearises every candidate at zero effect (:mod:`fe_core.closure.screening`); a sizeable effect moves
 the modes by several half-power bandwidths, and the first-order change then ranks its true location
 anywhere (on the benchmark with a 5 % point mass at node 337 the true node ranks 505th of 585 at the true
 alpha). Where the screen does not locate the effect, this module searches the segment factors and the
 effect together, globally, with the project's MRGP loop (the paper's loop, :class:`PaperLoop` ask/tell, as
-:mod:`fe_core.modal_update.paper` runs it on modes):
+:mod:`strategies.modal_paper` runs it on modes):
 
 * **the space** (:class:`EffectSpace`): the unit cube over ``alpha`` (the closure's box, or a box round the
   update's alpha), the effect's position as continuous coordinates in the box of its candidate nodes (the axes
@@ -21,7 +21,8 @@ effect together, globally, with the project's MRGP loop (the paper's loop, :clas
   3 and 10 times it (:data:`fe_core.closure.fits.SIZE_MULTIPLES`: a loop's best run may be a small mass), then the
   closure's relocation (:func:`fe_core.closure.selection.refine`: moves to a neighbour while they help).
 
-Used by :func:`fe_core.closure.loop.close_loop` with ``emulator=True`` (an explicit option, not automatic):
+Handed to :func:`fe_core.closure.loop.close_loop` as its ``first_round`` (``emulator=`` :func:`first_round` with
+its options; the closure in ``fe_core`` knows no MRGP); an explicit option, not automatic:
 where the baseline is far off (:func:`fe_core.closure.fits.far_off`) the emulated fit joins the first round's
 checked candidates, so the usual decision, swaps, evidence and location spread weigh it against the rest.
 """
@@ -36,17 +37,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mrgp_core.strategies.base import Batch, Outcome
-from mrgp_core.strategies.paper import PaperLoop, PaperOptions
+from fe_core.inference.residual import log_residual
+from fe_core.model import ParametricModel
+from strategies.base import Batch, Outcome
+from strategies.paper import PaperLoop, PaperOptions
 
-from ..inference.residual import log_residual
-from ..model import ParametricModel
-from .effects import Applied, Effect, extended_frf
-from .fits import ALPHA_BOUNDS, SIZE_MULTIPLES, Fit, fit_update, joint_fit, log_sized
+from fe_core.closure.effects import Applied, Effect, extended_frf
+from fe_core.closure.fits import ALPHA_BOUNDS, SIZE_MULTIPLES, Fit, fit_update, joint_fit, log_sized
 
 __all__ = ["EmulatorOptions", "EffectSpace", "EmulatedSearch", "emulated_search", "emulated_candidate", "first_round",
-           "dedupe_counting",
-           "SIZE_FLOOR"]
+           "emulator", "SIZE_FLOOR"]
 
 log = logging.getLogger(__name__)
 
@@ -247,7 +247,7 @@ def emulated_search(model: ParametricModel, freqs_hz, amplitude, effect: Effect,
     evaluations = fit.evaluations
     moves: list[str] = []
     if refine_moves > 0:
-        from .selection import refine  # selection imports the screening; imported here, where it is used
+        from fe_core.closure.selection import refine  # selection imports the screening; imported here, where it is used
 
         moved, moves = refine(model, freqs, u, fit, max_moves=refine_moves, alpha_bounds=alpha_bounds)
         evaluations = moved.evaluations
@@ -265,7 +265,7 @@ def emulated_search(model: ParametricModel, freqs_hz, amplitude, effect: Effect,
 def emulated_candidate(found: EmulatedSearch, effect: Effect) -> "Candidate":
     """The emulated search's fit as a checked candidate of the closure's first round (scored by
     :func:`fe_core.closure.decisions.decide` as any other)."""
-    from .screening import Candidate
+    from fe_core.closure.screening import Candidate
 
     c = Candidate(effect=effect.kind, location=found.location, n_locations=len(effect.locations()),
                   linear_values=np.asarray(found.best_values, float), linear_rss=np.nan, linear_explained=np.nan,
@@ -274,20 +274,6 @@ def emulated_candidate(found: EmulatedSearch, effect: Effect) -> "Candidate":
                        f"{found.best_location} = {found.best_values[0]:.4g}), then the exact joint fit")
     found.fit.evaluations = found.fe_runs + found.fit_evaluations  # the search's FE solves count as the check's
     return c
-
-
-def dedupe_counting(checked: Sequence["Candidate"]) -> list:
-    """:func:`fe_core.closure.decisions.dedupe`, and a check that ended where the emulated search did (and kept
-    its fit) counts the search's FE solves."""
-    from .decisions import dedupe
-
-    emulated = [c for c in checked if c.fit is not None and c.fit.start.startswith("emulated search")]
-    kept = dedupe(checked)
-    for e in emulated:
-        if all(c is not e for c in kept):
-            twin = next(c for c in kept if (c.effect, c.location) == (e.effect, e.location))
-            twin.fit.evaluations += e.fit.evaluations
-    return kept
 
 
 def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, library: Sequence[Effect], *,
@@ -303,10 +289,10 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
     ``forward_select`` (``start``, ``analysis``, ``steps``, ``rounds``; empty when nothing is added) and
     ``searches``, the :class:`EmulatedSearch` of each kind.
     """
-    from .decisions import decide, merge, rank
-    from .fits import checks_per_type
-    from .screening import check_in_waves, pick_in_waves, screen
-    from ..inference.residual import analyse_residual
+    from fe_core.closure.decisions import decide, dedupe_counting, merge, rank
+    from fe_core.closure.fits import checks_per_type
+    from fe_core.closure.screening import check_in_waves, pick_in_waves, screen
+    from fe_core.inference.residual import analyse_residual
 
     freqs, u = np.asarray(freqs_hz, float), np.asarray(amplitude, float)
     by_kind = {e.kind: e for e in library}
@@ -334,3 +320,11 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
              fit.values, fit.start)
     out.update(start=fit, analysis=analysis, steps=[chosen], rounds=[rank(merge(checked, screened))])
     return out
+
+
+def emulator(options: EmulatorOptions = EmulatorOptions()):
+    """The closure's first round with the emulated search, as :func:`fe_core.closure.loop.close_loop` takes it
+    (``close_loop(..., emulator=emulator(options))``)."""
+    import functools
+
+    return functools.partial(first_round, options=options)

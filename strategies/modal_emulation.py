@@ -16,7 +16,7 @@ import numpy as np
 
 import mrgp_core
 
-from ..modal_outputs import ModalLayout
+from mrgp_core.modal_outputs import ModalLayout
 from .emulation import merge_duplicates, reduced_outputs, refine_on_emulator
 
 __all__ = ["GN_STARTS", "BLOCK_BYTES", "separate_modes", "Emulator", "predict"]
@@ -64,7 +64,7 @@ def predict(X: np.ndarray, Y: np.ndarray, E: np.ndarray, layout: ModalLayout, hy
 
     ``X`` (r, m), ``Y`` (r, n_outputs), ``E`` (r,): the FE runs, their emulated outputs and overall errors;
     ``hyper``: :class:`mrgp_core.Hyperparameters`; ``residual``: the run's residual of the receptance at the
-    kept values (a :class:`mrgp_core.strategies.gauss_newton.Residual`); ``low``, ``high``: the box of the
+    kept values (a :class:`strategies.gauss_newton.Residual`); ``low``, ``high``: the box of the
     Gauss-Newton runs.
     """
     best = X[np.argsort(E, kind="stable")[:GN_STARTS]]

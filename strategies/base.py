@@ -6,8 +6,8 @@ takes the results in (:meth:`Strategy.update`) and says whether to stop (:meth:`
 strategy never runs the FE model itself, so the same object runs in memory (:func:`run_loop`, the tests and
 benchmarks) and under the flow, where every round's FE runs are stored and replayed on resume.
 
-The strategies: :class:`mrgp_core.strategies.paper.PaperLoop` (the paper's adaptive MRGP loop, Table 2)
-and :class:`mrgp_core.strategies.hybrid.Hybrid` (the default: Gauss-Newton with exact Jacobians from the
+The strategies: :class:`strategies.paper.PaperLoop` (the paper's adaptive MRGP loop, Table 2)
+and :class:`strategies.hybrid.Hybrid` (the default: Gauss-Newton with exact Jacobians from the
 nominal model, global rounds with the MRGP emulator when the residual is not noise).
 
 An evaluation result is an :class:`Outcome`: the complex receptance ``Z`` at the k measured values, its

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from mrgp_core.strategies.polish import polish
+from strategies.polish import polish
 
 T = np.linspace(0.0, 3.0, 24)
 TRUE = np.array([0.7, -0.4, 0.25])

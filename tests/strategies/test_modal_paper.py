@@ -1,4 +1,4 @@
-"""The paper's MRGP loop on measured modes (fe_core.modal_update.paper): on a spring chain with noisy
+"""The paper's MRGP loop on measured modes (strategies.modal_paper): on a spring chain with noisy
 frequencies and unscaled shapes, the loop (MRGP over the modal residual outputs) narrows from the whole box
 to an FE run at the noise, and the local fit from it reaches the optimum the Gauss-Newton path reaches, with
 the truth inside its intervals."""
@@ -10,11 +10,11 @@ import pytest
 import scipy.sparse as sp
 
 from fe_core.modal_update import ModalResidual, fit_modes
-from fe_core.modal_update.paper import noise_threshold, run_modal_paper
+from strategies.modal_paper import noise_threshold, run_modal_paper
 from fe_core.solvers.modal import eigenmodes
-from mrgp_core.strategies.paper import PaperOptions
+from strategies.paper import PaperOptions
 
-from .test_modal_update import _chain
+from tests.fe_core.test_modal_update import _chain
 
 
 def _data(truth, seed):
