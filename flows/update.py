@@ -199,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
             from fe_core.benchmark import ALPHA_ACTUAL
 
             config = config.replace(true_parameters=ALPHA_ACTUAL.tolist())
-        read_measured(config.resolve(config.measured))  # refuse bad data before any work
+        measured = read_measured(config.resolve(config.measured))  # refuse bad data before any work; read once
     except FileNotFoundError as exc:
         print(f"error: {exc.filename}: no such file", file=sys.stderr)
         return 2
@@ -208,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         # Refuse bad inputs, a run in use, or a full / read-only disk before any work.
-        problem = problems.resolve(config)
+        problem = problems.resolve(config, measured)
         if args.close_loop:
             from flows.diagnose import MASS_FACTORS_REFUSED
 
@@ -238,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
         from flows.diagnose import DiagnoseError, closure_options, diagnose, print_closure
 
         try:
-            closure = diagnose(config.run_id, config.runs_dir, args.closure_name or "closure",
+            closure = diagnose(config.run_id, config.runs_dir, args.closure_name or "closure", problem=problem,
                                **closure_options(args))
         except (DiagnoseError, MeasuredDataError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
