@@ -85,7 +85,7 @@ def input_checksums(config: UpdateConfig, ref) -> dict:
 def resolve(config: UpdateConfig) -> Problem:
     """The run's :class:`Problem`, after every check that needs no run folder: measured data, model, resume
     settings, disk, the Dask cluster."""
-    measured = read_measured(config.resolve(config.measured))
+    measured = read_measured(config.resolve(config.measured), averages=config.averages)
     model, ref = load_model(config.model)
     data = prepare_data(config, measured, model)
     preflight.check_inputs(config, data, model)
