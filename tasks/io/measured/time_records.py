@@ -259,6 +259,8 @@ def _assemble(path, hits, notes, problems, name) -> Records:
                                 "(a roving-hammer test: one file per hit point)")
     keys = list(forces)
     first = hits[keys[0]]
+    units = sorted({r["unit"] for items in hits.values() for r in items})
+    notes.append(f"record units {', '.join(units)} converted to SI (m/s^2, m/s or m; N)")
     by_dof = {r["dof"]: r for r in first if not r["force"]}
     force0 = forces[keys[0]]
     ref = force0["dof"] if force0.get("node", 1) != 0 else None
