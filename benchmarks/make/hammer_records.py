@@ -20,9 +20,9 @@ Each hit: a half-sine pulse of ``PULSE_S`` (+-10 %) and ``PEAK_FORCE_N`` (+-30 %
 ``PRETRIGGER_S`` after the record's start (plus up to one sample of trigger jitter). Noise:
 
 - **force noise**: white, ``FORCE_NOISE`` of the peak force rms on the force record;
-- **response noise**: an unmeasured random force (white, ``AMBIENT`` of the peak force rms) along z at the mesh
-  node nearest ``AMBIENT_POINT`` (an edge of the plate between s3 and s4, away from every sensor), through the same modal
-  model: ambient vibration that the hammer's force does not explain;
+- **response noise**: an unmeasured random force (white, ``AMBIENT`` of the peak force rms) along z at the
+  mesh node nearest ``AMBIENT_POINT`` (an edge of the plate between s3 and s4, away from every sensor),
+  through the same modal model: ambient vibration that the hammer's force does not explain;
 - **sensor floor**: white, ``FLOOR`` of each channel's largest |acceleration| rms.
 
 The script prints how far the H1 of these records (read back by ``tasks.io.measured``) is from the

@@ -200,3 +200,12 @@ def test_uff_coherence_outside_0_1_is_refused(tmp_path):
     _expect(bad, f"dataset {coherence[2]} (response 3:+z, reference 5:+z) point 101", "coherence 1.2",
             "outside [0, 1]")
     assert hammer.coherence.max() <= 1
+
+
+def test_the_example_reads_as_the_benchmark_hammer_test():
+    """data/examples/hammer_records (python -m benchmarks.make.hammer_records): 5 hits of the six accelerometers
+    under the hammer at test node 5, in g, read into 400 lines with coherence and 5 averages."""
+    m = read_measured("data/examples/hammer_records/hammer_records.uff")
+    assert m.responses == tuple(f"{k}:+z" for k in range(1, 7)) and set(m.references) == {"5:+z"}
+    assert m.frequencies_hz.size == 400 and np.all(m.averages == 5) and m.units == ("g/N",) * 6
+    assert (m.coherence >= 0.9).mean() > 0.8
