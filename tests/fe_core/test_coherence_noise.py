@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fe_core.inference.coherence_noise import frf_random_error
+from fe_core.inference.coherence_noise import frf_random_error, t_degrees_of_freedom
 
 TRIALS = 40_000
 
@@ -61,6 +61,26 @@ def test_with_hammer_like_force_variation_and_the_estimated_coherence(gamma2, n)
     naive = np.sqrt(np.mean(frf_random_error(estimated, n, coherence_estimated=False) ** 2))
     assert naive == pytest.approx(predicted * np.sqrt((n - 1) / n), rel=1e-12)
     assert np.std(log_amp) > naive * (1 + tol) or n >= 20
+
+
+@pytest.mark.parametrize("n", [5, 10])
+def test_standardised_residuals_are_student_t_with_2_n_minus_1_degrees_of_freedom(n):
+    """Errors divided by the prediction from the estimated coherence: mean square nu / (nu - 2), not 1, and the
+    quantiles of Student-t (nu = 2 (n - 1)); a chi-square test taking them as standard normal calls noise
+    structure (4/3 at 5 hits)."""
+    from scipy import stats
+
+    rng = np.random.default_rng(50 + n)
+    log_amp, phase, estimated = _h1_trials(0.9, n, rng, force_spread=0.3)
+    z = np.concatenate([log_amp, phase]) / np.tile(frf_random_error(estimated, n), 2)
+    nu = float(t_degrees_of_freedom(n))
+    # The mean of z^2 (variance nu/(nu-2)) from 2 x TRIALS draws: its standard error from t's fourth moment,
+    # 3 nu^2 / ((nu - 2)(nu - 4)), and the first order neglected (eps^2 ~ 0.6 %).
+    var, m4 = nu / (nu - 2), 3 * nu**2 / ((nu - 2) * (nu - 4))
+    tol = 4 * np.sqrt((m4 - var**2) / z.size) + 0.01 * var
+    assert np.mean(z**2) == pytest.approx(var, abs=tol)
+    for q in (0.9, 0.975):  # a quantile of 2 x TRIALS draws is good to about 1 %; 3 % allows eps^2 and that
+        assert np.quantile(np.abs(z), q) == pytest.approx(stats.t.ppf(0.5 + q / 2, nu), rel=0.03)
 
 
 def test_edges_shapes_and_refusals():
