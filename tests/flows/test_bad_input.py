@@ -175,7 +175,7 @@ BAD_INPUTS = [
     ("coherence below 0", "m.csv", _channels(coherence={12: "-0.2"}), "", [],
      ["{measured}", "line 12: coherence -0.2 is outside [0, 1]"]),
     ("UFF58 coherence above 1", "m.uff", _uff_coherence_above_1, "", [],
-     ["{measured}", "dataset 4 (response 2:+z, reference 5:+z) point 41: coherence 1.2 is outside [0, 1]"]),
+     ["{measured}", "dataset 5 (coherence of response 2:+z, reference 5:+z) point 41: coherence 1.2 is outside [0, 1]"]),
     ("time records without a force channel", "m.csv", lambda p: _records_csv(p, force_column="hammer"), "", [],
      ["{measured}", "no 'force' column: a time record without a force channel"]),
     ("time records with mismatched sample rates", "m.uff", lambda p: _records_uff(p, rate_of_dataset_3=512.0), "",

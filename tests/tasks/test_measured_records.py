@@ -197,8 +197,8 @@ def test_uff_coherence_outside_0_1_is_refused(tmp_path):
     sets[coherence[2]]["data"][100] = 1.2
     bad = tmp_path / "coh.uff"
     pyuff.UFF(str(bad)).write_sets(sets, mode="overwrite")
-    _expect(bad, f"dataset {coherence[2]} (response 3:+z, reference 5:+z) point 101", "coherence 1.2",
-            "outside [0, 1]")
+    _expect(bad, f"dataset {coherence[2] + 1} (coherence of response 3:+z, reference 5:+z) point 101: coherence 1.2 "
+            "is outside [0, 1]")
     assert hammer.coherence.max() <= 1
 
 

@@ -214,6 +214,11 @@ def _part(path, k, dataset, system, legacy, coherences, used, notes, complex_kin
             raise MeasuredDataError(f"{path}: dataset {ck + 1}: the coherence of {place} must be real and "
                                     "have the FRF's frequency lines")
         coherence = cdata.astype(float)
+        bad = np.flatnonzero(~((coherence >= 0) & (coherence <= 1)))
+        if bad.size:  # named here, in the coherence's own dataset (the grid would name the FRF's)
+            more = f" ({bad.size - 1} more points like it)" if bad.size > 1 else ""
+            raise MeasuredDataError(f"{path}: dataset {ck + 1} (coherence of {place.split(' (', 1)[1][:-1]}) point "
+                                    f"{bad[0] + 1}: coherence {coherence[bad[0]].item()!r} is outside [0, 1]{more}")
     return key, x, data, coherence, kind, place, unit
 
 
