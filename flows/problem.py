@@ -86,7 +86,8 @@ def resolve(config: UpdateConfig, measured=None) -> Problem:
     """The run's :class:`Problem`, after every check that needs no run folder: measured data, model, resume
     settings, disk, the Dask cluster. ``measured``: the file as the caller read it already
     (:func:`tasks.io.measured.read_measured` of ``config.measured``), else read here."""
-    measured = read_measured(config.resolve(config.measured)) if measured is None else measured
+    if measured is None:
+        measured = read_measured(config.resolve(config.measured), averages=config.averages)
     model, ref = load_model(config.model)
     data = prepare_data(config, measured, model)
     preflight.check_inputs(config, data, model)
@@ -125,7 +126,7 @@ def stored_problem(config: UpdateConfig, manifest: dict | None = None, where=Non
         if changed:
             raise ConfigError(f"{where}: {'; '.join(changed)}: the run's stored results belong to the files as they "
                               "were; restore them, or start a new run with another --run-id")
-    data = prepare_data(config, read_measured(config.resolve(config.measured)), model)
+    data = prepare_data(config, read_measured(config.resolve(config.measured), averages=config.averages), model)
     if where is not None and black_box(model):  # a black-box deck's solver folders: the run's own (reused)
         ref = dataclasses.replace(ref, workdir=str(Path(where).parent / FE_FOLDER))
         model = model.with_workdir(ref.workdir)
