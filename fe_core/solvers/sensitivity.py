@@ -106,21 +106,16 @@ def segment_directions(model: ParametricModel) -> list:
     """The derivative directions of the parameter vector, as :class:`fe_core.solvers.frf_derivatives.Direction` (cached).
 
     ``dK / dalpha_i = K_i`` for every segment, then ``dM / dgamma_j = M_j`` for every
-    segment whose mass is updated (:attr:`ParametricModel.mass_parameters`). The
-    segment matrices share the union pattern of the model (zeros outside the
-    segment); the explicit zeros are dropped so a product costs the segment's own entries.
+    segment whose mass is updated (:attr:`ParametricModel.mass_parameters`), each on
+    its own entries (:meth:`fe_core.assembly.SegmentedMatrix.own`), so a product costs the segment's entries.
     """
     cached = model.__dict__.get("_segment_directions")
     if cached is None:
         cached = []
         for i in range(model.n_segments):
-            Ki = model.stiffness_segments.segment(i).copy()  # copy: segment() shares the pattern's index arrays
-            Ki.eliminate_zeros()
-            cached.append(Direction(stiffness=Ki))
+            cached.append(Direction(stiffness=model.stiffness_segments.own(i)))
         for j in model.mass_parameters:
-            Mj = model.mass_segments.segment(int(j)).copy()
-            Mj.eliminate_zeros()
-            cached.append(Direction(mass=Mj))
+            cached.append(Direction(mass=model.mass_segments.own(int(j))))
         model.__dict__["_segment_directions"] = cached
     return cached
 
