@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import recycle
 from .frf import hz_to_rad
 from .frf_derivatives import Direction, direct_frf_derivatives, krylov_frf_derivatives
 from ..model import ParametricModel
@@ -180,8 +181,11 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
         loads, responses, column = model.channel_loads(*channels)
     args = (K, M, a, b, loads, model.outputs, segment_directions(model), hz_to_rad(freqs))
     info = None
-    if method == "krylov":
-        Z, dZ, info = krylov_frf_derivatives(*args, return_info=True)
+    if method == "krylov":  # a large model's space starts from its last FE run's (fe_core.solvers.recycle)
+        keep = {} if recycle.active(model) else None
+        Z, dZ, info = krylov_frf_derivatives(*args, return_info=True, seed=recycle.take(model), keep=keep)
+        if keep is not None:
+            recycle.store(model, keep)
     else:
         Z, dZ = direct_frf_derivatives(*args)
     Z, dZ = Z[:, responses, column], dZ[:, responses, column, :]
