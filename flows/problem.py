@@ -91,7 +91,9 @@ def resolve(config: UpdateConfig) -> Problem:
     """The run's :class:`Problem`, after every check that needs no run folder: measured data, model, resume
     settings, disk, the Dask cluster."""
     measured = read_measured(config.resolve(config.measured))
-    model, ref = load_model(config.model, config.resolve(config.runs_dir) / MODEL_CACHE_FOLDER)
+    cache_root = config.resolve(config.runs_dir) / MODEL_CACHE_FOLDER
+    preflight.check_memory(config, cache_root)  # a model too big says so before it is assembled
+    model, ref = load_model(config.model, cache_root)
     data = prepare_data(config, measured, model)
     preflight.check_inputs(config, data, model)
     root = config.resolve(config.runs_dir) / config.run_id
