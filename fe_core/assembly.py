@@ -105,6 +105,11 @@ def free_dof_map(n_dofs: int, fixed: np.ndarray) -> np.ndarray:
     return np.flatnonzero(mask)
 
 
+#: Matrices with at least this many rows keep only each segment's own entries (:class:`SegmentedMatrix`); smaller
+#: ones keep the dense rows as well, and combine them as they always did.
+COMPACT_ROWS = 50_000
+
+
 class SegmentedMatrix:
     """A sum of segment matrices on one sparsity pattern, each segment stored on its own entries.
 
@@ -112,7 +117,9 @@ class SegmentedMatrix:
     of all segments: one scatter-add per segment. Each segment keeps only its own entries (their slots in
     the union pattern and their values), so the memory is that of one matrix plus one index per entry,
     not ``n_segments`` copies of the union (a 6-segment tet10 model of 464k DOFs: 0.45 GB for K instead
-    of 2 GB).
+    of 2 GB). Below :data:`COMPACT_ROWS` rows the dense rows are kept too and :meth:`combine` is their
+    product with the weights, as it always was: a scatter-add sums in another order, and small models keep
+    their results to the last bit.
 
     Parameters
     ----------
@@ -151,6 +158,10 @@ class SegmentedMatrix:
         index = np.int32 if pattern.nnz < 2**31 else np.int64
         self.slots = np.concatenate([s for s, _ in parts]).astype(index, copy=False) if parts else np.zeros(0, index)
         self.values = np.concatenate([v for _, v in parts]) if parts else np.zeros(0)
+        # A small matrix also keeps the dense rows: its K(alpha) is then the product it always was (BLAS's
+        # summation order, bit for bit); a large one only its own entries (the memory of one matrix).
+        self._dense = self.data if pattern.shape[0] < COMPACT_ROWS else None
+        self._dense_fixed = self.fixed if self._dense is not None else None
 
     @classmethod
     def from_parts(cls, pattern: sp.csr_matrix, parts: Sequence[tuple[np.ndarray, np.ndarray]],
@@ -211,6 +222,8 @@ class SegmentedMatrix:
     @property
     def data(self) -> np.ndarray:
         """Each segment's entries on ``pattern``, shape (n_segments, nnz) (dense: built on request)."""
+        if getattr(self, "_dense", None) is not None:
+            return self._dense
         out = np.zeros((self.n_segments, self.pattern.nnz))
         for i in range(self.n_segments):
             slots, values = self.part(i)
@@ -222,6 +235,8 @@ class SegmentedMatrix:
         """The remainder's entries on ``pattern``, shape (nnz,), or None."""
         if not self.has_fixed:
             return None
+        if getattr(self, "_dense_fixed", None) is not None:
+            return self._dense_fixed
         out = np.zeros(self.pattern.nnz)
         slots, values = self.part(self.n_segments)
         out[slots] = values
@@ -256,6 +271,9 @@ class SegmentedMatrix:
         weights = np.asarray(weights, dtype=float)
         if weights.shape != (self.n_segments,):
             raise ValueError(f"expected {self.n_segments} weights, got shape {weights.shape}")
+        if self._dense is not None:
+            combined = weights @ self._dense
+            return self._with_data(combined if self._dense_fixed is None else combined + self._dense_fixed)
         out = np.zeros(self.pattern.nnz)
         for i, w in enumerate(weights):
             slots, values = self.part(i)
