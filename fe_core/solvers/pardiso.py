@@ -288,7 +288,7 @@ def _changed_rows(upper: sp.csr_matrix, base: np.ndarray, data: np.ndarray):
     where = np.flatnonzero(data != base)
     if where.size == 0:
         return np.zeros(0, np.int64), np.zeros((0, 0))
-    if where.size > 2 * MAX_LOW_RANK * int(np.max(np.diff(upper.indptr))):  # more rows than that changed
+    if where.size > MAX_LOW_RANK * (MAX_LOW_RANK + 1) // 2:  # more entries than an upper triangle of that many
         return None
     rows = np.searchsorted(upper.indptr, where, side="right") - 1
     cols = upper.indices[where]
