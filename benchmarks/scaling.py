@@ -102,7 +102,7 @@ def make(size: float | None = None, model_file: Path | None = None) -> tuple[Pat
             fh.write("sensor,frequency_hz,amplitude\n")
             for i, f in enumerate(freqs):
                 for j in range(Z.shape[1]):
-                    fh.write(f"{j + 1},{f!r},{amp[i, j]!r}\n")
+                    fh.write(f"{j + 1},{float(f)!r},{float(amp[i, j])!r}\n")
         print(f"{model_file}: {model.n_dofs} free DOFs; {measured}: {freqs.size} lines x {Z.shape[1]} sensors")
     return model_file, measured
 
