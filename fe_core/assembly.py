@@ -124,7 +124,8 @@ class SegmentedMatrix:
     Parameters
     ----------
     pattern : scipy.sparse.csr_matrix, shape (n, n)
-        The union pattern (sorted indices); its data are the unscaled sum, remainder included.
+        The union pattern (sorted indices); its data are the unscaled sum, remainder included (a matrix of
+        :data:`COMPACT_ROWS` rows or more keeps only the index arrays: :attr:`pattern`'s values are then ones).
     data : ndarray, shape (n_segments, nnz), optional
         Each segment's entries on ``pattern`` (dense rows; stored compactly: the non-zero entries).
     fixed : ndarray, shape (nnz,), or None
@@ -153,7 +154,11 @@ class SegmentedMatrix:
         self._store(pattern, parts)
 
     def _store(self, pattern, parts) -> None:
-        self.pattern = pattern
+        if pattern.shape[0] >= COMPACT_ROWS:  # the pattern's index arrays only: its values are never read
+            self._pattern, self._indices, self._indptr = None, pattern.indices, pattern.indptr
+            self._shape = pattern.shape
+        else:
+            self._pattern = pattern
         self.offsets = np.concatenate([[0], np.cumsum([s.size for s, _ in parts])]).astype(np.int64)
         index = np.int32 if pattern.nnz < 2**31 else np.int64
         self.slots = np.concatenate([s for s, _ in parts]).astype(index, copy=False) if parts else np.zeros(0, index)
@@ -207,8 +212,17 @@ class SegmentedMatrix:
         return cls.from_parts(total, parts, len(matrices))
 
     @property
+    def pattern(self) -> sp.csr_matrix:
+        """The union pattern (sorted indices). Its values: the unscaled sum for a small matrix; ones (a
+        zero-stride view, no memory) for a large one, which keeps only the index arrays."""
+        if self._pattern is not None:
+            return self._pattern
+        ones = np.broadcast_to(np.float64(1.0), self._indices.shape)
+        return sp.csr_matrix((ones, self._indices, self._indptr), shape=self._shape, copy=False)
+
+    @property
     def shape(self) -> tuple[int, int]:
-        return self.pattern.shape
+        return self._shape if self._pattern is None else self._pattern.shape
 
     @property
     def n_parts(self) -> int:
@@ -285,14 +299,19 @@ class SegmentedMatrix:
 
     @property
     def nbytes(self) -> int:
-        """Bytes held (pattern, slots, values)."""
+        """Bytes held (the pattern's arrays, slots, values, and the dense rows of a small matrix)."""
         p = self.pattern
-        return int(p.data.nbytes + p.indices.nbytes + p.indptr.nbytes + self.slots.nbytes + self.values.nbytes)
+        held = p.indices.nbytes + p.indptr.nbytes + self.slots.nbytes + self.values.nbytes
+        if self._pattern is not None:
+            held += p.data.nbytes
+        if self._dense is not None:
+            held += self._dense.nbytes
+        return int(held)
 
     def _with_data(self, data: np.ndarray) -> sp.csr_matrix:
-        return sp.csr_matrix(
-            (data, self.pattern.indices, self.pattern.indptr), shape=self.pattern.shape, copy=False
-        )
+        indices, indptr = ((self._indices, self._indptr) if self._pattern is None
+                           else (self._pattern.indices, self._pattern.indptr))
+        return sp.csr_matrix((data, indices, indptr), shape=self.shape, copy=False)
 
 
 def _keys(A: sp.csr_matrix, n_cols: int) -> np.ndarray:
