@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .assembly import DOFS_PER_NODE
+from .solvers import recycle
 from .solvers.frf import direct_frf, hz_to_rad, krylov_frf
 from .solvers.modal import classify_mode, eigenmodes
 
@@ -123,8 +124,11 @@ class ModelResponses:
         omegas = hz_to_rad(freqs)
         if method == "direct":
             Z = direct_frf(K, M, a * M + b * K, F, omegas, self._out_rows)
-        else:
-            Z = krylov_frf(K, M, a, b, F, omegas, self._out_rows)
+        else:  # a large model's space starts from its last FE run's (fe_core.solvers.recycle)
+            keep = {} if recycle.active(self) else None
+            Z = krylov_frf(K, M, a, b, F, omegas, self._out_rows, seed=recycle.take(self), keep=keep)
+            if keep is not None:
+                recycle.store(self, keep)
         # (p, k, n_loads) at the output DOFs -> (p, n_sensors, n_loads)
         return np.einsum("pkl,ks->psl", Z, self._out_weights)
 

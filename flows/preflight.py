@@ -13,6 +13,12 @@ The model's frequency range
     benchmark (10 mm steel, largest element 14.375 mm) this is 13.1 kHz; the
     measurement is at 106-295 Hz.
 
+Memory
+    A mesh model whose update would not fit in the memory this machine has available is refused before
+    anything is assembled (:func:`check_memory`): the estimate of :mod:`flows.memory` (the model, one FE
+    run's factorisation and Krylov space, the FE runs at once, the first assembly) against
+    :func:`flows.memory.available_bytes`, with how much ``--n-jobs 1`` would need.
+
 Disk
     The runs folder must be writable (checked by writing and removing a
     file: permission bits, read-only mounts and immutable folders all count,
@@ -35,7 +41,7 @@ import numpy as np
 from flows.config import ConfigError, UpdateConfig, stored_settings
 from tasks.io.measured import MeasuredDataError
 
-__all__ = ["max_frequency_hz", "check_inputs", "check_resume", "check_disk", "expected_output_mb",
+__all__ = ["max_frequency_hz", "check_inputs", "check_resume", "check_disk", "check_memory", "expected_output_mb",
            "ELEMENTS_PER_WAVELENGTH"]
 
 #: The run folder's layout this version writes and resumes (flows.run.RECORD_VERSION).
@@ -115,9 +121,13 @@ def check_band(config: UpdateConfig, measured, model) -> None:
     ``BAND_FACTOR`` times the highest of the lowest six natural frequencies, or
     below the lowest one divided by ``BAND_FACTOR``.
     """
+    from tasks.fe_runs import is_large, run_cores
+    from fe_core.solvers import pardiso
+
     n = min(6, model.n_dofs - 1)
-    try:
-        freqs = model.natural_frequencies(np.zeros(model.n_segments), n_modes=n)
+    try:  # a large model on the run's cores; its factor (the nominal K) is kept for the first FE run
+        with pardiso.threads(run_cores(config) if is_large(model) else 1):
+            freqs = model.natural_frequencies(np.zeros(model.n_segments), n_modes=n)
     except RuntimeError as exc:  # a black-box solver deck that its solver rejects (CcxError quotes its *ERROR lines)
         raise ConfigError(f"{config.model}: key 'deck': the nominal deck's modes: {exc}") from None
     lo, hi = float(np.min(measured.frequencies_hz)), float(np.max(measured.frequencies_hz))
@@ -128,6 +138,47 @@ def check_band(config: UpdateConfig, measured, model) -> None:
             "check the units: a mesh in mm needs units = \"mm-t-s\" (E in MPa, rho in t/mm^3), "
             "a mesh in m needs SI materials"
         )
+
+
+def check_memory(config: UpdateConfig, cache_root: Path | None = None):
+    """Refuse a mesh model whose update needs more memory than the machine has available (exit 2), naming the
+    model, the estimate and its parts, and what ``--n-jobs 1`` would need; returns the
+    :class:`flows.memory.Footprint` (None for a model of another kind). ``cache_root``: the model cache (a
+    model found there needs no assembly)."""
+    from fe_core.io import cache
+    from flows.memory import GB, available_bytes, estimate
+    from tasks.problem import model_checksum, model_path
+
+    if not config.model.endswith(".toml"):
+        return None
+    path = model_path(config.model)
+    if not path.exists():
+        return None  # the model's reader names the missing file
+    cached = False
+    if cache_root is not None:
+        try:
+            cached = cache.lookup(cache_root, model_checksum(path)) is not None
+        except (OSError, ValueError):
+            cached = False
+    jobs = (os.cpu_count() or 1) if config.n_jobs < 0 else config.n_jobs
+    if config.fe_backend != "loky":  # the global rounds' FE runs are the cluster's; Gauss-Newton runs here
+        jobs = 1
+    footprint = estimate(path, jobs, cached=cached)
+    if footprint is None:
+        return None
+    avail = available_bytes()
+    if footprint.total <= avail:
+        return footprint
+    single = footprint.with_jobs(1)
+    if jobs > 1 and single.total <= avail:
+        hint = (f"with --n-jobs 1 (one FE run at a time) it needs about {single.total / GB:.1f} GB: run with "
+                "--n-jobs 1, or FE runs on a Dask cluster (--fe-backend dask)")
+    else:
+        hint = (f"even one FE run at a time needs about {single.total / GB:.1f} GB: use a coarser mesh or a "
+                "machine with more memory")
+    raise ConfigError(f"{config.model}: the update would not fit in memory: {footprint.describe()}; this machine "
+                      f"has {avail / GB:.1f} GB available; {hint} (estimate from the mesh before any assembly; "
+                      f"docs/scaling.md)")
 
 
 def check_resume(config: UpdateConfig, root: Path, resumable: set[str], inputs: dict | None = None) -> None:

@@ -32,6 +32,7 @@ from fe_core.inference.intervals import parameter_intervals
 from fe_core.inference.residual import analyse_residual
 from fe_core.inference.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
 from tasks.common import beating
+from tasks.fe_runs import solver_threads
 from tasks.common import logger as run_logger
 from tasks.problem import black_box
 from tasks.runstore import RunStore
@@ -82,12 +83,13 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     freqs_hz, measured_amplitude = data.frequencies_hz[lines], data.amplitude[lines]
     lower, upper = problem.solver_box
     t0, c0 = time.perf_counter(), time.process_time()
-    refined = parameter_intervals(model, freqs_hz, measured_amplitude, np.asarray(start, float), lower, upper,
-                                  noise=config.noise, channels=channels)
-    jacobian_seconds = time.perf_counter() - t0
-    iv = refined.intervals
-    fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config,
-                                            channels)
+    with solver_threads(problem, config):  # a large model: PARDISO on the run's cores (nothing else runs now)
+        refined = parameter_intervals(model, freqs_hz, measured_amplitude, np.asarray(start, float), lower, upper,
+                                      noise=config.noise, channels=channels)
+        jacobian_seconds = time.perf_counter() - t0
+        iv = refined.intervals
+        fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config,
+                                                channels)
     if channels is not None:
         fields["interval_details"]["references"] = int(np.unique(data.references).size)
     fields["residual_check"] = residual_check(refined.residual, freqs_hz, len(model.parameter_names), config.noise)
@@ -110,7 +112,8 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     fe_runs = refined.fe_runs + (check.fe_runs if check is not None else 0) + (post.fe_runs if post else 0)
     # The run's own error measure (its lines, coherence mask and residual kind, which the log amplitudes of the
     # complete lines are not): one FE run at the optimum.
-    rel = data.residuals(full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))
+    with solver_threads(problem, config):
+        rel = data.residuals(full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))
     per_channel = data.channel_errors(rel)
     fe_runs += 1
     fields["estimate_errors"] = {"overall_error": float(np.mean(np.abs(rel))),
