@@ -1,4 +1,4 @@
-"""The documentation's commands and paths are real: README.md and docs/*.md.
+"""The documentation's commands and paths are real: README.md and docs/**/*.md (guide/ and results/).
 
 Every ``python -m <module> [subcommand]`` shown in them is run once with ``--help`` (deduplicated, all
 in one child process, so the imports are paid once), and every long option a shown command uses must be
@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 
 #: Top-level folders and files of the repository a path in the docs may start with.
 TOP = ("fe_core", "mrgp_core", "tasks", "flows", "benchmarks", "data", "docs", "tests", ".ci")
@@ -160,7 +160,7 @@ def _helps(keys: list[str]) -> dict[str, tuple[object, str]]:
 
 
 def all_commands() -> dict[str, set[str]]:
-    """{"module[ sub]": long options used with it} over README.md and docs/*.md."""
+    """{"module[ sub]": long options used with it} over README.md and docs/**/*.md."""
     used: dict[str, set[str]] = {}
     for doc in DOCS:
         for module, sub, options in commands(_text(doc)):
@@ -197,9 +197,9 @@ def test_command_extraction(text, expected):
 
 def test_a_wrong_path_or_module_is_caught(tmp_path):
     """The checks above can fail: a missing path is reported, an unknown module's --help does not exit 0."""
-    doc = ROOT / "docs" / "x.md"
+    doc = ROOT / "docs" / "guide" / "x.md"
     names = repo_paths(doc, "see `fe_core/no_such_file.py` and [this](no-such-page.md)")
-    assert names == ["fe_core/no_such_file.py", "docs/no-such-page.md"]
+    assert names == ["fe_core/no_such_file.py", "docs/guide/no-such-page.md"]
     assert not any(_exists(n) for n in names)
     assert resolve("fe_core.solvers.frf.BlockKrylov") and not resolve("fe_core.solvers.frf.NoSuchThing")
     assert not resolve("fe_core.no_such_module")
