@@ -307,7 +307,7 @@ ROWS = [
         "[modal data](docs/guide/modal-data.md)",
         [(["benchmarks.modal_coverage", "--out", "{out}/modal-coverage"], {})], _modal_coverage),
     Row("modal-vs-frf", "the hammer test's FRFs as modes: Gauss-Newton (Nelson) vs the paper's MRGP loop, and the "
-        "FRF update", "[modal vs FRF](docs/results/modal-vs-frf.md), [modal data](docs/guide/modal-data.md)",
+        "FRF update", "[modal data](docs/guide/modal-data.md), [modal results](docs/results/modal.md)",
         [(["benchmarks.modal_vs_frf", "--runs-dir", "{out}/modal-vs-frf"], {})], _modal_vs_frf),
     Row("closure", "closing the loop on 5 single missing effects (benchmark, 0.5 % noise) and 5 clean sets",
         "[closure](docs/guide/closure.md)", [(["benchmarks.closure"], ONE_THREAD)], _closure),
