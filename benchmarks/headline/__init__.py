@@ -22,7 +22,6 @@ that column is on the page and that the page's commits are at most 60 commits be
 
 from __future__ import annotations
 
-import argparse
 import datetime as dt
 import fcntl
 import json
@@ -213,64 +212,3 @@ def write_readme(rows, records: dict) -> None:
     end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
     lines[start:end] = readme_table(rows, records)
     README.write_text(head + sep + "\n".join(lines))
-
-
-def main(argv: list[str] | None = None) -> int:
-    from benchmarks.headline.rows import ROWS
-
-    keys = [r.key for r in ROWS]
-    p = argparse.ArgumentParser(prog="python -m benchmarks.headline", description=__doc__.split("\n\n")[0])
-    p.add_argument("--only", nargs="+", choices=keys, metavar="ROW", help=f"rows to run, of {', '.join(keys)}")
-    p.add_argument("--keep", action="store_true", help="skip rows that have a stored result (resume)")
-    p.add_argument("--page-only", action="store_true", help="no run: rewrite the page (and README) from stored rows")
-    p.add_argument("--reread", action="store_true", help="no run: read the stored rows' outputs again, then write")
-    p.add_argument("--no-readme", action="store_true", help="leave README.md's headline table as it is")
-    p.add_argument("--lock", default=str(DEFAULT_LOCK) if DEFAULT_LOCK.exists() else "none",
-                   help="file to flock while a row runs ('none': no lock; default /work/locks/heavy when present)")
-    p.add_argument("--list", action="store_true", help="print the rows and their commands, run nothing")
-    args = p.parse_args(argv)
-    if args.list:
-        for r in ROWS:
-            print(f"{r.key}: {r.what}")
-            for cmd, env in r.commands:
-                print("    " + " ".join([*(f"{k}={v}" for k, v in env.items()), "python -m", *cmd]))
-            if r.note:
-                print(f"    note: {r.note}")
-        return 0
-    lock = None if args.lock == "none" else Path(args.lock)
-    t0 = time.perf_counter()
-    ran = []
-    if not (args.page_only or args.reread):
-        for r in ROWS:
-            if (args.only and r.key not in args.only) or (args.keep and stored(r.key)):
-                continue
-            print(f"[{r.key}] {r.what}", flush=True)
-            rec = run_row(r, lock)
-            ran.append(rec)
-            print(f"[{r.key}] {rec['wall_s']:.0f} s: {rec['result'] or rec['error']}", flush=True)
-    records = {r.key: stored(r.key) for r in ROWS}
-    if args.reread:
-        for r in ROWS:
-            rec = records[r.key]
-            if rec:
-                rec.update(read_row(r, WORK / r.key, rec["commands"]))
-                (WORK / r.key / "row.json").write_text(json.dumps(rec, indent=1, default=str))
-    total = {}
-    if ran:
-        elapsed = time.perf_counter() - t0
-        total["text"] = (f"; this invocation ran {len(ran)} row(s) in {elapsed / 60:.1f} min including "
-                         f"{sum(r['lock_wait_s'] for r in ran) / 60:.1f} min waiting for the lock")
-    write_page(ROWS, records, total)
-    print(f"wrote {PAGE.relative_to(REPO)}")
-    failed = [k for k, v in records.items() if v and v["error"]]
-    missing = [k for k, v in records.items() if not v]
-    if args.no_readme:
-        pass
-    elif failed or missing:
-        print("README.md left as it is: not every row has a result", file=sys.stderr)
-    else:
-        write_readme(ROWS, records)
-        print(f"rewrote the table under '{SECTION}' in README.md")
-    if failed or missing:
-        print(f"failed: {failed or '-'}; not run: {missing or '-'}", file=sys.stderr)
-    return 1 if failed else 0
