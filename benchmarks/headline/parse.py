@@ -57,13 +57,17 @@ def covered(bounds: np.ndarray | None, truth: np.ndarray) -> int | None:
 
 
 def markdown_rows(text: str, first_header: str) -> list[dict]:
-    """The rows of the markdown table whose header row starts with ``| first_header |`` (the last such table)."""
+    """The rows of the markdown table whose header row starts with ``| first_header |`` (the last such table).
+
+    A column name that repeats gets its count (the second "in FE runs" is "in FE runs 2")."""
     lines = text.splitlines()
     starts = [i for i, ln in enumerate(lines) if re.match(r"\|\s*" + re.escape(first_header) + r"\s*\|", ln)]
     if not starts:
         raise ValueError(f"no table with a '{first_header}' column in the output")
     i = starts[-1]
-    header = [c.strip() for c in lines[i].strip().strip("|").split("|")]
+    header = []
+    for c in (c.strip() for c in lines[i].strip().strip("|").split("|")):
+        header.append(c if c not in header else f"{c} {sum(h.split(' (')[0] == c for h in header) + 1}")
     rows = []
     for ln in lines[i + 2:]:
         if not ln.startswith("|"):
