@@ -201,8 +201,18 @@ def readme_table(rows, records: dict) -> list[str]:
     return lines
 
 
+def readme_intro(rows, records: dict) -> list[str]:
+    """The paragraph above the README's table: how the rows are rerun, on which commit, how long it took."""
+    done = [records[r.key] for r in rows if records.get(r.key)]
+    commits = ", ".join(f"`{c}`" for c in sorted({r["commit"] for r in done}))
+    wall = sum(r["wall_s"] for r in done)
+    return [f"Rerun together by `python -m benchmarks.headline`: {len(done)} rows, one at a time, {wall / 60:.0f} min of "
+            f"wall time on 2 shared cores, last on commit {commits}. [headline.md](docs/results/headline.md) names "
+            "the date, the load, each row's command, its figures and wall time; this table is written from it."]
+
+
 def write_readme(rows, records: dict) -> None:
-    """Replace the table under ``## Headline results`` in README.md (the text around it stays)."""
+    """Replace the paragraph and the table under ``## Headline results`` in README.md (the text after stays)."""
     text = README.read_text()
     head, sep, rest = text.partition(SECTION)
     if not sep:
@@ -210,5 +220,5 @@ def write_readme(rows, records: dict) -> None:
     lines = rest.split("\n")
     start = next(i for i, ln in enumerate(lines) if ln.startswith("|"))
     end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
-    lines[start:end] = readme_table(rows, records)
+    lines[1:end] = ["", *readme_intro(rows, records), "", *readme_table(rows, records)]
     README.write_text(head + sep + "\n".join(lines))
