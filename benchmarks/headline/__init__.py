@@ -98,9 +98,8 @@ def run_row(row, lock: Path | None) -> dict:
     if out.exists():
         shutil.rmtree(out)      # a run folder left there would be resumed by flows.update, not rerun
     out.mkdir(parents=True)
-    record = {"key": row.key, **provenance()}
     with locked(lock) as waited, open(out / "log.txt", "w") as log:
-        record["lock_wait_s"] = round(waited, 1)
+        record = {"key": row.key, **provenance(), "lock_wait_s": round(waited, 1)}   # the tree as the row starts
         t0 = time.perf_counter()
         record["commands"] = []
         for argv, env in row.commands:
