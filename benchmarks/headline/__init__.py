@@ -7,8 +7,9 @@
     python -m benchmarks.headline --list                        # the rows, their commands and notes
 
 Each row (``benchmarks/headline/rows.py``) runs its commands one after another as child processes
-(``python -m ...`` from the repository's root), under an exclusive lock on ``--lock`` (default
-``/work/locks/heavy`` when it exists: one heavy job at a time on a shared machine; the wait is not counted).
+(``python -m ...`` from the repository's root), the rows one at a time under an exclusive lock on ``--lock``
+(default ``/work/locks/heavy`` when it exists: one heavy job at a time on a shared machine), held for the whole
+run (``--lock-per-row`` releases it between rows); the wait is not counted.
 Per command the wall time, the CPU time (user + system of the child and the processes it waited for) and
 the peak resident memory (``os.wait4``) are measured; the load average before and after is recorded. Outputs
 and logs go to ``runs/headline/<row>/``; ``row.json`` there holds the row's commit (``git rev-parse

@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from benchmarks.headline import (DEFAULT_LOCK, PAGE, REPO, SECTION, WORK, read_row, run_row, stored,
+from benchmarks.headline import (DEFAULT_LOCK, PAGE, REPO, SECTION, WORK, locked, read_row, run_row, stored,
                                  write_page, write_readme)
 import benchmarks.headline as headline
 
@@ -25,6 +25,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-readme", action="store_true", help="leave README.md's headline table as it is")
     p.add_argument("--lock", default=str(DEFAULT_LOCK) if DEFAULT_LOCK.exists() else "none",
                    help="file to flock while a row runs ('none': no lock; default /work/locks/heavy when present)")
+    p.add_argument("--lock-per-row", action="store_true",
+                   help="release the lock between rows (default: hold it for the whole run, one heavy job: on a "
+                        "busy machine a row that queues again for the lock can wait an hour)")
     p.add_argument("--list", action="store_true", help="print the rows and their commands, run nothing")
     args = p.parse_args(argv)
     if args.list:
@@ -38,14 +41,17 @@ def main(argv: list[str] | None = None) -> int:
     lock = None if args.lock == "none" else Path(args.lock)
     t0 = time.perf_counter()
     ran = []
-    if not (args.page_only or args.reread):
-        for r in ROWS:
-            if (args.only and r.key not in args.only) or (args.keep and stored(r.key)):
-                continue
-            print(f"[{r.key}] {r.what}", flush=True)
-            rec = run_row(r, lock)
-            ran.append(rec)
-            print(f"[{r.key}] {rec['wall_s']:.0f} s: {rec['result'] or rec['error']}", flush=True)
+    todo = [] if (args.page_only or args.reread) else \
+        [r for r in ROWS if not ((args.only and r.key not in args.only) or (args.keep and stored(r.key)))]
+    if todo:
+        with locked(None if args.lock_per_row else lock) as waited:
+            for r in todo:
+                print(f"[{r.key}] {r.what}", flush=True)
+                rec = run_row(r, lock if args.lock_per_row else None)
+                if not args.lock_per_row and r is todo[0]:
+                    rec["lock_wait_s"] = round(waited, 1)
+                ran.append(rec)
+                print(f"[{r.key}] {rec['wall_s']:.0f} s: {rec['result'] or rec['error']}", flush=True)
     records = {r.key: stored(r.key) for r in ROWS}
     if args.reread:
         for r in ROWS:
