@@ -8,6 +8,7 @@ the results of a change that must not alter them (issue 41's levers) next to the
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -30,9 +31,11 @@ def compare(a: Path, b: Path) -> str:
 
 
 def main(argv=None) -> int:
-    args = [Path(x) for x in (argv or sys.argv[1:])]
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.compare_runs", description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", type=Path, help="run folders in pairs: before after [before after ...]")
+    args = parser.parse_args(argv).runs
     if len(args) < 2 or len(args) % 2:
-        raise SystemExit("give pairs of run folders")
+        parser.error("give pairs of run folders")
     print("| run | FE runs | Jacobians | rounds | converged | overall error | parameters | largest difference |")
     print("|---|---|---|---|---|---|---|---|")
     for a, b in zip(args[::2], args[1::2]):

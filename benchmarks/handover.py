@@ -13,7 +13,7 @@ point) was chosen. It also reports how far the hand-over sample is from the
 true parameters: the loop's best-error samples lie in a long low-error valley,
 not near the truth.
 
-Writes ``docs/handover.md`` and prints it.
+Writes ``docs/results/handover.md`` and prints it.
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     p.add_argument("--trainers", nargs="+", default=["gradient", "sao"])
     p.add_argument("--datasets", nargs="+", default=["benchmark", "far-noisy"], choices=["benchmark", "far-noisy"])
-    p.add_argument("--out", default=str(REPO / "docs" / "handover.md"))
+    p.add_argument("--out", default=str(REPO / "docs" / "results" / "handover.md"))
     args = p.parse_args(argv)
     runs_dir = REPO / "runs" / "handover"
     lines = ["| data set | trainer | seed | k | loop FE runs | best error at hand-over | its distance to the truth "

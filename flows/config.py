@@ -32,7 +32,7 @@ RESIDUALS = ("auto", "amplitude", "complex")  # tasks.update_data.RESIDUALS
 BEFORE_THEIR_KEY = {"emulate": "errors"}
 #: Keys of earlier versions that are gone, and why.
 REMOVED_KEYS = {"loop": "the trust-region variant of the paper loop, dominated by its modal emulation: "
-                        "docs/update-results.md"}
+                        "docs/update-results.md at 0cbca1f"}
 
 
 def stored_settings(config: dict) -> dict:
@@ -111,7 +111,7 @@ class UpdateConfig:
         FE runs reserved for the polish out of ``max_fe_evaluations``: the
         MRGP loop stops at ``max_fe_evaluations - polish_max_fe``. The
         default, 200 of 240, hands over after 2 iterations (40 FE runs):
-        ``python -m benchmarks.handover`` (docs/handover.md) polished from
+        ``python -m benchmarks.handover`` (measured at c12882f: git show 0cbca1f:docs/handover.md) polished from
         the loop's best sample after k = 1, 2, 3 iterations; k = 2 reached
         the noise floor in every seed with the fewest FE runs in total, k = 1
         missed it in some seeds (and in session 2's trials, k = 5 and k = 8

@@ -294,7 +294,7 @@ def add_closure_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--closure-name", metavar="NAME", help="sub-folder of the run for the closure (default closure)")
     p.add_argument("--closure-emulator", action="store_true",
                    help="where the baseline is far off, also search a point mass globally with the MRGP over "
-                        "(alpha, position, log size) and check its fit (docs/closure-emulator.md)")
+                        "(alpha, position, log size) and check its fit (docs/guide/closure-emulator.md)")
 
 
 def closure_options(args) -> dict:

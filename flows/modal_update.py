@@ -43,7 +43,7 @@ _FRF_ONLY = ("--trainer", "--lines", "--line-windows", "--residuals", "--emulate
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m flows.update (modal data)",
-                                description="Update the model's parameters on measured modes (docs/modal-data.md).")
+                                description="Update the model's parameters on measured modes (docs/guide/modal-data.md).")
     p.add_argument("--config", metavar="PATH")
     p.add_argument("--model", metavar="NAME|PATH")
     p.add_argument("--measured", metavar="PATH", required=True)
@@ -99,7 +99,7 @@ def main(argv: list[str]) -> int:
         if flag.startswith("-"):
             name = flag.split("=")[0]
             why = "applies to FRF data" if name in _FRF_ONLY else "is not an option of the modal update"
-            print(f"warning: {name} {why}, ignored for modal data (docs/modal-data.md)", file=sys.stderr)
+            print(f"warning: {name} {why}, ignored for modal data (docs/guide/modal-data.md)", file=sys.stderr)
     try:
         strategy = "adaptive" if args.strategy == "paper" else args.strategy
         config = load_config(args.config, measured=args.measured, model=args.model, run_id=args.run_id,

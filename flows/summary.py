@@ -155,7 +155,7 @@ def report_least_squares_optimum(summary: dict, sensors, truth=None) -> dict:
 
     On noisy data the optimum of the noise-weighted residual is the better estimate: nearer the truth in
     76-85 % of synthetic data sets, with a mean Mahalanobis distance 30-35 % smaller than the minimiser
-    of the Eq. (6b) error (``python -m benchmarks.estimators``, docs/estimators.md). Only when the
+    of the Eq. (6b) error (``python -m benchmarks.estimators``, measured at efdea20: git show 0cbca1f:docs/estimators.md). Only when the
     Gauss-Newton steps settled at the optimum (else the lowest-error run is kept and
     ``parameters_source`` says so). ``overall_error`` and ``per_sensor_error`` then belong to the
     reported parameters (from the optimum's residual, no FE run); ``converged`` and ``best_sample_id``

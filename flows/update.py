@@ -71,12 +71,12 @@ def _run_parser() -> argparse.ArgumentParser:
         epilog="Settings come from the defaults, then --config, then these flags. See data/update.example.toml. "
                "Measured modes (UFF dataset 55 or a modal CSV), or FRFs with --identify-modes LO-HI, take the modal "
                "update, with its own options --frequency-sigma, --shape-sigma, --no-shapes, --mac-threshold, "
-               "--identify-modes, --pol-order, --starts, --true-parameters (docs/modal-data.md).",
+               "--identify-modes, --pol-order, --starts, --true-parameters (docs/guide/modal-data.md).",
     )
     p.add_argument("--config", metavar="PATH", help="TOML file with any of the settings (data/update.example.toml)")
     p.add_argument("--model", metavar="NAME|PATH", help="FE model: three_plate (default, the benchmark) or a "
-                                                       "model file model.toml (docs/model-files.md)")
-    p.add_argument("--measured", metavar="PATH", help="measured FRFs: .csv, .parquet or .uff (docs/measured-formats.md) "
+                                                       "model file model.toml (docs/guide/model-files.md)")
+    p.add_argument("--measured", metavar="PATH", help="measured FRFs: .csv, .parquet or .uff (docs/guide/measured-formats.md) "
                                                       "(default data/benchmark/measured.csv)")
     p.add_argument("--run-id", metavar="ID", help="run folder name under runs; an existing id resumes that run")
     p.add_argument("--runs-dir", metavar="PATH", help="where run folders go (default runs)")

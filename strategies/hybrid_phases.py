@@ -34,7 +34,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class HybridOptions:
-    """Settings of :func:`hybrid` (defaults: the measured choices of docs/suite.md).
+    """Settings of :func:`hybrid` (defaults: the measured choices of docs/results/suite.md).
 
     target : overall error (Eq. 6b) at which a Gauss-Newton run stops (the floor of noise-free data);
     step_tol : ... once the last accepted step was also below this (max-norm), so that the parameters,
@@ -42,7 +42,7 @@ class HybridOptions:
     noise : relative amplitude noise (standard deviation) for the check; None = estimated;
     max_noise : an estimated noise level above this is not believed (the residual is called structure): second
         differences over lines spaced wider than a resonance's half-power band see a wrong basin's misfit as
-        "noise" of 25-90 % (measured on the cantilever example, docs/suite.md);
+        "noise" of 25-90 % (measured on the cantilever example, docs/results/suite.md);
     significance : chi-square level below which the residual is structure ...
     noise_ratio : ... unless its rms is within this factor of the noise: with thousands of values the test
         rejects a misfit far below the noise (hammer.uff: rms 1.34 % against an estimated 1.10 %, p = 1e-173);
@@ -50,7 +50,7 @@ class HybridOptions:
     cap : a budget that follows the evidence: a phase running when ``max_cost`` is reached goes on, up to
         ``cap`` FE-run equivalents, while its rounds still improve its best error by ``improve_rtol`` (relative)
         over ``improve_rounds`` rounds (:meth:`.ledger.Ledger.admit`); None: stop at ``max_cost``. The flow's
-        cap is ``CAP_FACTOR`` times its budget (``tasks.hybrid``; measured in docs/closure-far-off.md);
+        cap is ``CAP_FACTOR`` times its budget (``tasks.hybrid``; measured in docs/guide/closure-far-off.md);
     radius : first trust-region radius (max-norm); shrink, expand : its factors after a rejected and a good
         step (:class:`TrustRegionGN`); model : Gauss-Newton local model;
     stall_window, stall_rtol : a run has converged when its objective improved by less than
@@ -62,7 +62,7 @@ class HybridOptions:
         the emulator's inputs are ``sqrt(1 + x)`` (x a stiffness or mass factor ``1 + x``; a mode's frequency
         goes with its square root, so uniform-in-x points leave the soft end, where the frequencies move
         fastest, sparse); "none": uniform in x. Measured on the suite's 24 noise-free truths with five cycle
-        seeds each: 112/120 solved with "none", 119/120 with "sqrt" (docs/suite.md); every truth that failed had
+        seeds each: 112/120 solved with "none", 119/120 with "sqrt" (docs/results/suite.md); every truth that failed had
         a parameter at or below -0.86;
     halve_every : rounds between dropping the worse half of the runs;
     trainer, kernel : of the emulator (:func:`mrgp_core.fit`); seed : of the Sobol points and the trainer.

@@ -56,7 +56,7 @@ FE_LOG = "fe_evaluations.jsonl"
 RESULT_COLUMNS = ("sample_id", "sensor", "frequency_hz", "real", "imag", "status", "message", "seconds", "pid")
 #: Cost of an FE run with its exact Jacobian, in FE runs: the CPU time ratio of
 #: ``fe_core.solvers.sensitivity.frf_jacobian`` (Krylov) to ``model.frf`` on the benchmark, 2.3 measured (one
-#: thread, load 10), rounded up; ``python -m benchmarks.suite`` measures it again in every run (docs/suite.md).
+#: thread, load 10), rounded up; ``python -m benchmarks.suite`` measures it again in every run (docs/results/suite.md).
 #: Data with several references cost this once per reference.
 JACOBIAN_COST = 2.5
 #: Stored results are reused for requested points this close (max-norm, fraction of the box width): far below

@@ -42,7 +42,7 @@ RERUNNABLE = (LOCAL_STAGE, GLOBAL_STAGE, CHECK_STAGE)
 
 #: A budget that follows the evidence: a phase still running when ``max_fe_evaluations`` is spent goes on while its
 #: rounds improve its best error (:meth:`strategies.ledger.Ledger.admit`), up to this factor times the
-#: budget (600 FE-run equivalents for the plain command's 240; docs/closure-far-off.md).
+#: budget (600 FE-run equivalents for the plain command's 240; docs/guide/closure-far-off.md).
 CAP_FACTOR = 2.5
 
 

@@ -167,7 +167,7 @@ class UpdateData(FRFData):
         if twice:
             out.append(f"WARNING: {self.source}: the file's direction and the model file's test_direction are both "
                        f"negative for {', '.join(twice)}: the flips cancel (sign +1, data used as measured); an "
-                       "upside-down sensor is declared in one place only (see docs/measured-data.md)")
+                       "upside-down sensor is declared in one place only (see docs/guide/measured-data.md)")
         windows = ", ".join(f"{lo:.4g}-{hi:.4g} Hz" for lo, hi in s["windows"])
         empty = f" ({s['lines_dropped']} lines left empty)" if s["lines_dropped"] else ""
         out.append(f"lines: {s['mode']}{' (' + windows + ')' if windows else ''}: {s['lines_selected']} of "

@@ -24,7 +24,7 @@ estimated with :func:`estimate_noise` from second differences along
 frequency within evenly stepped bands, which remove a residual that is smooth
 in frequency, clipped at 3 standard deviations, which drops the few large
 differences a misfit leaves near resonances (an estimate that structure still
-inflates somewhat, so the test then errs towards "noise"; docs/noise-estimate.md).
+inflates somewhat, so the test then errs towards "noise"; docs/guide/noise-estimate.md).
 """
 
 from __future__ import annotations
@@ -137,7 +137,7 @@ def estimate_noise(residual: np.ndarray, freqs_hz) -> float:
     white noise (it drops 0.27 % of its differences; measured: mean of 3,000 estimates within 0.5 % of sigma on the
     own cases' lines, spread 8-10 % where the plain mean square's is 8-9 %). Differences of a structured residual
     that stand out are dropped: on issue 28's frame with a damaged patch, after the alpha-only fit (rms 3.8 %,
-    noise 0.5 %), 0.76 % where the plain mean square gives 3.1 % (docs/noise-estimate.md).
+    noise 0.5 %), 0.76 % where the plain mean square gives 3.1 % (docs/guide/noise-estimate.md).
 
     Uses every sensor and every band with at least three frequencies (:func:`frequency_bands`).
 
@@ -213,7 +213,7 @@ def estimated_noise_test(residual: np.ndarray, freqs_hz, n_fitted: int) -> tuple
     `partly explained`. ``p`` is the share of ``NULL_DRAWS`` = 4,000 white-noise residuals of the same layout
     (lines, bands, sensors; fixed seed; cached per layout), with the level estimated the same way, whose statistic
     is at least ``T`` (``n_fitted`` values' squares left out of each draw's sum, as a fit takes them): 1-2 % of
-    pure-noise residuals are then called structure at 1 % (docs/noise-estimate.md). The smallest p is 1 / 4001.
+    pure-noise residuals are then called structure at 1 % (docs/guide/noise-estimate.md). The smallest p is 1 / 4001.
     """
     r = np.asarray(residual, float)
     sigma = estimate_noise(r, freqs_hz)

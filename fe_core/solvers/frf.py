@@ -29,7 +29,7 @@ Two solvers with one signature:
     Cholesky when the bandwidth is small (the structured meshes here number
     nodes x-slowest, giving a band of about 100 for 3510 DOFs), else a
     fill-reducing sparse Cholesky by MKL PARDISO (unstructured tet meshes,
-    :func:`spd_solver`; chosen by the measurements in ``docs/solvers.md``). A
+    :func:`spd_solver`; chosen by the measurements in ``docs/results/solvers.md``). A
     K that is not positive-definite (no supports), or an explicit shift, gets a
     SuperLU factorisation of the indefinite ``K - sigma M`` at the centre of
     the band.
@@ -339,7 +339,7 @@ def spd_solver(A: sp.spmatrix):
     PARDISO orders with nested dissection (METIS) and factors supernodally: on the
     33,681-DOF tet10 bracket it factors K 2.3-5 times faster than SuperLU and 5-8
     times faster than a banded Cholesky after reverse Cuthill-McKee, holding a third
-    of SuperLU's memory (``docs/solvers.md``).
+    of SuperLU's memory (``docs/results/solvers.md``).
     The factor lives in MKL's memory and is released when the returned function is
     garbage-collected.
 

@@ -79,7 +79,7 @@ def _cholesky_inverse(K: sp.csc_matrix, sigma: float):
     The same rule as the FRF's solver (:func:`fe_core.solvers.frf._shifted_solver`): a banded K (the
     benchmark) keeps ARPACK's own SuperLU; a wide band (any gmsh mesh) is factored once by
     PARDISO, about twice as fast as SuperLU for the six modes of the 33,681-DOF bracket
-    (docs/mesh-pictures.md).
+    (measured at e570f0c: git show 0cbca1f:docs/mesh-pictures.md).
     """
     from .frf import MAX_BANDWIDTH, spd_solver
 

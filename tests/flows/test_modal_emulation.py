@@ -42,7 +42,7 @@ def test_fe_runs_carry_the_modes_and_predict_adds_gauss_newton_points(reduced_co
 def test_the_paper_loop_reaches_one_percent_on_the_benchmark(tmp_path, prefect_harness):
     """Issue 17: the paper's loop alone (Table 2: q = s = z = 20, w = 10,000, 12 iterations, 240 FE runs)
     below 1 % on the benchmark measurement (seed 0, gradient trainer; all seeds and trainers:
-    docs/update-results.md)."""
+    git show 0cbca1f:docs/update-results.md)."""
     config = update.UpdateConfig(run_id="paper", runs_dir=str(tmp_path / "runs"), strategy="adaptive", polish=False,
                                  intervals=False, trainer="gradient", seed=0, n_jobs=2)
     summary = update.update_flow(config)

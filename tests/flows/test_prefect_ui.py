@@ -3,7 +3,7 @@ against it, and the run's pages opened in headless Chromium.
 
 Needs Debian's ``chromium`` and ``chromium-driver`` (``.ci/run`` installs them);
 nothing is downloaded at run time. Screenshots go to the test's tmp folder, and
-also to ``$MRGP_UI_SCREENSHOT_DIR`` when set (that is how ``docs/prefect-ui-*.png``
+also to ``$MRGP_UI_SCREENSHOT_DIR`` when set (that is how ``docs/figures/prefect-ui-*.png``
 were made).
 """
 
