@@ -181,10 +181,25 @@ else:
 
 
 def _frequencies(measured: Path | None) -> list[float]:
+    """The measured file's lines, Hz (a table with a ``frequency_hz`` column; ``#`` lines are comments)."""
     if measured is None:
         return [300.0, 570.0, 1300.0, 2400.0, 3200.0]
-    rows = Path(measured).read_text().splitlines()[1:]
-    return sorted({float(r.split(",")[1]) for r in rows if r.strip()})
+    rows = [r for r in Path(measured).read_text().splitlines() if r.strip() and not r.startswith("#")]
+    column = rows[0].split(",").index("frequency_hz")
+    return sorted({float(r.split(",")[column]) for r in rows[1:]})
+
+
+def _alpha(model_file: Path) -> list[float]:
+    """The factors the stages run at: ``truth.json``'s beside the model file (the large example), else the
+    bracket's true factors."""
+    truth = Path(model_file).with_name("truth.json")
+    if truth.exists():
+        alpha = json.loads(truth.read_text()).get("alpha")
+        if isinstance(alpha, dict):
+            return [float(v) for v in alpha.values()]
+        if alpha is not None:
+            return [float(v) for v in alpha]
+    return list(ALPHA_TRUE)
 
 
 def stages(model_file: Path, measured: Path | None, code: Path, which: list[str], threads: int) -> list[dict]:
@@ -202,7 +217,7 @@ def stages(model_file: Path, measured: Path | None, code: Path, which: list[str]
             shutil.rmtree(cache_dir, ignore_errors=True)
         load0 = _load()
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-c", _STAGE_CODE % {"alpha": ALPHA_TRUE}, stage, str(model_file),
+        proc = subprocess.run([sys.executable, "-c", _STAGE_CODE % {"alpha": _alpha(model_file)}, stage, str(model_file),
                                json.dumps(freqs), str(cache_dir) if (use_cache or stage == "cache") else "-"],
                               cwd=code, env=env, capture_output=True, text=True)
         lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
