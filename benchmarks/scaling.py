@@ -5,7 +5,7 @@ command, the code's commit, the load average before and after) and is printed as
 
     python -m benchmarks.scaling make --size 0.003             # a refined bracket and its data (timing only)
     python -m benchmarks.scaling stages --model M.toml [--measured D.csv]
-    python -m benchmarks.scaling update --model M.toml --measured D.csv [--code DIR] [-- update flags]
+    python -m benchmarks.scaling update --model M.toml --measured D.csv [--code DIR] [--dask-workers N] [-- update flags]
 
 ``make`` meshes the L-bracket of ``data/examples/bracket`` at a finer element size (``make_mesh.py --size``)
 into ``runs/scaling/`` with its model file, and writes FRF amplitudes of that same mesh at the bracket's true
@@ -32,6 +32,7 @@ measure another checkout's code (``--code``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import resource
@@ -280,22 +281,43 @@ class TreeSampler:
         self.thread.join()
 
 
-def update(model_file: Path, measured: Path, code: Path, run_id: str, extra: list[str], every: float) -> dict:
-    """``python -m flows.update`` of ``code`` on the model and data, sampled; returns the record."""
+@contextlib.contextmanager
+def _dask_cluster(workers: int, code: Path):
+    """A Dask LocalCluster of ``workers`` processes (one thread each, one BLAS thread, ``code``'s checkout on
+    their path), its workers children of this process; yields its scheduler address (None: no cluster)."""
+    if not workers:
+        yield None
+        return
+    for key in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[key] = "1"
+    os.environ["PYTHONPATH"] = str(code)
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        yield cluster.scheduler_address
+
+
+def update(model_file: Path, measured: Path, code: Path, run_id: str, extra: list[str], every: float,
+           dask_workers: int = 0) -> dict:
+    """``python -m flows.update`` of ``code`` on the model and data, sampled; returns the record. With
+    ``dask_workers``, its FE runs go to a LocalCluster of that many workers started here, and the sampled tree
+    is this process's (the cluster's scheduler runs in it, its workers are its children, and so is the flow)."""
     runs = OUT / "runs"
     cmd = [sys.executable, "-m", "flows.update", "--model", str(model_file), "--measured", str(measured),
            "--run-id", run_id, "--runs-dir", str(runs), *extra]
     shutil.rmtree(runs / run_id, ignore_errors=True)
     load0 = _load()
-    t0 = time.perf_counter()
     log = OUT / f"{run_id}.log"
-    with open(log, "w") as fh:
+    with _dask_cluster(dask_workers, code) as address, open(log, "w") as fh:
+        if address is not None:
+            cmd += ["--fe-backend", "dask", "--dask-address", address]
+        t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, cwd=code, stdout=fh, stderr=subprocess.STDOUT)
-        sampler = TreeSampler(proc.pid, every)
+        sampler = TreeSampler(os.getpid() if address is not None else proc.pid, every)
         sampler.start()
         rc = proc.wait()
         sampler.stop()
-    wall = time.perf_counter() - t0
+        wall = time.perf_counter() - t0
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
     summary = {}
     path = runs / run_id / "summary.json"
@@ -307,7 +329,7 @@ def update(model_file: Path, measured: Path, code: Path, run_id: str, extra: lis
              "peak_tree_rss_gb": round(sampler.peak_rss, 2), "peak_tree_pss_gb": round(sampler.peak_pss, 2),
              "processes": sorted(({"pid": k, **{a: (round(b, 2) if isinstance(b, float) else b) for a, b in v.items()}}
                                   for k, v in sampler.per_process.items()), key=lambda r: -r["peak_rss_gb"])[:6],
-             "load_before": load0, "load_after": _load(), "log": str(log),
+             "load_before": load0, "load_after": _load(), "log": str(log), "dask_workers": dask_workers,
              "summary": {k: summary.get(k) for k in ("converged", "parameters", "fe_evaluations", "fe_runs",
                                                      "cost", "status") if k in summary}}
     _record(entry)
@@ -334,6 +356,8 @@ def main(argv=None) -> int:
     p.add_argument("--code", type=Path, default=REPO)
     p.add_argument("--run-id", default=None)
     p.add_argument("--every", type=float, default=1.0, help="sampling interval, s")
+    p.add_argument("--dask-workers", type=int, default=0,
+                   help="FE runs on a Dask LocalCluster of this many workers started here (one thread each)")
     p.add_argument("extra", nargs="*", help="further flows.update flags (after --)")
     args = parser.parse_args(argv)
     if args.command == "make":
@@ -342,7 +366,8 @@ def main(argv=None) -> int:
         stages(args.model.resolve(), args.measured, args.code.resolve(), args.stages, args.threads)
     else:
         run_id = args.run_id or f"{args.model.stem}-{_commit(args.code.resolve())}"
-        update(args.model.resolve(), args.measured.resolve(), args.code.resolve(), run_id, args.extra, args.every)
+        update(args.model.resolve(), args.measured.resolve(), args.code.resolve(), run_id, args.extra, args.every,
+               args.dask_workers)
     return 0
 
 
