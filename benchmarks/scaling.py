@@ -120,12 +120,18 @@ def done(**extra):
     out.update(stage=stage, seconds=round(time.perf_counter() - t0, 2), cpu=round(time.process_time() - c0, 2),
                peak_gb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, 3), **extra)
     print("RESULT " + json.dumps(out), flush=True)
+def checksum():
+    # the model file and its mesh: the large example's model.toml is the same text at every size
+    import hashlib
+    from fe_core.io import model_files
+    digest = hashlib.sha256()
+    for f in model_files(model_file):
+        digest.update(f.name.encode() + b"\0" + open(f, "rb").read())
+    return digest.hexdigest()
 def model():
     if cache_dir != "-":
         from fe_core.io import cache
-        import hashlib
-        key = hashlib.sha256(open(model_file, "rb").read()).hexdigest()
-        folder = cache.lookup(cache_dir, key)
+        folder = cache.lookup(cache_dir, checksum())
         if folder is not None:
             return cache.load(folder)
     from fe_core.io import read_model
@@ -138,9 +144,8 @@ if stage == "read":
          matrices_gb=round((getattr(seg, "nbytes", 0) + getattr(m.mass_segments, "nbytes", 0)) / 1e9, 3))
 elif stage == "cache":
     from fe_core.io import read_model, cache
-    import hashlib
     m = read_model(model_file)
-    key = hashlib.sha256(open(model_file, "rb").read()).hexdigest()
+    key = checksum()
     t0, c0 = time.perf_counter(), time.process_time()
     folder = cache.save(m, cache_dir, key)
     done(write=True, folder=str(folder))
