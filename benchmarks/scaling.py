@@ -113,7 +113,12 @@ _STAGE_CODE = r'''
 import json, os, resource, sys, time
 import numpy as np
 stage, model_file, freqs, cache_dir = sys.argv[1], sys.argv[2], json.loads(sys.argv[3]), sys.argv[4]
-alpha = np.array(%(alpha)r)
+alpha_given = np.array(%(alpha)r)
+def factors(n):
+    # the given factors, zero for segments beyond them (a model without its truth.json)
+    out = np.zeros(n)
+    out[:min(n, alpha_given.size)] = alpha_given[:n]
+    return out
 out = {}
 t0, c0 = time.perf_counter(), time.process_time()
 def done(**extra):
@@ -157,7 +162,7 @@ else:
     t0, c0 = time.perf_counter(), time.process_time()
     if stage == "factor":
         from fe_core.solvers.frf import spd_solver
-        K = m.stiffness(alpha[:m.n_segments])
+        K = m.stiffness(factors(m.n_segments))
         t0, c0 = time.perf_counter(), time.process_time()
         solve = spd_solver(K)
         factor_s = time.perf_counter() - t0
@@ -174,11 +179,11 @@ else:
         t = time.perf_counter(); solve(b); eight = time.perf_counter() - t
         done(factor_s=round(factor_s, 2), solve_1rhs_s=round(one, 3), solve_8rhs_s=round(eight, 3), **extra)
     elif stage == "frf":
-        m.parameter_frf(alpha[:m.n_parameters], freqs)
+        m.parameter_frf(factors(m.n_parameters), freqs)
         done()
     elif stage == "jacobian":
         from fe_core.solvers.sensitivity import frf_jacobian
-        Z, dZ, info = frf_jacobian(m, alpha[:m.n_parameters], freqs, return_info=True)
+        Z, dZ, info = frf_jacobian(m, factors(m.n_parameters), freqs, return_info=True)
         done(dimension=int(info.dimension), solves=int(info.solves))
     elif stage == "modes":
         f = m.natural_frequencies(np.zeros(m.n_segments), 6)
