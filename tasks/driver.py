@@ -68,9 +68,10 @@ class StoredMemo:
     ``rerun``: (iteration, stage, suffix) of a rerun (:func:`rerun`).
     """
 
-    def __init__(self, store: RunStore, wrap=None, rerun: tuple | None = None):
+    def __init__(self, store: RunStore, wrap=None, rerun: tuple | None = None, where=None):
         self.store, self.rerun, self.active = store, rerun, False
         self.wrap = wrap or (lambda iteration, name, fn: fn())
+        self.where = where or (lambda iteration, name: (iteration, name))
         self.digest = hashlib.sha256()
         self.steps: list[tuple[int, str]] = []
 
@@ -96,10 +97,10 @@ class StoredMemo:
 
     def step(self, iteration: int, name: str, compute) -> Step:
         log = logger()
-        key = (int(iteration), name)
-        self.steps.append(key)
+        self.steps.append((int(iteration), name))
         if self.rerun is not None:
             return self._rerun_step(iteration, name, compute)
+        iteration, name = self.where(int(iteration), name)
         inputs = self.digest.hexdigest()
         if self.store.is_finished(iteration, name):
             if self.store.stage_info(iteration, name).get("inputs") == inputs:
@@ -148,12 +149,21 @@ class Driver:
 
     ``spec``: its :class:`strategies.registry.StrategySpec`; ``config``: the run's settings (its options and the
     FE backend's); ``wrap``: how a step is run (:class:`StoredMemo`); ``rerun``: (iteration, stage, suffix).
+
+    Another kind of FE run than the FRF (the modal update's eigen-solves, :mod:`tasks.modal_stages`): ``make(memo)``
+    builds the strategy, ``stages(iteration, stage, logger, modes, replay_only)`` gives the object that runs and
+    stores a stage's evaluations (the interface of :class:`tasks.fe_runs.FEStage` the driver uses: ``run``,
+    ``outcomes``, ``write``, ``rows``, ``rounds``, ``ran``, ``replayed``, ``stored``, ``replay_only``,
+    ``logger``, ``stage``), ``where(iteration, stage)`` maps the strategy's stages to the run folder's.
     """
 
-    def __init__(self, store: RunStore, problem, config, spec, wrap=None, rerun: tuple | None = None):
+    def __init__(self, store: RunStore, problem, config, spec, wrap=None, rerun: tuple | None = None, make=None,
+                 stages=None, where=None):
         self.store, self.problem, self.config, self.spec, self.rerun = store, problem, config, spec, rerun
-        self.memo = StoredMemo(store, wrap, rerun)
-        self.strategy = spec.make(context(problem, self.memo), config)
+        self.where = where or (lambda iteration, stage: (iteration, stage))
+        self.memo = StoredMemo(store, wrap, rerun, self.where)
+        self.stages = stages
+        self.strategy = make(self.memo) if make is not None else spec.make(context(problem, self.memo), config)
         self.next_id = 0
         self.last_iteration = 0
         self.fe = None  # the open FE stage: (iteration, stage, FEStage, t0, stored record's evaluations or None)
@@ -208,10 +218,12 @@ class Driver:
         if where in self.closed:
             raise RuntimeError(f"{self.spec.name}: iteration {where[0]}, stage {where[1]} asked for again after it "
                                "was closed (a strategy's rounds of one stage must be consecutive)")
-        k, stage = where
+        k, stage = self.where(*where)
         modes = self.problem.modes if batch.modes else 0
         log = logger()
-        if self.rerun is not None and where == self.rerun[:2]:  # the rerun's own stage: beside the original
+        if self.stages is not None:
+            fe = self.stages(k, stage, log, modes, False)
+        elif self.rerun is not None and where == self.rerun[:2]:  # the rerun's own stage: beside the original
             fe = FEStage(self.store, self.problem, self.config, k, f"{stage}.{self.rerun[2]}", log, modes)
             fe.borrow(stage)
             self.memo.active = True
@@ -222,22 +234,22 @@ class Driver:
             fe = FEStage(self.store, self.problem, self.config, k, stage, log, modes)
         stored = (self.store.stage_info(k, stage).get("evaluations") if self.rerun is None
                   and self.store.is_finished(k, stage) else None)
-        self.fe = (k, stage, fe, time.perf_counter(), stored)
+        self.fe = (*where, fe, time.perf_counter(), stored)
         return fe
 
     def _close(self) -> None:
         k, stage, fe, t0, stored = self.fe
         self.fe = None
         self.closed.append((k, stage))
+        info = self.strategy.stage_info(k, stage) if hasattr(self.strategy, "stage_info") else {}
+        k, stage = self.where(k, stage)
         if fe.replayed:
             fe.logger.info("iteration %d, stage %s: %d FE runs read back from the run folder", k, fe.stage, fe.replayed)
         if fe.replay_only:
             return
         if stored == len(fe.rows) and fe.ran == 0 and not fe.stored:  # finished before and replayed as it was
             return
-        info = {**(self.strategy.stage_info(k, stage) if hasattr(self.strategy, "stage_info") else {}),
-                "seconds": time.perf_counter() - t0}
-        fe.write(info)
+        fe.write({**info, "seconds": time.perf_counter() - t0})
         if self.rerun is not None:
             raise RerunDone(self.store.stage_dir(k, fe.stage))
 
