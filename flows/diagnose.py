@@ -282,10 +282,13 @@ def print_closure_intervals(summary: dict, file=None) -> None:
               file=file)
 
 
-def add_closure_arguments(p: argparse.ArgumentParser) -> None:
-    """Options of the closure, shared with ``flows.update --close-loop``."""
-    p.add_argument("--noise", type=float, metavar="SIGMA",
-                   help="relative noise of the measured amplitudes, e.g. 0.005 (default: estimated from the residual)")
+def add_closure_arguments(p: argparse.ArgumentParser, noise: bool = True) -> None:
+    """Options of the closure, shared with ``flows.update --close-loop`` (whose ``--noise`` is the run's setting:
+    ``noise=False``)."""
+    if noise:
+        p.add_argument("--noise", type=float, metavar="SIGMA",
+                       help="relative noise of the measured amplitudes, e.g. 0.005 (default: estimated from the "
+                            "residual)")
     p.add_argument("--significance", type=float, help="chi-square level for 'structure' (default 0.01)")
     p.add_argument("--effects", metavar="A,B", help="effect types to consider (default all registered: "
                                                     + ", ".join(registered_effects()) + ")")

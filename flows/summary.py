@@ -16,7 +16,6 @@ import pandas as pd
 from tasks import record
 from tasks.intervals import cost_against_update, intervals_task
 from tasks.model_vtu import model_vtu_task
-from tasks.paper import uses_polish
 from tasks.fe_runs import JACOBIAN_COST
 from tasks.runstore import RunStore, atomic_write_json
 
@@ -63,10 +62,11 @@ def run_summary(problem, config, store: RunStore, iterations: int, outcome: dict
     return summary
 
 
-def finish_run(problem, config, store: RunStore, iteration: int, summary: dict) -> dict:
-    """Intervals (after a local least-squares stage), model.vtu, then summary.json."""
+def finish_run(problem, config, store: RunStore, iteration: int, summary: dict, intervals: bool = True) -> dict:
+    """Intervals (when the strategy ends with a local least-squares stage, ``intervals``), model.vtu, then
+    summary.json."""
     data = problem.data
-    if (uses_polish(config) or config.strategy == "hybrid") and config.intervals:
+    if intervals and config.intervals:
         summary.update(_interval_fields(problem, config, store, iteration, summary))
         if "intervals" in summary:
             summary.update(interval_status(summary))
@@ -229,7 +229,7 @@ def print_summary(summary: dict, file=None) -> None:
              f"{summary['rounds']} rounds)" if "jacobians" in summary else "")
     print(f"strategy {summary['strategy']}, trainer {summary['trainer']}: "
           f"{'converged' if summary['converged'] else 'NOT converged'} after {summary['iterations']} "
-          f"{'cycles' if summary['strategy'] == 'hybrid' else 'iterations'}, "
+          f"{_round_word(summary['strategy'])}s, "
           f"{summary['fe_evaluations']} FE runs{extra}, {summary['wall_seconds']:.1f} s", file=file)
     lowest = summary.get("lowest_error")
     if lowest:
@@ -256,6 +256,12 @@ def print_summary(summary: dict, file=None) -> None:
             print(line, file=file)
     print("per-sensor error: " + ", ".join(f"{k.split('_')[-1]}: {v:.3%}"
                                            for k, v in summary["per_sensor_error"].items()), file=file)
+
+
+def _round_word(strategy: str) -> str:
+    from strategies import registry
+
+    return registry.get(strategy).round_word if strategy in registry.names() else "iteration"
 
 
 def _half_label(summary: dict) -> str:

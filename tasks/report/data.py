@@ -38,7 +38,7 @@ __all__ = [
 STAGE_RECORD = "_stage.json"
 #: Stages this report draws (``polish``: its points, when the folder holds them).
 KNOWN_STAGES = ("samples", "fe", "errors", "distribution", "train", "predict", "select", "polish", "local", "global",
-                "check", "intervals")
+                "emulator", "check", "evidence", "weigh", "intervals")
 _ITER = re.compile(r"^iteration=(\d+)$")
 _STAGE = re.compile(r"^stage=(.+)$")
 _REPEAT = re.compile(r"^repeat=(\d+)$")
@@ -96,6 +96,7 @@ def stage_inventory(root: Path) -> pd.DataFrame:
         ``iteration, stage, finished, known, seconds, info`` (``info`` as JSON text).
     """
     rows = []
+    known = set(KNOWN_STAGES) | set((_read_json(root / "manifest.json") or {}).get("stages", []))  # the strategy's
     for k in _iterations(root):
         for p in sorted((root / f"iteration={k}").iterdir()):
             m = _STAGE.match(p.name)
@@ -108,7 +109,7 @@ def stage_inventory(root: Path) -> pd.DataFrame:
                 "iteration": k,
                 "stage": name,
                 "finished": record is not None,
-                "known": name in KNOWN_STAGES,
+                "known": name in known,
                 "seconds": float(info["seconds"]) if isinstance(info.get("seconds"), (int, float)) else np.nan,
                 "info": json.dumps(info, default=str),
             })

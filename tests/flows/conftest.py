@@ -72,7 +72,7 @@ def two_iterations(prefect_harness):
         summary = update.update_flow(config)
         store = RunStore(config.resolve(config.runs_dir) / config.run_id)
         assert summary["iterations"] == 2 and summary["fe_evaluations"] == 12
-        first = store.read_table(1, "samples")
+        first = store.read_table(1, "fe", "runs")
         cols = parameter_columns(first)
         assert np.allclose(first[cols].to_numpy()[0], 0.0)  # the nominal model is one of the first samples
         return store, cols

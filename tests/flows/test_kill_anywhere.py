@@ -34,18 +34,18 @@ from tasks.runstore import RunStore
 
 TIMING_KEYS = {"wall_seconds", "run_folder"}
 
-#: (point pattern for MRGP_KILL_AT, what it interrupts). The reduced run has 3 iterations:
-#: samples 0-7 in iteration 1, 8-11 in iteration 2, 12-15 in iteration 3 (which stops after 'errors'),
-#: then the polish (stage=polish of iteration 3) with FE runs 16-22, then the summary.
+#: (point pattern for MRGP_KILL_AT, what it interrupts), in the order the run passes them. The reduced run has 3
+#: iterations: samples 0-7 in iteration 1, 8-11 in iteration 2, 12-15 in iteration 3 (which stops after its FE
+#: runs), then the polish (stage=polish of iteration 3) with FE runs 16-22, then the summary. An iteration's FE
+#: stage is recorded when the strategy moves on: after the steps its results lead to (distribution .. select).
 KILL_POINTS = [
-    ("tables-written/iteration=1/stage=samples", "inside samples: table written, record not"),
     ("before-rename:*/iteration=1/stage=fe/sample=000003.parquet", "inside fe: FE result written, not renamed"),
     ("fe-result-written/iteration=1/sample=5", "inside fe: FE result on disk, log line not written"),
-    ("tables-written/iteration=1/stage=errors", "inside errors: tables written, record not"),
     ("before-rename:*/iteration=1/stage=distribution/_stage.json", "inside distribution: record half-written"),
     ("tables-written/iteration=1/stage=train", "inside train: hyper-parameters written, record not"),
     ("before-rename:*/iteration=1/stage=predict/candidates.parquet", "inside predict: during the Parquet write"),
-    ("stage-finished/iteration=1/stage=select", "between iterations 1 and 2"),
+    ("stage-finished/iteration=1/stage=select", "after select, before the FE stage's record"),
+    ("tables-written/iteration=1/stage=fe", "the FE stage's tables written, its record not"),
     ("before-rename:*/iteration=2/stage=select/select.parquet", "inside select: during the Parquet write"),
     ("before-rename:*/summary.json", "during the summary write, after the polish"),
 ]
@@ -131,7 +131,7 @@ def _assert_same_run(victim: Path, ref_root: Path, recovered: list[int]) -> None
     assert not [e for e in log if e["event"] == "discarded"]
     assert max(runs_per_sample.values()) == 1, "an FE sample was evaluated twice"
     store = RunStore(victim)
-    expected = {(k, int(sid)) for k in (1, 2, 3) for sid in store.read_table(k, "samples")["sample_id"]}
+    expected = {(k, int(sid)) for k in (1, 2, 3) for sid in store.read_table(k, "fe", "runs")["sample_id"]}
     expected |= {(3, int(sid)) for sid in store.read_table(3, "polish", "runs")["sample_id"]}
     assert set(runs_per_sample) == expected, "an FE sample was lost"
     assert len(expected) == got["fe_evaluations"] == 16 + got["polish"]["n"]

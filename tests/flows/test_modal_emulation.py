@@ -9,14 +9,14 @@ from mrgp_core.modal_outputs import BAND_FACTOR
 from flows.rerun import run_problem as resolve
 from strategies import modal_emulation
 from strategies.emulation import length_scales
-from tasks import paper
+from tasks.context import modal_training_set
 from tasks.runstore import RunStore
 
 
 def test_fe_runs_carry_the_modes_and_predict_adds_gauss_newton_points(reduced_config, two_iterations):
     config = reduced_config.replace(emulate="modes")
     store, cols = two_iterations(config)
-    first = store.read_table(1, "samples")
+    first = store.read_table(1, "fe", "runs")
     fe = store.read_table(1, "fe", "responses")
     model = resolve(config).model
     nominal = model.natural_frequencies(np.zeros(6), 6)
@@ -64,7 +64,7 @@ def test_with_reduced_outputs_the_modes_keep_an_mrgp_of_their_own(reduced_config
     info = store.stage_info(1, "train")
     assert info["modal"] == {"modes": 3, "outputs": 165, "modes_separate": True} and info["outputs"] == "full"
     problem = resolve(config)
-    X, Y, _, lay = paper.modal_training_set(store, problem, 1)
+    X, Y, _, lay = modal_training_set(store, problem, 1)
     hp = store.read_table(1, "train", "hyperparameters")
     hyper = dict(zip(hp["name"], hp["value"]))
     h = mrgp_core.Hyperparameters(length_scale=length_scales(hyper), nugget=float(hyper["nugget"]))

@@ -43,7 +43,7 @@ def test_a_matrices_model_runs_within_its_bounds_and_resumes(reduced_config, tmp
     assert list(first["parameters"]) == ["alpha_1", "alpha_2", "alpha_3", "alpha_4"]
     assert _strip(again) == _strip(first)
     store = RunStore(Path(config.runs_dir) / config.run_id)
-    X = np.vstack([store.read_table(k, "samples")[[f"alpha_{i}" for i in range(1, 5)]].to_numpy() for k in (1, 2)])
+    X = np.vstack([store.read_table(k, "fe", "runs")[[f"alpha_{i}" for i in range(1, 5)]].to_numpy() for k in (1, 2)])
     assert X.min() >= -0.5 and X.max() <= 0.5
     assert X.min() < -0.2 and X.max() > 0.2  # the box is the model's, not a sliver of it
     values = np.array(list(first["parameters"].values()))
@@ -80,7 +80,7 @@ def test_a_segment_mass_factor_is_updated_through_the_flow(reduced_config, tmp_p
     names = ["alpha_1", "alpha_2", "alpha_3", "alpha_4", "gamma_3"]
     assert list(summary["parameters"]) == names
     store = RunStore(Path(config.runs_dir) / config.run_id)
-    gamma = np.concatenate([store.read_table(k, "samples")["gamma_3"].to_numpy() for k in (1, 2)])
+    gamma = np.concatenate([store.read_table(k, "fe", "runs")["gamma_3"].to_numpy() for k in (1, 2)])
     assert gamma.min() >= -0.3 and gamma.max() <= 0.3 and np.ptp(gamma) > 0.2
     found = np.array(list(summary["parameters"].values()))
     assert np.max(np.abs(found - truth)) < 0.01, summary["parameters"]

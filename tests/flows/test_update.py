@@ -39,12 +39,12 @@ def test_whole_flow_under_the_test_harness(reduced_config, prefect_harness):
     assert summary["fe_evaluations"] == 16 + len(polish) == 16 + summary["polish"]["n"] <= 23
     assert summary["polish"]["error_after"] <= summary["polish"]["error_before"]
     for k in (1, 2):
-        for stage in ("samples", "fe", "errors", "distribution", "train", "predict", "select"):
+        for stage in ("fe", "distribution", "train", "predict", "select"):
             assert store.is_finished(k, stage), (k, stage)
     manifest = store.read_manifest()
     assert manifest["config"]["seed"] == reduced_config.seed and "numpy" in manifest["versions"]
     # The reported parameters are the best FE-evaluated sample.
-    best = min([store.read_table(k, "errors", "errors")["overall_error"].min() for k in (1, 2, 3)]
+    best = min([store.read_table(k, "fe", "runs")["overall_error"].min() for k in (1, 2, 3)]
                + [polish["overall_error"].min()])
     assert summary["overall_error"] == pytest.approx(best)
 
