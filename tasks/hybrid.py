@@ -175,6 +175,7 @@ def check_task(root: str, problem, config, iteration: int, output_stage: str = C
                     "reason": verdict.reason,
                     "rms": verdict.rms, "sigma": verdict.sigma if np.isfinite(verdict.sigma) else None,
                     "sigma_source": verdict.sigma_source, "p_chi2": verdict.p_chi2, "minimum": best,
+                    "noise_model": verdict.noise_model,
                     "noise_config": config.noise})
     table = pd.DataFrame({"at_floor": [out["at_floor"]], "reason": [out["reason"]]})
     store.write_table(iteration, output_stage, CHECK_STAGE, table)
