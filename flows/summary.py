@@ -117,7 +117,7 @@ def _interval_fields(problem, config, store: RunStore, iteration: int, summary: 
     if info.get("skipped"):
         return {"intervals_skipped": info["skipped"]}
     fields = {k: info[k] for k in ("intervals", "covariance", "interval_method", "noise_sigma", "interval_details",
-                                   "interval_cost", "estimate_errors", "residual_check") if k in info}
+                                   "interval_cost", "estimate_errors", "residual_check", "noise_model") if k in info}
     fields["interval_cost"] = {**info["interval_cost"], **_cost_against_update(store, iteration, summary,
                                                                                info["interval_cost"]["seconds"])}
     if config.true_parameters is not None:
@@ -285,8 +285,10 @@ def interval_sentences(summary: dict) -> list[str]:
            f"{summary['interval_method']} of the posterior on the FE model around the least-squares optimum")
     conditional = summary.get("interval_status") == INTERVALS_CONDITIONAL
     title = ("intervals CONDITIONAL (not 95 % intervals)" if conditional else "95 % intervals")
-    lines = [f"{title}: {how}, noise {100 * summary['noise_sigma']:.3g} % ({d['noise_source']}, "
-             f"{d['distribution']} quantile {d['quantile']:.3f}); cost {spent}"]
+    noise = (f"weighted by the noise per line and channel ({d['noise']})" if "noise" in d else
+             f"noise {100 * summary['noise_sigma']:.3g} % ({d['noise_source']}")
+    noise += ", " if "noise" not in d else " ("
+    lines = [f"{title}: {how}, {noise}{d['distribution']} quantile {d['quantile']:.3f}); cost {spent}"]
     if conditional:
         lines.append(f"warning: the intervals are {summary['conditional_on']}; they hold only if the model were "
                      "right and understate the uncertainty of the parameters")

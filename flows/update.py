@@ -51,7 +51,9 @@ from tasks.runlock import RunLock, RunLockedError  # noqa: E402
 __all__ = ["update_flow", "run_update", "main", "rerun_stage", "print_summary"]
 
 #: Measurements of the benchmark at the SPEC's actual alpha: their runs report parameter errors.
-BENCHMARK_MEASUREMENTS = ("data/benchmark/measured.csv", "data/benchmark/hammer.uff")
+BENCHMARK_MEASUREMENTS = ("data/benchmark/measured.csv", "data/benchmark/hammer.uff",
+                          "data/examples/hammer_records/hammer_records.uff", "data/examples/hammer_tests/roving.uff",
+                          "data/examples/hammer_tests/mobility.uff")
 
 
 @flow(name="mrgp-update", flow_run_name="update-{config.run_id}", log_prints=True)

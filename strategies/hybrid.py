@@ -156,7 +156,7 @@ class Hybrid:
         self.checks.append((found[0] if found else None,
                             Check(bool(verdict["at_floor"]), verdict["reason"], verdict.get("rms", float("nan")),
                                   _number(verdict.get("sigma")), verdict.get("sigma_source", "none"),
-                                  verdict.get("p_chi2", 0.0))))
+                                  verdict.get("p_chi2", 0.0), verdict.get("noise_model"))))
         if verdict["at_floor"] or not found:
             self.status = ("target" if found and found[0].status == "target" else
                            "floor" if verdict["at_floor"] else "budget")
@@ -200,6 +200,7 @@ class Hybrid:
                         "at_floor": bool(verdict.at_floor or best.status == "target"), "reason": verdict.reason,
                         "rms": verdict.rms, "sigma": verdict.sigma if np.isfinite(verdict.sigma) else None,
                         "sigma_source": verdict.sigma_source, "p_chi2": verdict.p_chi2,
+                        "noise_model": verdict.noise_model,
                         "minimum": _minimum_info(best), "noise_config": self.options.noise})
         words = "at the floor" if out["at_floor"] else "structure left: global search"
         return Step({CHECK_STAGE: {"at_floor": np.array([out["at_floor"]]), "reason": np.array([out["reason"]])}},
