@@ -119,7 +119,7 @@ def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(t
     X = rng.normal(size=(40, 3))
     X[:, 2] = 0.02 * X[:, 2]  # alpha_3 barely seen: a wide interval
     iv = laplace_intervals(0.01 * rng.normal(size=40), X, [0.1, 0.999, -0.2], noise=0.01, lower=-0.999, upper=1.0)
-    summary = {**iv.to_summary(), "interval_cost": {"fe_runs": 1, "jacobians": 1}}
+    summary = {**summary_interval_fields(iv.to_summary()), "interval_cost": {"fe_runs": 1, "jacobians": 1}}
     data = SimpleNamespace(summary=summary, true_parameters=np.array([0.1, 0.999, -0.2]), config={})
     section = intervals_section(data, tmp_path)
     assert (tmp_path / "intervals.png").stat().st_size > 10_000
@@ -142,7 +142,8 @@ def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(t
     check = LinearityCheck(names=names, checked=np.array([False, True, False]), ratio=np.full((3, 2), np.nan),
                            outside=np.array([[False, False], [False, True], [False, False]]), tolerance=0.25,
                            fe_runs=1)
-    sampled = {**sampled_summary(iv, check, post, 200), "interval_cost": {"fe_runs": 201, "jacobians": 1},
+    sampled = {**summary_interval_fields(sampled_summary(iv, check, post, 200)),
+               "interval_cost": {"fe_runs": 201, "jacobians": 1},
                "iterations": 2}
     folder = tmp_path / "run" / "iteration=2" / "stage=intervals"
     folder.mkdir(parents=True)
