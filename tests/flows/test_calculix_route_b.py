@@ -22,7 +22,7 @@ from flows.config import UpdateConfig
 
 pytestmark = pytest.mark.skipif(shutil.which("ccx") is None, reason="ccx not installed (apt-get install calculix-ccx)")
 TRUTH = np.array([0.06, -0.05])
-TIMING_KEYS = {"wall_seconds", "run_folder"}
+TIMING_KEYS = {"wall_seconds", "run_folder", "run_id"}  # the time and the name of the run
 
 TOML = """units = "SI"
 solver = "calculix"

@@ -20,7 +20,7 @@ EXAMPLE = REPO / "data" / "examples" / "cantilever_matrices"
 
 
 def _strip(summary: dict) -> dict:
-    return {k: v for k, v in summary.items() if k not in ("wall_seconds", "run_folder")}
+    return {k: v for k, v in summary.items() if k not in ("wall_seconds", "run_folder", "run_id")}
 
 
 @pytest.mark.slow

@@ -18,7 +18,7 @@ from tasks.runstore import RunStore
 
 SUMMARY_KEYS = {"parameters", "overall_error", "per_sensor_error", "fe_evaluations", "iterations", "converged",
                 "trainer", "wall_seconds"}
-TIMING_KEYS = {"wall_seconds", "run_folder"}
+TIMING_KEYS = {"wall_seconds", "run_folder", "run_id"}  # the time and the name of the run
 
 
 def write_reduced_config(path: Path, runs_dir: Path, settings: dict) -> Path:
