@@ -122,7 +122,7 @@ def summary_interval_fields(info: dict) -> dict:
     its ``[low, high]`` pairs become the summary's ``{"lower95", "upper95", "sd"}`` entries (``sd`` from
     ``interval_details["std"]``), the other fields are taken as they are."""
     fields = {k: info[k] for k in ("intervals", "covariance", "interval_method", "noise_sigma", "interval_details",
-                                   "interval_cost", "estimate_errors", "residual_check") if k in info}
+                                   "interval_cost", "estimate_errors", "residual_check", "noise_model") if k in info}
     names, std = list(info["intervals"]), info["interval_details"]["std"]
     fields["intervals"] = interval_entries(names, (info["intervals"][n][0] for n in names),
                                            (info["intervals"][n][1] for n in names), (std[n] for n in names))
