@@ -162,6 +162,8 @@ class _Config:
             check_model_path(self, bad)
         if not self.threshold > 0:
             raise bad("threshold", f"must be positive, got {self.threshold}")
+        if self.averages is not None and not (isinstance(self.averages, int) and self.averages >= 1):
+            raise bad("averages", f"must be a whole number of averages >= 1, got {self.averages!r}")
         if self.lower < -1.0:
             raise bad("lower", f"must be >= -1 (stiffness factors live in (-1, inf)), got {self.lower}")
         if not self.lower < self.upper:
