@@ -50,7 +50,7 @@ def run_update(config: UpdateConfig, problem=None) -> dict:
         for i in range(config.repeats):
             sub = config.replace(seed=config.seed + i, repeats=1)
             runs.append(single_run(problem, sub, RunStore(root / f"repeat={i}"), time.perf_counter()))
-        summary = repeat_summary(config, runs, time.perf_counter() - t0)
+        summary = repeat_summary(config, runs, time.perf_counter() - t0, root)
         atomic_write_json(root / "summary.json", summary)
         return summary
 

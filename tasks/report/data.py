@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from tasks import record
+from tasks.io.summary import upgrade
 from tasks.runstore import CorruptFileError, RunStore
 
 __all__ = [
@@ -52,6 +53,12 @@ def param_columns(df: pd.DataFrame) -> list[str]:
     """``alpha_1 .. alpha_m`` columns of a table, in numeric order, then ``gamma_j`` (updated mass factors)."""
     cols = [c for c in df.columns if re.fullmatch(r"(alpha|gamma)_\d+", str(c))]
     return sorted(cols, key=lambda c: (c.startswith("gamma"), int(c.split("_")[1])))
+
+
+def _read_summary(root: Path) -> dict | None:
+    """The run's ``summary.json`` in the current shape (an older record's upgraded), or None before it is written."""
+    summary = _read_json(root / "summary.json")
+    return None if summary is None else upgrade(summary)
 
 
 def _read_json(path: Path) -> dict | None:
@@ -221,7 +228,7 @@ def load_run(root: Path | str) -> RunData:
     manifest = _read_json(root / "manifest.json")
     if manifest is None:
         raise ReportError(f"{root}: no manifest.json; is this a run folder of flows.update?")
-    summary = _read_json(root / "summary.json")
+    summary = _read_summary(root)
     try:
         runs = record.fe_runs(RunStore(root))
     except CorruptFileError as exc:
@@ -385,4 +392,4 @@ def load_repeats(root: Path | str) -> RepeatsData:
             errors.append(str(exc))
     if not runs:
         raise ReportError(f"{root}: no readable repeat=<i> run folder" + (f" ({errors[0]})" if errors else ""))
-    return RepeatsData(root=root, summary=_read_json(root / "summary.json"), runs=runs, errors=errors)
+    return RepeatsData(root=root, summary=_read_summary(root), runs=runs, errors=errors)

@@ -28,7 +28,7 @@ from tasks.runstore import RunStore
 SETTINGS = dict(strategy="coordinate", model="data/examples/cantilever_matrices/model.toml",
                 measured="data/examples/cantilever_matrices/measured.csv", max_fe_evaluations=41, n_jobs=1,
                 intervals=False, coordinate_step=0.2)
-TIMING_KEYS = {"wall_seconds", "run_folder"}
+TIMING_KEYS = {"wall_seconds", "run_folder", "run_id"}  # the time and the name of the run
 
 
 def _run(args, env) -> subprocess.CompletedProcess:

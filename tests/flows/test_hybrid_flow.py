@@ -33,7 +33,7 @@ MODEL = "data/examples/cantilever_matrices/model.toml"
 TRUTH = [0.14, -0.06, 0.33, 0.12]  # inside the model file's box [-0.5, 0.5]; the nominal model is in a wrong basin
 SETTINGS = dict(strategy="hybrid", model=MODEL, s=6, w=300, starts=2, max_fe_evaluations=80, n_jobs=1, seed=0,
                 intervals=False, true_parameters=TRUTH)
-TIMING_KEYS = {"wall_seconds", "run_folder"}
+TIMING_KEYS = {"wall_seconds", "run_folder", "run_id"}  # the time and the name of the run
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ SIGKILL there) and then started again with the same ``--run-id``; after the
 last kill it runs to the end. One uninterrupted run (``reference``) of the
 same settings, shared by the tests of the module, is the yardstick. Then:
 
-* both ``summary.json`` are equal apart from timings and the folder;
+* both ``summary.json`` are equal apart from timings and the run's id and folder;
 * every Parquet table of every stage is equal (apart from FE timing columns);
 * ``fe_evaluations.jsonl`` holds exactly one FE run per sample, for every
   sample: none evaluated twice, none lost (an FE run whose result the kill
@@ -32,7 +32,7 @@ from flows.config import REPO
 from tasks.fe_runs import read_fe_log
 from tasks.runstore import RunStore
 
-TIMING_KEYS = {"wall_seconds", "run_folder"}
+TIMING_KEYS = {"wall_seconds", "run_folder", "run_id"}  # the time and the name of the run
 
 #: (point pattern for MRGP_KILL_AT, what it interrupts), in the order the run passes them. The reduced run has 3
 #: iterations: samples 0-7 in iteration 1, 8-11 in iteration 2, 12-15 in iteration 3 (which stops after its FE

@@ -18,7 +18,7 @@ from tasks.runstore import RunStore
 
 SUMMARY_KEYS = {"parameters", "overall_error", "per_sensor_error", "fe_evaluations", "iterations", "converged",
                 "trainer", "wall_seconds"}
-TIMING_KEYS = {"wall_seconds", "run_folder"}
+TIMING_KEYS = {"wall_seconds", "run_folder", "run_id"}  # the time and the name of the run
 
 
 def write_reduced_config(path: Path, runs_dir: Path, settings: dict) -> Path:
@@ -27,12 +27,14 @@ def write_reduced_config(path: Path, runs_dir: Path, settings: dict) -> Path:
     return path
 
 
-def test_whole_flow_under_the_test_harness(reduced_config, prefect_harness):
+def test_whole_flow_under_the_test_harness(reduced_config, prefect_harness, check_summary):
     summary = update.update_flow(reduced_config)
     assert SUMMARY_KEYS <= set(summary)
     store = RunStore(Path(reduced_config.runs_dir) / "reduced")
     on_disk = json.loads((store.root / "summary.json").read_text())
     assert on_disk == summary
+    check_summary(on_disk)  # the one shape (tasks/io/summary.schema.json)
+    assert on_disk["kind"] == "frf" and on_disk["run_id"] == "reduced" and "intervals" not in on_disk
     # q = 8, then s = 4 per iteration, 3 iterations: 16 FE runs for the loop, then at most 7 for the polish.
     polish = store.read_table(3, "polish", "runs")
     assert summary["iterations"] == 3
