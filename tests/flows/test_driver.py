@@ -1,19 +1,19 @@
 """The one driver (tasks/driver.py, flows/drive.py), shown on the registry's smallest strategy, the coordinate
-search of docs/architecture.md: its batches stored as the run record, a kill at a batch resumed with no FE run
-made twice, its stages rerun through the same driver.
+search of docs/architecture.md: its batches stored as the run record, its stages rerun through the same driver.
 
 The cantilever of data/examples/cantilever_matrices (702 DOFs, about 10 ms per FE run), its measured data; five
 rounds of the search (9 + 4 x 8 = 41 FE runs).
+
+A kill at a batch and its resume by replay go through the same driver for every strategy; they are shown where
+the replay differs: tests/flows/test_kill_anywhere.py (single-round FE stages and steps, as here: a kill between an
+FE result and its log line, at every record write, from outside; the polish's own replay) and
+tests/flows/test_hybrid_flow.py (FE stages of several rounds, with Jacobians). A kill of this strategy at its
+third batch repeated the first of these.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import signal
-import subprocess
-import sys
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -21,42 +21,22 @@ import pandas as pd
 import pytest
 
 from flows import update
-from flows.config import REPO, UpdateConfig
+from flows.config import UpdateConfig
 from tasks.fe_runs import read_fe_log
 from tasks.runstore import RunStore
 
 SETTINGS = dict(strategy="coordinate", model="data/examples/cantilever_matrices/model.toml",
                 measured="data/examples/cantilever_matrices/measured.csv", max_fe_evaluations=41, n_jobs=1,
                 intervals=False, coordinate_step=0.2)
-TIMING_KEYS = {"wall_seconds", "run_folder", "run_id"}  # the time and the name of the run
-
-
-def _run(args, env) -> subprocess.CompletedProcess:
-    proc = subprocess.Popen([sys.executable, "-m", "flows.update", *args], cwd=REPO, env={**os.environ, **env},
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    out, _ = proc.communicate(timeout=300)
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    return subprocess.CompletedProcess(args, proc.returncode, out)
-
-
-def _tables(root: Path) -> dict[str, pd.DataFrame]:
-    return {str(p.relative_to(root)): pd.read_parquet(p).drop(columns=["seconds", "pid"], errors="ignore")
-            for p in sorted(root.glob("iteration=*/stage=*/*.parquet")) if "sample=" not in p.name}
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory, prefect_server) -> tuple[Path, Path]:
-    """(config file, run folder) of one uninterrupted run of the coordinate search."""
-    tmp = tmp_path_factory.mktemp("driver")
-    cfg = tmp / "coordinate.toml"
-    cfg.write_text("\n".join([f'runs_dir = "{tmp / "runs"}"'] + [f"{k} = {json.dumps(v)}" for k, v in
-                                                                SETTINGS.items()]) + "\n")
-    proc = _run(["--config", str(cfg), "--run-id", "reference"], prefect_server)
-    assert proc.returncode == 0, proc.stdout[-3000:]
-    return cfg, tmp / "runs" / "reference"
+def reference(tmp_path_factory, prefect_harness) -> Path:
+    """The run folder of one run of the coordinate search, made in this process."""
+    runs = tmp_path_factory.mktemp("driver") / "runs"
+    summary = update.update_flow(UpdateConfig(run_id="reference", runs_dir=str(runs), **SETTINGS))
+    assert summary["fe_evaluations"] == 41
+    return runs / "reference"
 
 
 def test_the_strategys_batches_are_the_run_record(reference, in_memory_fe):
@@ -68,7 +48,7 @@ def test_the_strategys_batches_are_the_run_record(reference, in_memory_fe):
     from tasks import record
     from tasks.context import context
 
-    _, root = reference
+    root = reference
     summary = json.loads((root / "summary.json").read_text())
     store = RunStore(root)
     config = UpdateConfig(**{**SETTINGS, "run_id": "reference"})
@@ -92,32 +72,8 @@ def test_the_strategys_batches_are_the_run_record(reference, in_memory_fe):
     assert summary["overall_error"] < runs.loc[runs["sample_id"] == 0, "overall_error"].item()  # it moved
 
 
-@pytest.mark.slow
-def test_killed_at_a_batch_it_resumes_by_replay_with_no_fe_run_made_twice(reference, prefect_server):
-    cfg, ref = reference
-    victim = ref.parent / "victim"
-    killed = _run(["--config", str(cfg), "--run-id", "victim"],
-                  {**prefect_server, "MRGP_KILL_AT": "fe-result-written/iteration=3/sample=*@3"})
-    assert killed.returncode == -signal.SIGKILL, killed.stdout[-3000:]
-    assert not (victim / "summary.json").exists() and RunStore(victim).is_finished(2, "move")
-    resumed = _run(["--config", str(cfg), "--run-id", "victim"], prefect_server)
-    assert resumed.returncode == 0, resumed.stdout[-3000:]
-    assert "FE runs read back from the run folder" in resumed.stdout and "finished earlier, read back" in resumed.stdout
-    got, want = (json.loads((r / "summary.json").read_text()) for r in (victim, ref))
-    assert {k: v for k, v in got.items() if k not in TIMING_KEYS} == {
-        k: v for k, v in want.items() if k not in TIMING_KEYS}
-    got_tables, want_tables = _tables(victim), _tables(ref)
-    assert got_tables.keys() == want_tables.keys()
-    for name, df in want_tables.items():
-        pd.testing.assert_frame_equal(got_tables[name], df, obj=name)
-    log = read_fe_log(victim)
-    per_sample = Counter(e["sample_id"] for e in log if e["event"] in ("evaluated", "recovered"))
-    assert max(per_sample.values()) == 1 and len(per_sample) == got["fe_evaluations"]
-    assert [e["sample_id"] for e in log if e["event"] == "recovered"] == [19]  # 9 + 8 in rounds 1-2, the 3rd of 3
-
-
 def test_its_stages_rerun_through_the_driver_beside_the_originals(reference):
-    _, root = reference
+    root = reference
     store = RunStore(root)
     log = read_fe_log(root)
     out = update.rerun_stage(root, 2, "move")  # a step: replayed up to it, computed again
