@@ -19,7 +19,7 @@ a few per cent above the factor PARDISO then makes) and adds up what the run hol
 
 The peak is the larger of the two phases. The constants are calibrated on the bracket's tet10 meshes of
 118k-464k DOFs against the sampled peak of the whole process tree (``python -m benchmarks.scaling update``;
-estimate against measurement in docs/scaling.md).
+estimate against measurement in docs/results/scaling.md).
 """
 
 from __future__ import annotations

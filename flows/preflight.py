@@ -44,8 +44,9 @@ from tasks.io.measured import MeasuredDataError
 __all__ = ["max_frequency_hz", "check_inputs", "check_resume", "check_disk", "check_memory", "expected_output_mb",
            "ELEMENTS_PER_WAVELENGTH"]
 
-#: The run folder's layout this version writes and resumes (flows.run.RECORD_VERSION).
-RECORD_VERSION = 2
+#: The run folder's layout this version writes and resumes (flows.run.RECORD_VERSION). 3: every strategy under
+#: one driver (tasks/driver.py): the batches' FE stages, the steps' stages with their ``inputs`` digest.
+RECORD_VERSION = 3
 #: Linear elements per bending wavelength below which the mesh no longer resolves the response.
 ELEMENTS_PER_WAVELENGTH = 6
 
@@ -187,7 +188,7 @@ def check_memory(config: UpdateConfig, cache_root: Path | None = None):
                 "machine with more memory")
     raise ConfigError(f"{config.model}: the update would not fit in memory: {footprint.describe()}; this machine "
                       f"has {avail / GB:.1f} GB available; {hint} (estimate from the mesh before any assembly; "
-                      f"docs/scaling.md)")
+                      f"docs/results/scaling.md)")
 
 
 def check_resume(config: UpdateConfig, root: Path, resumable: set[str], inputs: dict | None = None) -> None:
@@ -248,8 +249,9 @@ def expected_output_mb(config: UpdateConfig, n_values: int, m: int) -> float:
     (about 100 bytes a value in all). Per iteration: ``w`` candidates of
     ``m + 2`` doubles, plus small tables. Repeats multiply.
     """
-    n_fe = config.conventional_samples + 1 if config.strategy == "conventional" else config.max_fe_evaluations
-    iterations = 2 if config.strategy == "conventional" else config.max_iterations
+    from strategies import registry
+
+    n_fe, iterations = registry.get(config.strategy).budget(config)
     per_run = n_fe * (n_values * 100 + 4096) + iterations * (config.w * (m + 2) * 8 + 64 * 1024)
     return config.repeats * per_run / 1e6
 

@@ -61,8 +61,12 @@ def prepare_data(config: UpdateConfig, measured, model) -> UpdateData:
 
 
 def emulates_modes(config: UpdateConfig) -> bool:
-    """The adaptive strategy's paper loop with ``emulate = "modes"`` (:mod:`strategies.modal_emulation`)."""
-    return config.strategy == "adaptive" and config.emulate == "modes"
+    """The strategy's FE runs give their lowest modes (the paper loop's ``emulate = "modes"``,
+    :mod:`strategies.modal_emulation`), by its entry in :mod:`strategies.registry`."""
+    from strategies import registry
+
+    spec = registry.get(config.strategy)
+    return bool(spec.modes(*spec.settings(config)))
 
 
 def n_modes(model, freqs_hz) -> int:

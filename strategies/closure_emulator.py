@@ -223,7 +223,8 @@ def emulated_search(model: ParametricModel, freqs_hz, amplitude, effect: Effect,
     if options.alpha_radius is not None:
         lo, hi = np.maximum(lo, a0 - options.alpha_radius), np.minimum(hi, a0 + options.alpha_radius)
     space = EffectSpace(model, effect, lo, hi)
-    threshold = 0.0 if noise is None else 1.5 * np.sqrt(2.0 / np.pi) * float(noise)
+    level = noise if isinstance(noise, (int, float)) else None  # a noise model (not one level): run to the budgets
+    threshold = 0.0 if level is None else 1.5 * np.sqrt(2.0 / np.pi) * float(level)
     zeros, ones = np.zeros(space.dim), np.ones(space.dim)
     loop = PaperLoop(options.paper(threshold), np.real, zeros, ones, (zeros, ones))
     history, fe_runs = [], 0
@@ -313,7 +314,7 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
     out: dict = {"searches": searches}
     if chosen is None:
         return out
-    sigma = before.sigma if before.sigma_source == "configured" else None
+    sigma = before.next_noise
     fit = chosen.fit
     analysis = analyse_residual(fit.residual, freqs, fit.n_parameters, sigma, significance, fit.relative(u))
     log.info("first round with the emulated search: added %s at %s = %s (start: %s)", chosen.effect, chosen.location,

@@ -1,7 +1,7 @@
 """FE runs of any stage: evaluated in parallel, stored one file each as they finish, replayed on resume.
 
-Every stage that runs the FE model (the paper loop's ``fe``, the polish, the hybrid's ``local`` and
-``global``) goes through :class:`FEStage`:
+Every stage that runs the FE model (the driver's FE stages, ``tasks/driver.py``: the paper loop's ``fe``, the
+polish, the hybrid's ``local`` and ``global``) goes through :class:`FEStage`:
 
 * each run is written as soon as it finishes to ``iteration=<k>/stage=<name>/sample=<id>.parquet`` (the
   complex receptance of the measured channels, frequency-major; with its derivative columns
@@ -272,7 +272,9 @@ class FEStage:
     gives (:func:`evaluate_sample`).
     """
 
-    def __init__(self, store: RunStore, problem, settings, iteration: int, stage: str, logger, modes: int = 0):
+    def __init__(self, store: RunStore, problem, settings, iteration: int, stage: str, logger, modes: int = 0,
+                 replay_only: bool = False):
+        self.replay_only = replay_only  # a rerun replaying the stages before its own: no FE run, nothing written
         self.store, self.problem, self.settings = store, problem, settings
         self.iteration, self.stage, self.logger, self.modes = iteration, stage, logger, modes
         self.p, self.n = problem.data.amplitude.shape
@@ -284,7 +286,7 @@ class FEStage:
         self.borrowed: dict[int, Path] = {}
         self.rows: list[dict] = []  # one per request: sample_id, round, jacobian, parameters
         self.results: dict[int, pd.DataFrame] = {}
-        self.rounds = self.ran = 0
+        self.rounds = self.ran = self.replayed = 0
 
     def _log(self, sid: int, event: str, **extra) -> None:
         append_log(self.store, {"iteration": self.iteration, "stage": self.stage, "sample_id": sid, "event": event,
@@ -352,9 +354,13 @@ class FEStage:
                 self.results[sid] = df
             else:
                 todo.append((sid, x, bool(jac)))
-        if len(todo) < len(ids):
+        self.replayed += len(ids) - len(todo)
+        if 0 < len(todo) < len(ids):
             self.logger.info("iteration %d, stage %s: %d of %d FE results found on disk", self.iteration,
                              self.stage, len(ids) - len(todo), len(ids))
+        if todo and self.replay_only:
+            raise RuntimeError(f"iteration {self.iteration}, stage {self.stage}: {len(todo)} of the {len(ids)} points "
+                               "asked for have no stored FE run (the settings changed what comes before the stage)")
         for sid, x, _ in todo:  # the model refuses these (recorded as failed); a strategy should never ask
             if np.any(~np.isfinite(x)) or np.any(x <= -1.0):
                 self.logger.warning("iteration %d: sample %d is outside the valid domain (factors > -1): %s",
@@ -428,13 +434,19 @@ class FEStage:
         return float(df["cost"].iloc[0]) if jac and "cost" in df.columns else (JACOBIAN_COST if jac else 1.0)
 
     def outcomes(self, frames: list[pd.DataFrame], jacobian) -> list[Outcome]:
-        """The results at the run's kept values (``data.cells``): Z (k,), dZ (k, m) or None, cost."""
+        """The results at the run's kept values (``data.cells``): Z (k,), dZ (k, m) or None, cost, and the modes
+        ``(omega2 (r,), participation (r, n))`` when the stage's runs give them."""
         line, channel = self.problem.data.cells
         out = []
         for df, jac in zip(frames, jacobian):
             Z, dZ = grid(df, self.p, self.n, self.problem.m)
+            modes = None
+            if self.modes:
+                part = df.sort_values(["frequency_hz", "sensor"], kind="stable")
+                modes = (np.array([part[f"omega2_{r + 1}"].iloc[0] for r in range(self.modes)]),
+                         np.array([part[f"participation_{r + 1}"].to_numpy()[:self.n] for r in range(self.modes)]))
             out.append(Outcome(Z[line, channel], dZ[line, channel] if jac and dZ is not None else None,
-                               self.cost(df, jac)))
+                               self.cost(df, jac), modes))
         return out
 
     def write(self, info: dict, order: tuple[str, ...] = ()) -> dict:

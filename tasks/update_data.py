@@ -152,7 +152,8 @@ class UpdateData(FRFData):
                 "complex": self.measured.complex_frf is not None,
                 "coherence": self.measured.coherence is not None, "notes": list(self.measured.notes),
                 "direction_warnings": [c["label"] for c in self.channel_info if c.get("double_flip")],
-                "channels": self.channel_info, "selection": sel}
+                "channels": self.channel_info, "selection": sel,
+                "noise": None if self.noise is None else self.noise.to_dict()}
 
     def describe(self) -> list[str]:
         """Log lines: conversions, channels, selection, residual."""
@@ -174,6 +175,12 @@ class UpdateData(FRFData):
                    f"{s['lines_in_file']} lines; coherence below {s['min_coherence']:g}: {s['coherence_dropped']} "
                    f"of {s['values_in_windows']} values dropped{empty}")
         out.append(f"residual: {self.residual}, k = {self.n_values} values")
+        if self.noise is not None:
+            avg = sorted({int(a) for a in np.atleast_1d(self.measured.averages)})
+            out.append(f"noise: {self.noise.describe()} ({', '.join(map(str, avg))} averages)")
+        else:
+            out.append("noise: no coherence with its number of averages: a relative term and a floor per channel "
+                       "estimated from the residual wherever it is tested (or --noise)")
         return out
 
 
@@ -316,7 +323,17 @@ def update_data(measured: MeasuredFRF, model, lines: str = "all", line_windows=N
         "line_mask": sel.lines.tolist(),
     }
     powers = np.array([NATIVE_POWER.get(c["kind"], 0) for c in info], dtype=int)
+    noise = None
+    if measured.coherence is not None and measured.averages is not None:  # the noise as the measurement states it
+        from fe_core.inference.noise import NoiseModel
+
+        records = any(note.startswith("raw records:") for note in measured.notes)
+        with np.errstate(invalid="ignore"):
+            w = 2.0 * np.pi * measured.frequencies_hz[sel.lines]
+            native = measured.amplitude[sel.lines] * w[:, None] ** powers[None, :].astype(float)
+            noise = NoiseModel.from_coherence(measured.coherence[sel.lines], measured.averages, native,
+                                              "records" if records else "coherence")
     return UpdateData(measured=measured, frequencies_hz=f, amplitude=measured.amplitude[sel.lines], complex_frf=cplx,
-                      native_power=powers,
+                      native_power=powers, noise=noise,
                       mask=sel.mask, responses=responses, references=references, residual=mode, selection=selection,
                       channel_info=info)

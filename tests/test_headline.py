@@ -36,11 +36,24 @@ def test_markdown_rows_keep_the_first_of_a_repeated_column():
         P.markdown_rows(text, "case")
 
 
-def test_json_tail_and_summary_shapes():
+def test_json_tail_and_summary_shapes(tmp_path):
+    """The current summary and both shapes from before its schema (FRF pairs, modal nested) read alike."""
+    import json
+
     assert P.json_tail('log line\n[\n {"a": 1}\n]\n') == [{"a": 1}]
+    current = {"schema_version": 1, "kind": "frf", "parameters": {"a": 0.1, "b": -0.2}, "fe_evaluations": 7,
+               "intervals": {"a": {"lower95": 0.0, "upper95": 0.2, "sd": 0.05},
+                             "b": {"lower95": -0.1, "upper95": 0.0, "sd": 0.03}}}
     plain = {"parameters": {"a": 0.1, "b": -0.2}, "intervals": {"a": [0.0, 0.2], "b": [-0.1, 0.0]}, "fe_evaluations": 7}
-    nested = {"parameters": {"a": {"value": 0.1, "lower95": 0.0, "upper95": 0.2},
-                             "b": {"value": -0.2, "lower95": -0.1, "upper95": 0.0}}, "fe_runs": 7}
-    for s in (plain, nested):
+    nested = {"kind": "modal update", "parameters": {"a": {"value": 0.1, "lower95": 0.0, "upper95": 0.2, "sd": 0.05},
+                                                     "b": {"value": -0.2, "lower95": -0.1, "upper95": 0.0, "sd": 0.03}},
+              "fe_runs": 7}
+    for k, record in enumerate((current, plain, nested)):
+        (tmp_path / str(k)).mkdir()
+        (tmp_path / str(k) / "summary.json").write_text(json.dumps(record))
+        s = P.summary(tmp_path / str(k))
         assert P.estimate(s).tolist() == [0.1, -0.2] and P.fe_runs(s) == 7
         assert P.covered(P.intervals(s), [0.1, -0.2]) == 1          # b's interval misses -0.2
+    assert s["kind"] == "modal" and s["intervals"]["b"]["sd"] == 0.03
+    assert P.intervals({"parameters": {"a": 0.0}, "intervals": {"a": {"lower95": None, "upper95": None, "sd": None}}
+                        }).tolist() == [[-math.inf, math.inf]]      # a parameter the data do not pin down

@@ -1,9 +1,10 @@
 """Reading what the headline rows' commands wrote: run summaries, markdown tables, JSON, and number formats.
 
 The commands are the project's own (``flows.update``, ``benchmarks.*``); their outputs are read here, not
-recomputed. A summary is read in either of its shapes (parameters as plain numbers with ``intervals`` beside
-them, or as ``{value, lower95, upper95, ...}``), so a change of the run record's schema does not silently
-drop a row: an unreadable output raises, and the row is marked failed on the page.
+recomputed. A summary is read in the one shape of every kind of run (:mod:`tasks.io.summary`: ``parameters``
+as plain numbers, ``intervals`` as ``{lower95, upper95, sd}``; an older record is upgraded on reading), so a
+change of the run record's schema does not silently drop a row: an unreadable output raises, and the row is
+marked failed on the page.
 """
 
 from __future__ import annotations
@@ -15,38 +16,31 @@ from pathlib import Path
 
 import numpy as np
 
+from tasks.io.summary import read_summary
+
 
 def summary(run_folder: Path) -> dict:
-    """The ``summary.json`` of a run folder."""
-    return json.loads((Path(run_folder) / "summary.json").read_text())
+    """The ``summary.json`` of a run folder, in the current shape."""
+    return read_summary(Path(run_folder) / "summary.json")
 
 
 def estimate(s: dict) -> np.ndarray:
     """The reported parameters, in the summary's order, shape (m,)."""
-    return np.array([float(v["value"] if isinstance(v, dict) else v) for v in s["parameters"].values()])
+    return np.array([float(v) for v in s["parameters"].values()])
 
 
 def intervals(s: dict) -> np.ndarray | None:
-    """The 95 % intervals, shape (m, 2), or None when the run reported none."""
-    names = list(s["parameters"])
-    if s.get("intervals"):
-        out = []
-        for n in names:
-            v = s["intervals"][n]
-            out.append((v["lower95"], v["upper95"]) if isinstance(v, dict) else tuple(v))
-        return np.array(out, float)
-    first = next(iter(s["parameters"].values()))
-    if isinstance(first, dict) and "lower95" in first:
-        return np.array([(v["lower95"], v["upper95"]) for v in s["parameters"].values()], float)
-    return None
+    """The 95 % intervals, shape (m, 2) (an unbounded side: -inf or inf), or None when the run reported none."""
+    if not s.get("intervals"):
+        return None
+    iv = s["intervals"]
+    return np.array([(-np.inf if iv[n]["lower95"] is None else iv[n]["lower95"],
+                      np.inf if iv[n]["upper95"] is None else iv[n]["upper95"]) for n in s["parameters"]], float)
 
 
 def fe_runs(s: dict) -> int:
     """FE runs of a run (FRF runs: FE evaluations; modal runs: eigen-solves)."""
-    for key in ("fe_evaluations", "fe_runs"):
-        if key in s:
-            return int(s[key])
-    raise KeyError("summary.json has neither fe_evaluations nor fe_runs")
+    return int(s["fe_evaluations"])
 
 
 def covered(bounds: np.ndarray | None, truth: np.ndarray) -> int | None:

@@ -7,7 +7,7 @@ smaller than K, gives the factor of K by the block rule: ``nnz(L_K) = 9 (nnz(L_n
 off-diagonal block has 9 entries, a diagonal block's lower triangle 6) and ``flop(K) = 27 flop(nodes)`` (every
 scalar operation of the node factor is a 3 x 3 block operation). METIS orders the node graph as it would K's
 blocks, so the estimate is close: on the bracket's tet10 meshes of 118k-464k DOFs within a few per cent of the
-fill PARDISO reports for K itself (``docs/scaling.md``). Nodes supported in every direction leave the graph as their
+fill PARDISO reports for K itself (``docs/results/scaling.md``). Nodes supported in every direction leave the graph as their
 rows leave K; other supports are kept (an upper bound).
 """
 

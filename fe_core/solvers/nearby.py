@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 #: Stop when every column's preconditioned residual is below this fraction of its solution (module docstring).
 PCG_RTOL = 1e-12
 #: Floating point operations a second of PARDISO's numerical factorisation and of its solve phase (per
-#: right-hand side, memory-bound) on the 2-core machine of docs/scaling.md (one thread, the 118k-464k-DOF
+#: right-hand side, memory-bound) on the 2-core machine of docs/results/scaling.md (one thread, the 118k-464k-DOF
 #: brackets); only their ratio enters the rule.
 FACTOR_RATE = 8e9
 SOLVE_RATE = 1e9

@@ -197,8 +197,8 @@ def intervals_section(data: RunData, out: Path) -> Section | None:
 
     est = arr(d["estimate"][n] for n in names)
     std = arr(d["std"][n] for n in names)
-    low = arr(s["intervals"][n][0] if s["intervals"][n][0] is not None else -np.inf for n in names)
-    high = arr(s["intervals"][n][1] if s["intervals"][n][1] is not None else np.inf for n in names)
+    low = arr(s["intervals"][n]["lower95"] if s["intervals"][n]["lower95"] is not None else -np.inf for n in names)
+    high = arr(s["intervals"][n]["upper95"] for n in names)
     corr = np.array([[np.nan if v is None else v for v in row] for row in d["correlation"]], float)
     truth = data.true_parameters
     samples = weights = laplace_std = None
