@@ -5,7 +5,7 @@ command, the code's commit, the load average before and after) and is printed as
 
     python -m benchmarks.scaling make --size 0.003             # a refined bracket and its data (timing only)
     python -m benchmarks.scaling stages --model M.toml [--measured D.csv]
-    python -m benchmarks.scaling update --model M.toml --measured D.csv [--code DIR] [-- update flags]
+    python -m benchmarks.scaling update --model M.toml --measured D.csv [--code DIR] [--dask-workers N] [-- update flags]
 
 ``make`` meshes the L-bracket of ``data/examples/bracket`` at a finer element size (``make_mesh.py --size``)
 into ``runs/scaling/`` with its model file, and writes FRF amplitudes of that same mesh at the bracket's true
@@ -32,6 +32,7 @@ measure another checkout's code (``--code``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import resource
@@ -112,19 +113,30 @@ _STAGE_CODE = r'''
 import json, os, resource, sys, time
 import numpy as np
 stage, model_file, freqs, cache_dir = sys.argv[1], sys.argv[2], json.loads(sys.argv[3]), sys.argv[4]
-alpha = np.array(%(alpha)r)
+alpha_given = np.array(%(alpha)r)
+def factors(n):
+    # the given factors, zero for segments beyond them (a model without its truth.json)
+    out = np.zeros(n)
+    out[:min(n, alpha_given.size)] = alpha_given[:n]
+    return out
 out = {}
 t0, c0 = time.perf_counter(), time.process_time()
 def done(**extra):
     out.update(stage=stage, seconds=round(time.perf_counter() - t0, 2), cpu=round(time.process_time() - c0, 2),
                peak_gb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, 3), **extra)
     print("RESULT " + json.dumps(out), flush=True)
+def checksum():
+    # the model file and its mesh: the large example's model.toml is the same text at every size
+    import hashlib
+    from fe_core.io import model_files
+    digest = hashlib.sha256()
+    for f in model_files(model_file):
+        digest.update(f.name.encode() + b"\0" + open(f, "rb").read())
+    return digest.hexdigest()
 def model():
     if cache_dir != "-":
         from fe_core.io import cache
-        import hashlib
-        key = hashlib.sha256(open(model_file, "rb").read()).hexdigest()
-        folder = cache.lookup(cache_dir, key)
+        folder = cache.lookup(cache_dir, checksum())
         if folder is not None:
             return cache.load(folder)
     from fe_core.io import read_model
@@ -137,9 +149,8 @@ if stage == "read":
          matrices_gb=round((getattr(seg, "nbytes", 0) + getattr(m.mass_segments, "nbytes", 0)) / 1e9, 3))
 elif stage == "cache":
     from fe_core.io import read_model, cache
-    import hashlib
     m = read_model(model_file)
-    key = hashlib.sha256(open(model_file, "rb").read()).hexdigest()
+    key = checksum()
     t0, c0 = time.perf_counter(), time.process_time()
     folder = cache.save(m, cache_dir, key)
     done(write=True, folder=str(folder))
@@ -151,7 +162,7 @@ else:
     t0, c0 = time.perf_counter(), time.process_time()
     if stage == "factor":
         from fe_core.solvers.frf import spd_solver
-        K = m.stiffness(alpha[:m.n_segments])
+        K = m.stiffness(factors(m.n_segments))
         t0, c0 = time.perf_counter(), time.process_time()
         solve = spd_solver(K)
         factor_s = time.perf_counter() - t0
@@ -168,11 +179,11 @@ else:
         t = time.perf_counter(); solve(b); eight = time.perf_counter() - t
         done(factor_s=round(factor_s, 2), solve_1rhs_s=round(one, 3), solve_8rhs_s=round(eight, 3), **extra)
     elif stage == "frf":
-        m.parameter_frf(alpha[:m.n_parameters], freqs)
+        m.parameter_frf(factors(m.n_parameters), freqs)
         done()
     elif stage == "jacobian":
         from fe_core.solvers.sensitivity import frf_jacobian
-        Z, dZ, info = frf_jacobian(m, alpha[:m.n_parameters], freqs, return_info=True)
+        Z, dZ, info = frf_jacobian(m, factors(m.n_parameters), freqs, return_info=True)
         done(dimension=int(info.dimension), solves=int(info.solves))
     elif stage == "modes":
         f = m.natural_frequencies(np.zeros(m.n_segments), 6)
@@ -181,10 +192,25 @@ else:
 
 
 def _frequencies(measured: Path | None) -> list[float]:
+    """The measured file's lines, Hz (a table with a ``frequency_hz`` column; ``#`` lines are comments)."""
     if measured is None:
         return [300.0, 570.0, 1300.0, 2400.0, 3200.0]
-    rows = Path(measured).read_text().splitlines()[1:]
-    return sorted({float(r.split(",")[1]) for r in rows if r.strip()})
+    rows = [r for r in Path(measured).read_text().splitlines() if r.strip() and not r.startswith("#")]
+    column = rows[0].split(",").index("frequency_hz")
+    return sorted({float(r.split(",")[column]) for r in rows[1:]})
+
+
+def _alpha(model_file: Path) -> list[float]:
+    """The factors the stages run at: ``truth.json``'s beside the model file (the large example), else the
+    bracket's true factors."""
+    truth = Path(model_file).with_name("truth.json")
+    if truth.exists():
+        alpha = json.loads(truth.read_text()).get("alpha")
+        if isinstance(alpha, dict):
+            return [float(v) for v in alpha.values()]
+        if alpha is not None:
+            return [float(v) for v in alpha]
+    return list(ALPHA_TRUE)
 
 
 def stages(model_file: Path, measured: Path | None, code: Path, which: list[str], threads: int) -> list[dict]:
@@ -202,7 +228,7 @@ def stages(model_file: Path, measured: Path | None, code: Path, which: list[str]
             shutil.rmtree(cache_dir, ignore_errors=True)
         load0 = _load()
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-c", _STAGE_CODE % {"alpha": ALPHA_TRUE}, stage, str(model_file),
+        proc = subprocess.run([sys.executable, "-c", _STAGE_CODE % {"alpha": _alpha(model_file)}, stage, str(model_file),
                                json.dumps(freqs), str(cache_dir) if (use_cache or stage == "cache") else "-"],
                               cwd=code, env=env, capture_output=True, text=True)
         lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
@@ -265,22 +291,43 @@ class TreeSampler:
         self.thread.join()
 
 
-def update(model_file: Path, measured: Path, code: Path, run_id: str, extra: list[str], every: float) -> dict:
-    """``python -m flows.update`` of ``code`` on the model and data, sampled; returns the record."""
+@contextlib.contextmanager
+def _dask_cluster(workers: int, code: Path):
+    """A Dask LocalCluster of ``workers`` processes (one thread each, one BLAS thread, ``code``'s checkout on
+    their path), its workers children of this process; yields its scheduler address (None: no cluster)."""
+    if not workers:
+        yield None
+        return
+    for key in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[key] = "1"
+    os.environ["PYTHONPATH"] = str(code)
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        yield cluster.scheduler_address
+
+
+def update(model_file: Path, measured: Path, code: Path, run_id: str, extra: list[str], every: float,
+           dask_workers: int = 0) -> dict:
+    """``python -m flows.update`` of ``code`` on the model and data, sampled; returns the record. With
+    ``dask_workers``, its FE runs go to a LocalCluster of that many workers started here, and the sampled tree
+    is this process's (the cluster's scheduler runs in it, its workers are its children, and so is the flow)."""
     runs = OUT / "runs"
     cmd = [sys.executable, "-m", "flows.update", "--model", str(model_file), "--measured", str(measured),
            "--run-id", run_id, "--runs-dir", str(runs), *extra]
     shutil.rmtree(runs / run_id, ignore_errors=True)
     load0 = _load()
-    t0 = time.perf_counter()
     log = OUT / f"{run_id}.log"
-    with open(log, "w") as fh:
+    with _dask_cluster(dask_workers, code) as address, open(log, "w") as fh:
+        if address is not None:
+            cmd += ["--fe-backend", "dask", "--dask-address", address]
+        t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, cwd=code, stdout=fh, stderr=subprocess.STDOUT)
-        sampler = TreeSampler(proc.pid, every)
+        sampler = TreeSampler(os.getpid() if address is not None else proc.pid, every)
         sampler.start()
         rc = proc.wait()
         sampler.stop()
-    wall = time.perf_counter() - t0
+        wall = time.perf_counter() - t0
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
     summary = {}
     path = runs / run_id / "summary.json"
@@ -292,7 +339,7 @@ def update(model_file: Path, measured: Path, code: Path, run_id: str, extra: lis
              "peak_tree_rss_gb": round(sampler.peak_rss, 2), "peak_tree_pss_gb": round(sampler.peak_pss, 2),
              "processes": sorted(({"pid": k, **{a: (round(b, 2) if isinstance(b, float) else b) for a, b in v.items()}}
                                   for k, v in sampler.per_process.items()), key=lambda r: -r["peak_rss_gb"])[:6],
-             "load_before": load0, "load_after": _load(), "log": str(log),
+             "load_before": load0, "load_after": _load(), "log": str(log), "dask_workers": dask_workers,
              "summary": {k: summary.get(k) for k in ("converged", "parameters", "fe_evaluations", "fe_runs",
                                                      "cost", "status") if k in summary}}
     _record(entry)
@@ -319,6 +366,8 @@ def main(argv=None) -> int:
     p.add_argument("--code", type=Path, default=REPO)
     p.add_argument("--run-id", default=None)
     p.add_argument("--every", type=float, default=1.0, help="sampling interval, s")
+    p.add_argument("--dask-workers", type=int, default=0,
+                   help="FE runs on a Dask LocalCluster of this many workers started here (one thread each)")
     p.add_argument("extra", nargs="*", help="further flows.update flags (after --)")
     args = parser.parse_args(argv)
     if args.command == "make":
@@ -327,7 +376,8 @@ def main(argv=None) -> int:
         stages(args.model.resolve(), args.measured, args.code.resolve(), args.stages, args.threads)
     else:
         run_id = args.run_id or f"{args.model.stem}-{_commit(args.code.resolve())}"
-        update(args.model.resolve(), args.measured.resolve(), args.code.resolve(), run_id, args.extra, args.every)
+        update(args.model.resolve(), args.measured.resolve(), args.code.resolve(), run_id, args.extra, args.every,
+               args.dask_workers)
     return 0
 
 

@@ -126,9 +126,10 @@ class ModelResponses:
             Z = direct_frf(K, M, a * M + b * K, F, omegas, self._out_rows)
         else:  # a large model's space starts from its last FE run's (fe_core.solvers.recycle)
             keep = {} if recycle.active(self) else None
-            Z = krylov_frf(K, M, a, b, F, omegas, self._out_rows, seed=recycle.take(self), keep=keep)
+            point = np.concatenate([np.ravel(alpha), np.ravel(gamma if gamma is not None else [])])
+            Z = krylov_frf(K, M, a, b, F, omegas, self._out_rows, seed=recycle.take(self, point), keep=keep)
             if keep is not None:
-                recycle.store(self, keep)
+                recycle.store(self, keep, point)
         # (p, k, n_loads) at the output DOFs -> (p, n_sensors, n_loads)
         return np.einsum("pkl,ks->psl", Z, self._out_weights)
 

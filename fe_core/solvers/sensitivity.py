@@ -183,9 +183,10 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
     info = None
     if method == "krylov":  # a large model's space starts from its last FE run's (fe_core.solvers.recycle)
         keep = {} if recycle.active(model) else None
-        Z, dZ, info = krylov_frf_derivatives(*args, return_info=True, seed=recycle.take(model), keep=keep)
+        point = np.concatenate([np.ravel(alpha), np.ravel(gamma if gamma is not None else [])])
+        Z, dZ, info = krylov_frf_derivatives(*args, return_info=True, seed=recycle.take(model, point), keep=keep)
         if keep is not None:
-            recycle.store(model, keep)
+            recycle.store(model, keep, point)
     else:
         Z, dZ = direct_frf_derivatives(*args)
     Z, dZ = Z[:, responses, column], dZ[:, responses, column, :]

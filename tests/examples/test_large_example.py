@@ -114,3 +114,25 @@ def test_modes_and_remainder_equal_a_direct_solve(generated):
                           panel.damping, max_terms=1)
     solve.free()
     assert np.abs(static / direct - 1).max() > 1e-5
+
+
+def test_an_undeclared_point_mass_is_added_at_the_nearest_node_only(generated):
+    """``--point-mass``: scikit-fem's M gains the share of the panel's mass on the three translations of the
+    node nearest MASS_AT (located here by fe_core's own reading of the mesh), and nothing else changes."""
+    from benchmarks.make.large import MASS_AT
+    from benchmarks.make.large.assembly import assemble_panel
+
+    out, _, panel, _, truth, _ = generated
+    spec = tomllib.loads(TEMPLATE.read_text())
+    alpha = np.array(list(truth["alpha"].values()))
+    heavy = assemble_panel(spec, out / "panel.msh", alpha, (MASS_AT, 0.03))
+    assert (heavy.K != panel.K).nnz == 0
+    added = (heavy.M - panel.M).tocoo()
+    added.eliminate_zeros()
+    assert added.nnz == 3 and np.all(added.row == added.col)
+    np.testing.assert_allclose(added.data, 0.03 * truth["mass_kg"], rtol=1e-7)  # truth.json rounds to 1e-6 kg
+    # The same node by fe_core: its free rows are the rows the mass went to (both number DOFs node-major).
+    model = read_model(out / "model.toml")
+    node = int(model.mesh.nearest_node(MASS_AT, atol=None))
+    np.testing.assert_allclose(model.node_position(node), heavy.mass_node["xyz_m"], atol=1e-12)
+    assert heavy.mass_node["mass_kg"] == pytest.approx(0.03 * truth["mass_kg"], rel=1e-7)

@@ -35,6 +35,7 @@ def fresh(model, theta):
 @pytest.mark.parametrize("step", [0.1, 1e-3])
 def test_seeded_space_gives_the_unseeded_results(model, monkeypatch, step):
     monkeypatch.setattr(recycle, "MIN_DOFS", 0)
+    monkeypatch.setattr(recycle, "MAX_STEP", 1.0)  # seeded at either step (the default seeds only small ones)
     recycle.forget(model)
     theta0 = np.array([-0.1, 0.15, 0.1, -0.15, 0.2, -0.1])
     frf_jacobian(model, theta0, FREQS)  # keeps its space
@@ -63,8 +64,52 @@ def test_same_point_again_needs_one_block(model, monkeypatch):
     assert np.max(np.abs(Z - Z0)) < 1e-8 * np.max(np.abs(Z0))
 
 
+def test_a_space_seeds_only_a_run_within_max_step_of_it(model, monkeypatch):
+    monkeypatch.setattr(recycle, "MIN_DOFS", 0)
+    theta = np.full(6, 0.05)
+    direction = np.array([1.0, -0.5, 0.3, 0.8, -1.0, 0.2])
+    solves = {}
+    for step in (0.0, 0.5 * recycle.MAX_STEP, 10 * recycle.MAX_STEP):
+        recycle.forget(model)
+        _, _, first = frf_jacobian(model, theta, FREQS, return_info=True)
+        _, _, second = frf_jacobian(model, theta + step * direction, FREQS, return_info=True)
+        solves[step] = (first.solves, second.solves)
+    fresh_solves = solves[0.0][0]
+    assert solves[0.0][1] < fresh_solves and solves[0.5 * recycle.MAX_STEP][1] < fresh_solves  # seeded
+    assert solves[10 * recycle.MAX_STEP][1] >= 0.8 * fresh_solves  # a fresh space of its own
+    assert "_krylov_point" in model.__dict__
+    recycle.forget(model)
+    assert "_krylov_point" not in model.__dict__ and "_krylov_seed" not in model.__dict__
+
+
 def test_small_models_do_not_recycle(model):
     recycle.forget(model)
     assert recycle.MIN_DOFS > model.n_dofs
     frf_jacobian(model, np.zeros(6), FREQS)
     assert "_krylov_seed" not in model.__dict__
+
+
+def test_a_column_major_space_gives_the_row_major_results(model, monkeypatch):
+    """A large model's space is column-major and extends its reduced matrices one matrix at a time
+    (BlockKrylov._extend_reduced); here forced on the coarse bracket, unseeded and then seeded, against the
+    row-major space's results (the arithmetic of small models)."""
+    from fe_core.solvers import block_krylov
+
+    theta0 = np.array([-0.1, 0.15, 0.1, -0.15, 0.2, -0.1])
+    theta1 = theta0 + 1e-3 * np.array([1.0, -0.5, 0.3, 0.8, -1.0, 0.2])
+    monkeypatch.setattr(recycle, "MIN_DOFS", 0)
+    results = {}
+    for rows in (10**9, 0):  # row-major, then column-major
+        monkeypatch.setattr(block_krylov, "COLUMN_MAJOR_ROWS", rows)
+        recycle.forget(model)
+        first = frf_jacobian(model, theta0, FREQS, return_info=True)
+        second = frf_jacobian(model, theta1, FREQS, return_info=True)  # seeded by the first's space
+        results[rows] = (first, second)
+    for (Z, dZ, info), (Z0, dZ0, info0) in zip(results[0], results[10**9]):
+        size = np.abs(Z0).reshape(len(FREQS), -1).max(axis=1)
+        assert np.max(np.abs(Z - Z0).reshape(len(FREQS), -1).max(axis=1) / size) < 1e-8
+        top = (np.abs(dZ0).reshape(len(FREQS), -1, dZ.shape[-1]).max(axis=1) / size[:, None]).max(axis=0)
+        scaled = np.abs(dZ - dZ0).reshape(len(FREQS), -1, dZ.shape[-1]).max(axis=1) / size[:, None]
+        assert np.max(scaled.max(axis=0) / top) < 1e-7
+        assert info.converged and info0.converged  # (the dimensions may differ: both stop at the round-off floor)
+    recycle.forget(model)

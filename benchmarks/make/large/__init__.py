@@ -1,6 +1,7 @@
 """The large example (issue 41): a ribbed steel panel at any size, its measurement from an independent assembly.
 
     python -m benchmarks.make.large --dofs 150000     # data/examples/large/150k/ (also 500000, 1000000)
+    python -m benchmarks.make.large --dofs 500000 --point-mass 0.03 --out runs/large/500k-mass   # the closure's case
 
 writes, into a folder that git ignores (meshes of 10-50 MB are not committed):
 
@@ -36,3 +37,6 @@ NOISE_SEED = 41
 #: The true factors: uniform in ``ALPHA_RANGE`` (seed ``TRUTH_SEED``), rounded to 0.001; the same at every size.
 ALPHA_RANGE = (-0.25, 0.10)
 TRUTH_SEED = 4141
+#: Where ``--point-mass`` puts the undeclared mass, m: on the plate's top face between the ribs' back half and
+#: the sensors plate_4z and plate_5z (the nearest node of the mesh).
+MASS_AT = (0.25, 0.31, 0.012)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import (ALPHA_RANGE, CUTOFF_FACTOR, F_START, F_STEP, N_LINES, NOISE, NOISE_SEED, OUT, TEMPLATE,
+from . import (ALPHA_RANGE, CUTOFF_FACTOR, F_START, F_STEP, MASS_AT, N_LINES, NOISE, NOISE_SEED, OUT, TEMPLATE,
                TRUTH_SEED)
 
 log = logging.getLogger("benchmarks.make.large")
@@ -62,7 +62,8 @@ def peak_gb() -> float:
 
 
 def generate(dofs: float, out: Path, size: float | None = None, per_circle: int | None = None,
-             cutoff_factor: float = CUTOFF_FACTOR):
+             cutoff_factor: float = CUTOFF_FACTOR, point_mass: float | None = None,
+             mass_at=MASS_AT):
     """Mesh the panel, assemble it with scikit-fem at the truth, synthesise and write its measurement.
 
     Parameters
@@ -77,6 +78,9 @@ def generate(dofs: float, out: Path, size: float | None = None, per_circle: int 
         Elements per circle on the holes (default :data:`.geometry.PER_CIRCLE`).
     cutoff_factor : float
         Modes are kept up to this many times the band's top.
+    point_mass : float, optional
+        Add to the measured structure a point mass of this share of the panel's mass, which the model file
+        does not declare (the closure's case), at the node nearest ``mass_at`` (m).
 
     Returns
     -------
@@ -112,7 +116,7 @@ def generate(dofs: float, out: Path, size: float | None = None, per_circle: int 
     t = stage("mesh", t0)
 
     alpha = true_factors(len(names))
-    panel = assemble_panel(spec, mesh, alpha)
+    panel = assemble_panel(spec, mesh, alpha, None if point_mass is None else (mass_at, point_mass))
     log.info("scikit-fem: %d cells, %d free DOFs, K %d nonzeros", panel.n_cells, panel.n_dofs, panel.K.nnz)
     t = stage("assembly", t)
 
@@ -131,7 +135,9 @@ def generate(dofs: float, out: Path, size: float | None = None, per_circle: int 
     t = stage("frf", t)
 
     Z = add_noise(H)
-    note = (f"scikit-fem (ElementTetP2) assembly of {spec['mesh']} at the truth (truth.json), modes below "
+    extra = "" if panel.mass_node is None else (f" + an undeclared point mass of {panel.mass_node['mass_kg']:.4g} kg "
+                                                 f"at {panel.mass_node['xyz_m']}")
+    note = (f"scikit-fem (ElementTetP2) assembly of {spec['mesh']} at the truth (truth.json){extra}, modes below "
             f"{cutoff:.0f} Hz + deflated remainder, {NOISE:.0%} complex noise (seed {NOISE_SEED}); "
             "python -m benchmarks.make.large")
     write_measured(out / "measured.csv", freqs, Z, panel.sensor_names, panel.excitation_name, note)
@@ -144,6 +150,7 @@ def generate(dofs: float, out: Path, size: float | None = None, per_circle: int 
         "damping": {"a": panel.damping[0], "b": panel.damping[1], "model": "Rayleigh C = a M + b K(alpha)"},
         "free_dofs": panel.n_dofs, "tet10_cells": panel.n_cells, "mesh_size_m": size,
         "mass_kg": round(sum(panel.segment_masses), 6),
+        **({"point_mass": panel.mass_node} if panel.mass_node else {}),
         "modes": {"cutoff_hz": cutoff, "kept": int(omega2.size), "natural_hz": np.round(modes_hz, 3).tolist(),
                   "next_hz": round(float(np.sqrt(omega2_next) / (2 * np.pi)), 3)},
         "remainder": {k: (round(v, 8) if isinstance(v, float) else v) for k, v in series.items()},
@@ -171,13 +178,19 @@ def main(argv=None) -> int:
     parser.add_argument("--per-circle", type=int, help="elements per circle on the holes")
     parser.add_argument("--cutoff-factor", type=float, default=CUTOFF_FACTOR,
                         help=f"keep modes up to this times the band's top (default {CUTOFF_FACTOR})")
+    parser.add_argument("--point-mass", type=float, metavar="SHARE",
+                        help="the measured panel carries an undeclared point mass of SHARE times its mass "
+                             "(e.g. 0.03; the closure's case)")
+    parser.add_argument("--mass-at", type=float, nargs=3, default=MASS_AT, metavar=("X", "Y", "Z"),
+                        help=f"where, m (the nearest node; default {MASS_AT})")
     args = parser.parse_args(argv)
     if args.dofs < 1000:
         parser.error("--dofs must be at least 1000")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
     logging.getLogger("skfem").setLevel(logging.WARNING)
     out = args.out or OUT / f"{round(args.dofs / 1000)}k"
-    generation = generate(args.dofs, out, args.size, args.per_circle, args.cutoff_factor)["generation"]
+    generation = generate(args.dofs, out, args.size, args.per_circle, args.cutoff_factor, args.point_mass,
+                          args.mass_at)["generation"]
     print(json.dumps(generation, indent=1))
     return 0
 

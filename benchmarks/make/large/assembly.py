@@ -48,6 +48,10 @@ class Panel:
         DOFs before the supports (3 per node).
     damping : (float, float)
         Rayleigh ``(a [1/s], b [s])`` of the model file.
+    segment_masses : list of float
+        Each segment's mass, kg (without an added point mass).
+    mass_node : dict or None
+        The undeclared point mass, if any: ``node`` (the file's node index), ``xyz_m``, ``mass_kg``.
     """
 
     K: sp.csr_matrix
@@ -60,6 +64,7 @@ class Panel:
     n_total: int
     damping: tuple[float, float]
     segment_masses: list[float] = field(default_factory=list)
+    mass_node: dict | None = None
 
     @property
     def n_dofs(self) -> int:
@@ -73,7 +78,7 @@ def _direction(value) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def assemble_panel(spec: dict, mesh_path: Path, alpha: np.ndarray) -> Panel:
+def assemble_panel(spec: dict, mesh_path: Path, alpha: np.ndarray, point_mass=None) -> Panel:
     """Assemble the model file ``spec`` (parsed TOML, SI units, one material) on ``mesh_path``.
 
     Parameters
@@ -85,6 +90,15 @@ def assemble_panel(spec: dict, mesh_path: Path, alpha: np.ndarray) -> Panel:
         The gmsh file (tet10 volume groups, triangle6 surface groups).
     alpha : ndarray, shape (n_segments,)
         Stiffness factors: segment i's stiffness times ``1 + alpha_i``.
+    point_mass : (array_like of shape (3,), float), optional
+        ``(point [m], share)``: a point mass of ``share`` times the panel's mass that the model file does not
+        declare, added to scikit-fem's mass matrix on u_x, u_y and u_z of the file's node nearest the point
+        (an effect for the closure to find).
+
+    Returns
+    -------
+    Panel
+        With ``mass_node`` (the file's node index, 0-based, and its coordinates) when ``point_mass`` is given.
     """
     import meshio
     import skfem
@@ -187,9 +201,22 @@ def assemble_panel(spec: dict, mesh_path: Path, alpha: np.ndarray) -> Panel:
         del mb
         log.info("scikit-fem: %d of %d cells assembled", chunk[-1] + 1, len(cells10))
     masses = [float(rho * volume[segment == i].sum()) for i in range(len(names))]
+    mass_node = None
+    if point_mass is not None:
+        point, share = point_mass
+        kg = float(share) * sum(masses)
+        _, i = node_tree.query(np.asarray(point, float))
+        node = int(file_nodes[i])
+        rows = np.array([dof_at[(node, c)] for c in range(3)])
+        if np.any(position[rows] < 0):
+            raise ValueError(f"point mass at {list(point)}: node {node} is held by a support")
+        M = M + sp.csr_matrix((np.full(3, float(kg)), (rows, rows)), shape=(N, N))
+        mass_node = {"node": node, "xyz_m": [float(c) for c in raw.points[node]], "mass_kg": kg,
+                     "share_of_mass": float(share)}
     K = K.tocsr()[free][:, free]
     M = M.tocsr()[free][:, free]
     damping = spec.get("damping", {})
     return Panel(K=K, M=M, outputs=outputs, load=load, sensor_names=[s["name"] for s in spec["sensors"]],
                  excitation_name=excitation["name"], n_cells=len(cells10), n_total=N,
-                 damping=(float(damping.get("a", 0.0)), float(damping.get("b", 0.0))), segment_masses=masses)
+                 damping=(float(damping.get("a", 0.0)), float(damping.get("b", 0.0))), segment_masses=masses,
+                 mass_node=mass_node)
