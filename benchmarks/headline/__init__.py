@@ -100,7 +100,8 @@ def run_row(row, lock: Path | None) -> dict:
         shutil.rmtree(out)      # a run folder left there would be resumed by flows.update, not rerun
     out.mkdir(parents=True)
     with locked(lock) as waited, open(out / "log.txt", "w") as log:
-        record = {"key": row.key, **provenance(), "lock_wait_s": round(waited, 1)}   # the tree as the row starts
+        record = {"key": row.key, **provenance(), "lock_wait_s": round(waited, 1),   # the tree as the row starts
+                  "locked": lock is not None}
         t0 = time.perf_counter()
         record["commands"] = []
         for argv, env in row.commands:
@@ -146,7 +147,11 @@ def write_page(rows, records: dict, total: dict) -> str:
         f"Written by `python -m benchmarks.headline`. Ran on commit {', '.join(f'`{c}`' for c in commits) or '-'} "
         f"(tree {'clean' if not dirty else 'with uncommitted changes in rows ' + ', '.join(dirty)}), "
         f"{dates[0] if dates else '-'} to {dates[-1] if dates else '-'}, {done[0]['machine'] if done else '-'}; "
-        "each row alone under the machine's heavy-job lock (waiting not counted). Total wall time of the rows: "
+        + ("each row alone under the machine's heavy-job lock (waiting not counted). "
+           if all(r.get("locked", True) for r in done) else
+           "without the heavy-job lock: rows side by side with each other and with other sessions' jobs (the load "
+           "is in the table), so wall times are several times an idle machine's. ")
+        + "Total wall time of the rows: "
         f"**{wall / 60:.1f} min** ({wall:.0f} s){total.get('text', '')}.",
         "",
         "Every figure of the README's `## Headline results` table is one of this page's (the README's table is "
@@ -206,7 +211,9 @@ def readme_intro(rows, records: dict) -> list[str]:
     done = [records[r.key] for r in rows if records.get(r.key)]
     commits = ", ".join(f"`{c}`" for c in sorted({r["commit"] for r in done}))
     wall = sum(r["wall_s"] for r in done)
-    return [f"Rerun together by `python -m benchmarks.headline`: {len(done)} rows, one at a time, {wall / 60:.0f} min of "
+    return [f"Rerun together by `python -m benchmarks.headline`: {len(done)} rows, "
+            f"{'one at a time' if all(r.get('locked', True) for r in done) else 'some side by side, unlocked'}, "
+            f"{wall / 60:.0f} min of "
             f"wall time on 2 shared cores, last on commit {commits}. [headline.md](docs/results/headline.md) names "
             "the date, the load, each row's command, its figures and wall time; this table is written from it."]
 
