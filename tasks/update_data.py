@@ -45,6 +45,7 @@ import numpy as np
 
 from fe_core.inference.frf_data import FRFData
 from tasks.io.measured import MeasuredDataError, MeasuredFRF, dof_label, parse_dof
+from tasks.io.measured.frf import POWER
 from tasks.io.measured.problems import Problems
 from tasks.lines import select_lines
 
@@ -53,8 +54,6 @@ __all__ = ["UpdateData", "update_data", "RESIDUALS", "resolve_channels"]
 log = logging.getLogger(__name__)
 
 RESIDUALS = ("auto", "amplitude", "complex")
-#: The power of ``j w`` from a receptance to each FRF kind as measured (the noise floor is in those units).
-NATIVE_POWER = {"receptance": 0, "mobility": 1, "accelerance": 2}
 _AXES = "xyz"
 
 
@@ -322,18 +321,17 @@ def update_data(measured: MeasuredFRF, model, lines: str = "all", line_windows=N
         "values_kept": int(sel.mask.sum()), "band_hz": [float(f[0]), float(f[-1])],
         "line_mask": sel.lines.tolist(),
     }
-    powers = np.array([NATIVE_POWER.get(c["kind"], 0) for c in info], dtype=int)
-    noise = None
-    if measured.coherence is not None and measured.averages is not None:  # the noise as the measurement states it
-        from fe_core.inference.noise import NoiseModel
+    # The noise floor is in the units each channel was measured in (the power of j w from its receptance).
+    powers = np.array([POWER.get(c["kind"], 0) for c in info], dtype=int)
+    data = UpdateData(measured=measured, frequencies_hz=f, amplitude=measured.amplitude[sel.lines], complex_frf=cplx,
+                      native_power=powers, mask=sel.mask, responses=responses, references=references, residual=mode,
+                      selection=selection, channel_info=info)
+    if measured.coherence is None or measured.averages is None:
+        return data
+    from fe_core.inference.noise import NoiseModel  # the noise as the measurement states it
 
-        records = any(note.startswith("raw records:") for note in measured.notes)
-        with np.errstate(invalid="ignore"):
-            w = 2.0 * np.pi * measured.frequencies_hz[sel.lines]
-            native = measured.amplitude[sel.lines] * w[:, None] ** powers[None, :].astype(float)
-            noise = NoiseModel.from_coherence(measured.coherence[sel.lines], measured.averages, native,
-                                              "records" if records else "coherence")
-    return UpdateData(measured=measured, frequencies_hz=f, amplitude=measured.amplitude[sel.lines], complex_frf=cplx,
-                      native_power=powers, noise=noise,
-                      mask=sel.mask, responses=responses, references=references, residual=mode, selection=selection,
-                      channel_info=info)
+    records = any(note.startswith("raw records:") for note in measured.notes)
+    with np.errstate(invalid="ignore"):
+        noise = NoiseModel.from_coherence(measured.coherence[sel.lines], measured.averages, data.native_amplitude(),
+                                          "records" if records else "coherence")
+    return dataclasses.replace(data, noise=noise)
