@@ -16,7 +16,7 @@ import pandas as pd
 
 from tasks import record
 from tasks.intervals import cost_against_update, intervals_task
-from tasks.io.summary import SCHEMA_VERSION, interval_entries
+from tasks.io.summary import SCHEMA_VERSION, entries_from_pairs
 from tasks.model_vtu import model_vtu_task
 from tasks.fe_runs import JACOBIAN_COST
 from tasks.runstore import RunStore, atomic_write_json
@@ -123,9 +123,7 @@ def summary_interval_fields(info: dict) -> dict:
     ``interval_details["std"]``), the other fields are taken as they are."""
     fields = {k: info[k] for k in ("intervals", "covariance", "interval_method", "noise_sigma", "interval_details",
                                    "interval_cost", "estimate_errors", "residual_check", "noise_model") if k in info}
-    names, std = list(info["intervals"]), info["interval_details"]["std"]
-    fields["intervals"] = interval_entries(names, (info["intervals"][n][0] for n in names),
-                                           (info["intervals"][n][1] for n in names), (std[n] for n in names))
+    fields["intervals"] = entries_from_pairs(info["intervals"], info["interval_details"]["std"])
     return fields
 
 

@@ -17,7 +17,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-__all__ = ["SCHEMA_VERSION", "SCHEMA_PATH", "KINDS", "interval_entries", "upgrade", "read_summary"]
+__all__ = ["SCHEMA_VERSION", "SCHEMA_PATH", "KINDS", "interval_entries", "entries_from_pairs", "upgrade",
+           "read_summary"]
 
 #: The version of the summary's shape this code writes (``summary["schema_version"]``); raised when a field is
 #: renamed, removed or changes its meaning (a new optional field keeps it).
@@ -39,6 +40,14 @@ def interval_entries(names, lower, upper, sd) -> dict:
 
     return {n: {"lower95": num(lo), "upper95": num(hi), "sd": num(s)}
             for n, lo, hi, s in zip(names, lower, upper, sd)}
+
+
+def entries_from_pairs(pairs: dict, std: dict | None) -> dict:
+    """``intervals`` from the intervals stage's ``{name: [low, high]}`` and its ``{name: sd}``
+    (:func:`interval_entries`)."""
+    names, std = list(pairs), std or {}
+    return interval_entries(names, (pairs[n][0] for n in names), (pairs[n][1] for n in names),
+                            (std.get(n) for n in names))
 
 
 def upgrade(summary: dict) -> dict:
@@ -70,10 +79,7 @@ def upgrade(summary: dict) -> dict:
     else:
         s["kind"] = "frf"
         if s.get("intervals"):
-            names = list(s["intervals"])
-            std = (s.get("interval_details") or {}).get("std") or {}
-            s["intervals"] = interval_entries(names, (s["intervals"][n][0] for n in names),
-                                              (s["intervals"][n][1] for n in names), (std.get(n) for n in names))
+            s["intervals"] = entries_from_pairs(s["intervals"], (s.get("interval_details") or {}).get("std"))
     s["schema_version"] = 0  # upgraded in memory; the record on disk has the old shape
     return s
 
