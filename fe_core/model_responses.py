@@ -169,9 +169,10 @@ class ModelResponses:
         forces = vecs.T @ loads  # (n_modes, n_loads)
         return (2.0 * np.pi * freqs) ** 2, at_sensors[:, responses] * forces[:, column]
 
-    def natural_frequencies(self, alpha, n_modes: int = 6, gamma=None) -> np.ndarray:
-        """Lowest natural frequencies, Hz, shape (n_modes,)."""
-        return eigenmodes(self.stiffness(alpha), self.mass(gamma), n_modes)[0]
+    def natural_frequencies(self, alpha, n_modes: int = 6, gamma=None, tol: float = 0.0) -> np.ndarray:
+        """Lowest natural frequencies, Hz, shape (n_modes,); ``tol``: ARPACK's relative tolerance (0: machine
+        precision)."""
+        return eigenmodes(self.stiffness(alpha), self.mass(gamma), n_modes, tol=tol)[0]
 
     def modes(self, alpha, n_modes: int = 6, gamma=None) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """Natural frequencies, nodal mode shapes and labels.
