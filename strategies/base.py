@@ -32,7 +32,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 
 __all__ = ["Batch", "Outcome", "StopDecision", "Strategy", "Evaluate", "run_loop", "Report", "report_of", "Step",
-           "Memo", "InMemory", "Context", "jsonable"]
+           "Memo", "InMemory", "Context", "jsonable", "close_strategy"]
 
 
 @dataclass(frozen=True)
@@ -209,10 +209,21 @@ Evaluate = Callable[[Batch], Sequence]
 
 
 def run_loop(strategy: Strategy, evaluate: Evaluate) -> StopDecision:
-    """Propose, evaluate, update until the strategy stops; returns its last decision."""
-    while True:
-        decision = strategy.stop()
-        if decision.stop:
-            return decision
-        batch = strategy.propose()
-        strategy.update(batch, evaluate(batch))
+    """Propose, evaluate, update until the strategy stops; returns its last decision. A strategy with a
+    ``close()`` (one running a callback optimiser in a thread, :mod:`.callback`) is closed however the loop ends."""
+    try:
+        while True:
+            decision = strategy.stop()
+            if decision.stop:
+                return decision
+            batch = strategy.propose()
+            strategy.update(batch, evaluate(batch))
+    finally:
+        close_strategy(strategy)
+
+
+def close_strategy(strategy) -> None:
+    """``strategy.close()`` when it has one (:class:`.callback.CallbackStrategy`: its worker thread ended)."""
+    close = getattr(strategy, "close", None)
+    if close is not None:
+        close()
