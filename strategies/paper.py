@@ -211,7 +211,12 @@ class PaperLoop:
         self.iteration += 1
         k = self.iteration
         rows, errors, outputs = [], [], []
-        for i, (x, out) in enumerate(zip(batch.points, outcomes)):
+        # where each run ended: the point asked, or where the evaluation moved it (local steps from it)
+        where = np.array(batch.points, float)
+        for i, out in enumerate(outcomes):
+            if getattr(out, "at", None) is not None:
+                where[i] = out.at
+        for i, (x, out) in enumerate(zip(where, outcomes)):
             Z = np.asarray(out[0], complex)
             if not np.all(np.isfinite(Z)):
                 continue  # a failed FE run is excluded
@@ -222,7 +227,7 @@ class PaperLoop:
             self.ids.append(self.requests + i)
             self.Z.append(Z)
         self.requests += len(batch)
-        self.history.append((k, np.array(batch.points), np.array(errors)))
+        self.history.append((k, where, np.array(errors)))
         new = (np.array(rows).reshape(len(rows), self.lower.size), np.array(errors), np.array(outputs))
         self.X, self.E, self.Y = new if self.X is None else (np.vstack([self.X, new[0]]),
                                                              np.concatenate([self.E, new[1]]),
