@@ -66,9 +66,9 @@ class Batch:
 
 
 class Outcome(NamedTuple):
-    """One FE run's result: ``Z`` (k,) complex (the modal strategies: the weighted residual's real values, :mod:`.modal_fit`,
-    :mod:`.modal_paper`); ``dZ`` (k, m) or None; ``cost`` in FE-run equivalents (None:
-    1, or the strategy's Jacobian cost with a derivative); ``modes`` = (omega2 (r,), participation (r, n))
+    """One FE run's result: ``Z`` (k,) complex (the modal strategies, :mod:`.modal_fit`, :mod:`.modal_paper`: the
+    weighted residual's real values); ``dZ`` (k, m) or None; ``cost`` in FE-run equivalents (None: 1, or the
+    strategy's Jacobian cost with a derivative); ``modes`` = (omega2 (r,), participation (r, n))
     when the run gave its lowest modes; ``at`` (m,): where the evaluation ended when it moved from the point
     asked (local steps from it, as the closure's emulated search takes), None: at the point asked."""
 

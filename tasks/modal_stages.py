@@ -84,8 +84,8 @@ def fit_task(root: str, residual, lower, upper, starts: int, seed: int, stated: 
     fit, pairing, computed = run_fit(store, residual, lower, upper, starts, seed, stated, x0)
     info = {"theta": fit.theta, "sd": fit.sd, "lower95": fit.lower95, "upper95": fit.upper95,
             "covariance": fit.covariance, "chi2": fit.chi2, "n_residuals": fit.n_residuals, "scale2": fit.scale2,
-            "starts": fit.starts, "fe_runs": fit.n_fe_runs, "jacobians": fit.n_jacobians, "evaluations_computed": computed,
-            "seconds": time.perf_counter() - t0, "swaps": list(residual.swaps), "active": residual.active,
+            "starts": fit.starts, "fe_runs": fit.n_fe_runs, "jacobians": fit.n_jacobians,
+            "evaluations_computed": computed, "seconds": time.perf_counter() - t0, "swaps": list(residual.swaps), "active": residual.active,
             "pairing": {k: pairing[k] for k in ("test", "model", "f_model", "mac")},
             "unpaired": pairing["unpaired"]}
     table = pd.DataFrame({"theta": fit.theta, "sd": fit.sd, "lower95": fit.lower95, "upper95": fit.upper95})
