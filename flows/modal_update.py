@@ -276,8 +276,6 @@ def paper_options(config):
                         emulate="errors", seed=config.seed)
 
 
-
-
 def modal_summary(job, fit: dict, closure: dict | None, true_parameters) -> dict:
     """``summary.json`` of a modal run from its stages' results."""
     config, names, m, residual = job.config, job.names, job.data.modes, job.residual
