@@ -124,11 +124,11 @@ class Oracle:
         self.history: list[tuple[np.ndarray, float]] = []
 
     def residuals(self, x) -> np.ndarray:
-        from mrgp_core import errors
+        from fe_core.inference.residual import relative_residual
 
         x = np.asarray(x, float)
         amp = np.abs(self.model.frf(x, self.measured.frequencies_hz))
-        r = errors.relative_residuals(amp[None], self.measured.amplitude)[0]
+        r = relative_residual(amp, self.measured.amplitude).ravel()
         self.history.append((x.copy(), float(np.mean(np.abs(r)))))
         return r
 

@@ -54,7 +54,7 @@ import numpy as np  # noqa: E402
 
 from benchmarks.mrgp import CACHE_DIR, candidates, draw_design, load_cache, save_cache  # noqa: E402
 from mrgp_core import ProfileLikelihood, condition, fit, fit_reduced, standardise  # noqa: E402
-from mrgp_core.errors import relative_residuals  # noqa: E402
+from fe_core.inference.residual import relative_residual  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "many-responses.md"
@@ -89,7 +89,7 @@ def load_data(seed: int, refresh: bool = False) -> dict:
         Y = {F: [] for F in LINES}
         for i, a in enumerate(X):
             for F in LINES:
-                Y[F].append(relative_residuals(np.abs(model.frf(a, band(F))), measured[F]))
+                Y[F].append(relative_residual(np.abs(model.frf(a, band(F))), measured[F]).ravel())
             if (i + 1) % 50 == 0:
                 log.info("FE %s runs: %d / %d (%.0f s)", name, i + 1, X.shape[0], time.perf_counter() - t0)
         for F in LINES:

@@ -81,20 +81,20 @@ class Problem:
     """One truth and noise level; ``evaluate(points)`` is one round of FE runs, every one logged."""
 
     def __init__(self, model, freqs, truth, noise, seed):
-        from mrgp_core import errors
+        from fe_core.inference.residual import relative_residual
 
         self.model, self.freqs, self.truth, self.noise = model, freqs, truth, noise
         u = np.abs(model.frf(truth, freqs, method="direct"))
         if noise:
             u = u * (1.0 + noise * np.random.default_rng(seed).standard_normal(u.shape))
         self.u = u
-        self._rel = errors.relative_residuals
+        self._rel = relative_residual
         self.history: list[dict] = []  # round (at 20 workers), x, error, cost
         self.rounds = 0
         self.floor = (float(np.mean(np.abs(self.residuals(truth)))) if noise else 0.0) + 1e-4
 
     def residuals(self, x):
-        return self._rel(np.abs(self.model.frf(np.asarray(x, float), self.freqs))[None], self.u)[0]
+        return self._rel(np.abs(self.model.frf(np.asarray(x, float), self.freqs)), self.u).ravel()
 
     def evaluate(self, points):
         out = []

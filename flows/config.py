@@ -142,6 +142,10 @@ class UpdateConfig:
         Relative noise of the measured amplitudes (standard deviation, e.g.
         0.01 = 1 %) for the intervals; None (default) estimates it from the
         residual at the least-squares optimum.
+    averages : int or None
+        The number of averages (hits) behind each measured FRF and its coherence, where the file does not
+        say (UFF58 ID lines, a table's ``averages``); with the coherence it gives the noise per line
+        (:func:`fe_core.inference.coherence_noise.frf_random_error`). None (default): the file's, or unknown.
     lines : {"all", "windows", "resonances"}
         Which measured frequency lines enter the update (:mod:`tasks.lines`):
         every line (default), those in ``line_windows``, or windows around the
@@ -215,6 +219,7 @@ class UpdateConfig:
     outputs: str = "auto"
     intervals: bool = True
     noise: float | None = None
+    averages: int | None = None
     posterior_fe: int = 400
     lines: str = "all"
     line_windows: list[list[float]] | None = field(default=None)
@@ -283,6 +288,8 @@ class UpdateConfig:
             raise bad("outputs", f"unknown output model {self.outputs!r}; choose one of {', '.join(OUTPUTS)}")
         if self.noise is not None and not (isinstance(self.noise, (int, float)) and 0 < self.noise < 1):
             raise bad("noise", f"must be a relative amplitude noise in (0, 1), e.g. 0.01 = 1 %, got {self.noise!r}")
+        if self.averages is not None and not (isinstance(self.averages, int) and self.averages >= 1):
+            raise bad("averages", f"must be a whole number of averages >= 1, got {self.averages!r}")
         if not (isinstance(self.posterior_fe, int) and self.posterior_fe >= 0):
             raise bad("posterior_fe", f"must be a whole number of FE runs >= 0 (0 = never sample), "
                                       f"got {self.posterior_fe!r}")

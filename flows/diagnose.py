@@ -23,7 +23,7 @@ as they are; channel data (response, reference) must be every sensor of the
 model under its default excitation (a hammer test: name the hammer as the
 model file's ``excitation``), and then the closure uses the amplitudes of the
 lines the run selected where every channel passed the coherence threshold
-(:func:`closure_measurements`); the phase of complex data is not used here.
+(:func:`closure_data`); the phase of complex data is not used here.
 
 Examples::
 
@@ -48,12 +48,11 @@ from prefect import flow  # noqa: E402
 from fe_core.closure.fits import ALPHA_BOUNDS  # noqa: E402
 from fe_core.closure.effects import registered_effects  # noqa: E402
 from flows.config import REPO, ConfigError  # noqa: E402
-from flows.problem import load_model  # noqa: E402
 from tasks.closure.summary import STATUSES  # noqa: E402
 from tasks.problem import Problem  # noqa: E402
 from tasks.runstore import atomic_write_json  # noqa: E402
 from tasks.closure import steps as ct  # noqa: E402
-from tasks.io.measured import MeasuredDataError, read_measured  # noqa: E402
+from tasks.io.measured import MeasuredDataError  # noqa: E402
 
 __all__ = ["diagnose_flow", "diagnose", "run_folder", "main", "print_closure", "print_closure_intervals"]
 
@@ -86,28 +85,32 @@ def run_folder(run_id: str, runs_dir: str | Path = "runs") -> tuple[Path, dict, 
     return root, summary, manifest
 
 
-def closure_measurements(path: Path, model, selection: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(frequencies (p,), sensors (n,), amplitudes (p, n)) the closure fits (see the module docstring).
-
-    ``selection``: the run's ``lines``, ``line_windows``, ``resonance_widen``,
-    ``min_coherence`` (its config). Raises DiagnoseError for channel data the
-    closure cannot use, MeasuredDataError for a bad file.
-    """
-    measured = read_measured(path)
-    if measured.legacy:
-        return measured.frequencies_hz, np.asarray(measured.sensors), measured.amplitude
-    from tasks.update_data import update_data
-
-    data = update_data(measured, model, residuals="amplitude", **{k: selection[k] for k in selection if k in (
-        "lines", "line_windows", "resonance_widen", "min_coherence")})
+def closure_data(data, model):
+    """The run's measured data (:class:`tasks.update_data.UpdateData`, the object the update fitted) as the
+    closure takes it: every sensor of the model under its default excitation (see the module docstring); the
+    closure fits the amplitudes of the lines where every channel is kept (``data.complete()``). Raises
+    DiagnoseError for channel data the closure cannot use."""
     if data.channels is not None:
         refs = sorted({c["excitation"] for c in data.channel_info})
-        raise DiagnoseError(f"{path}: the closure traces the residual of every sensor of the model under its default "
-                            f"excitation ({model.excitation_name!r}); these data have {data.n_channels} channels under "
-                            f"{', '.join(map(repr, refs))}: name that excitation in the model file (excitation = "
-                            f"\"{refs[0]}\") and measure every sensor, or diagnose legacy data")
-    lines = data.complete_lines
-    return data.frequencies_hz[lines], np.arange(1, model.n_sensors + 1), data.amplitude[lines]
+        raise DiagnoseError(f"{data.source}: the closure traces the residual of every sensor of the model under its "
+                            f"default excitation ({model.excitation_name!r}); these data have {data.n_channels} "
+                            f"channels under {', '.join(map(repr, refs))}: name that excitation in the model file "
+                            f"(excitation = \"{refs[0]}\") and measure every sensor, or diagnose legacy data")
+    return data
+
+
+def _stored_problem(cfg: dict, measured: str | None):
+    """The finished run's problem (model, data), read once, as the run resolved it; ``measured``: another file."""
+    from flows.config import UpdateConfig, stored_settings
+    from flows.problem import stored_problem
+
+    try:
+        config = UpdateConfig(**stored_settings(cfg))
+        if measured is not None:  # another measurement of the same structure: its amplitudes
+            config = config.replace(measured=str(measured), residuals="amplitude")
+        return stored_problem(config)
+    except ConfigError as exc:
+        raise DiagnoseError(str(exc)) from None
 
 
 _SELECTION_KEYS = ("lines", "line_windows", "resonance_widen", "min_coherence")
@@ -120,35 +123,36 @@ MASS_FACTORS_REFUSED = ("the run updates mass factors ({names}); the closure ref
 
 
 @flow(name="diagnose", flow_run_name="diagnose-{run_id}", log_prints=True)
-def diagnose_flow(run_id: str, closure_root: str, settings: dict, run_info: dict, problem, measurements) -> dict:
+def diagnose_flow(run_id: str, closure_root: str, settings: dict, run_info: dict, problem) -> dict:
     """The closure of one run as four tasks; returns the content of ``closure.json``. ``problem``: the run's model
-    (resolved once, :class:`tasks.problem.Problem`); ``measurements``: (frequencies, sensors, amplitudes) of
-    :func:`closure_measurements`."""
-    freqs, sensors, u = measurements
+    and measured data (resolved once, :class:`tasks.problem.Problem`; the data as :func:`closure_data`)."""
     t0 = time.perf_counter()
-    ct.baseline_task(closure_root, problem, settings, freqs, sensors, u)
-    ct.screen_task(closure_root, problem, settings, freqs, u)
-    ct.check_task(closure_root, problem, settings, freqs, u)
-    summary = ct.decide_task(closure_root, problem, settings, freqs, sensors, u, run_info)
+    ct.baseline_task(closure_root, problem, settings)
+    ct.screen_task(closure_root, problem, settings)
+    ct.check_task(closure_root, problem, settings)
+    summary = ct.decide_task(closure_root, problem, settings, run_info)
     summary["wall_seconds"] = round(time.perf_counter() - t0, 3)
     atomic_write_json(Path(closure_root) / "closure.json", summary)  # the record is what the command returns
     return summary
 
 
 def diagnose(run_id: str, runs_dir: str | Path = "runs", name: str = "closure", measured: str | None = None,
-             **options) -> dict:
-    """Diagnose a finished run (see the module docstring); ``options`` are :class:`tasks.closure.ClosureSettings`."""
+             problem=None, **options) -> dict:
+    """Diagnose a finished run (see the module docstring); ``options`` are :class:`tasks.closure.ClosureSettings`.
+
+    ``problem``: the run's :class:`tasks.problem.Problem` when the caller has it (``flows.update --close-loop``:
+    the model and the measured file read once for the update and its closure); else it is resolved from the
+    run's manifest. ``measured``: another measured file of the same structure instead of the run's."""
     root, summary, manifest = run_folder(run_id, runs_dir)
     cfg = manifest.get("config", {})
     measured_path = Path(measured or cfg.get("measured", "data/benchmark/measured.csv"))
     measured_path = measured_path if measured_path.is_absolute() else REPO / measured_path
     selection = {k: cfg[k] for k in _SELECTION_KEYS if k in cfg}
     model_name = cfg.get("model", "three_plate")
-    try:
-        model, ref = load_model(model_name)  # read once for the whole closure
-    except ConfigError as exc:
-        raise DiagnoseError(str(exc)) from None
-    measurements = closure_measurements(measured_path, model, selection)  # refuse bad data first
+    if problem is None or measured is not None:
+        problem = _stored_problem(cfg, measured)
+    model, ref = problem.model, problem.ref
+    data = closure_data(problem.data, model)  # refuse channel data first
     gammas = [k for k in summary["parameters"] if k.startswith("gamma_")]
     if gammas:
         raise DiagnoseError(f"{root / 'summary.json'}: {MASS_FACTORS_REFUSED.format(names=', '.join(gammas))}")
@@ -179,13 +183,13 @@ def diagnose(run_id: str, runs_dir: str | Path = "runs", name: str = "closure", 
         raise DiagnoseError(f"--significance must lie in (0, 1), got {settings['significance']}")
     closure_root = root / name
     ct.ClosureStore(closure_root).write_settings(dict(settings))
-    data = manifest.get("measured_data", {})
-    metric = (f"Eq. (6b) of the run's {data['residual']} residual over {data['values']} values" if data else
+    entry = manifest.get("measured_data", {})
+    metric = (f"Eq. (6b) of the run's {entry['residual']} residual over {entry['values']} values" if entry else
               "Eq. (6b) of the run's residual")
     run_info = {"run_id": run_id, "run_folder": str(root), "parameters": summary["parameters"], "selection": selection,
                 "overall_error": summary.get("overall_error"), "error_metric": metric}
-    problem = Problem(model, ref, None, np.full(len(alpha), lower), np.full(len(alpha), upper))
-    return diagnose_flow(run_id, str(closure_root), dict(settings), run_info, problem, measurements)
+    problem = Problem(model, ref, data, np.full(len(alpha), lower), np.full(len(alpha), upper))
+    return diagnose_flow(run_id, str(closure_root), dict(settings), run_info, problem)
 
 
 def print_closure(summary: dict, file=None) -> None:

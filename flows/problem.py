@@ -21,8 +21,8 @@ from tasks.io.measured import MeasuredDataError, read_measured
 from tasks.problem import FE_FOLDER, Problem, black_box, read_model_ref, search_box
 from tasks.update_data import UpdateData, update_data
 
-__all__ = ["resolve", "load_model", "prepare_data", "n_modes", "emulates_modes", "input_checksums",
-           "RESUMABLE_CHANGES"]
+__all__ = ["resolve", "stored_problem", "load_model", "prepare_data", "n_modes", "emulates_modes",
+           "input_checksums", "RESUMABLE_CHANGES"]
 
 #: Config keys that may change between a run and its resume.
 # (where FE runs execute does not change their results: fe_backend, dask_address).
@@ -82,10 +82,12 @@ def input_checksums(config: UpdateConfig, ref) -> dict:
     return {"model_checksum": ref.checksum, "measured_checksum": digest}
 
 
-def resolve(config: UpdateConfig) -> Problem:
+def resolve(config: UpdateConfig, measured=None) -> Problem:
     """The run's :class:`Problem`, after every check that needs no run folder: measured data, model, resume
-    settings, disk, the Dask cluster."""
-    measured = read_measured(config.resolve(config.measured))
+    settings, disk, the Dask cluster. ``measured``: the file as the caller read it already
+    (:func:`tasks.io.measured.read_measured` of ``config.measured``), else read here."""
+    if measured is None:
+        measured = read_measured(config.resolve(config.measured), averages=config.averages)
     model, ref = load_model(config.model)
     data = prepare_data(config, measured, model)
     preflight.check_inputs(config, data, model)
@@ -105,6 +107,28 @@ def resolve(config: UpdateConfig) -> Problem:
                           f"the black-box deck {config.model} does not give (route B): use --emulate errors")
     if black_box(model):  # its FE runs write their solver folders under the run folder
         ref = dataclasses.replace(ref, workdir=str(root / FE_FOLDER))
+        model = model.with_workdir(ref.workdir)
+    lower, upper = search_box(model, config.lower, config.upper)
+    modes = n_modes(model, data.frequencies_hz) if emulates_modes(config) else 0
+    return Problem(model, ref, data, lower, upper, modes, inputs)
+
+
+def stored_problem(config: UpdateConfig, manifest: dict | None = None, where=None) -> Problem:
+    """The problem of a stored run (its model, measured data and box, from its config), for the commands that
+    work on a finished run (rerun, diagnose). With the run's ``manifest`` (at ``where``, its manifest.json), a
+    model or measured file whose content changed since is refused (ConfigError)."""
+    from pathlib import Path
+
+    model, ref = load_model(config.model)
+    inputs = input_checksums(config, ref)
+    if manifest is not None:
+        changed = preflight.changed_inputs(manifest, inputs, config)
+        if changed:
+            raise ConfigError(f"{where}: {'; '.join(changed)}: the run's stored results belong to the files as they "
+                              "were; restore them, or start a new run with another --run-id")
+    data = prepare_data(config, read_measured(config.resolve(config.measured), averages=config.averages), model)
+    if where is not None and black_box(model):  # a black-box deck's solver folders: the run's own (reused)
+        ref = dataclasses.replace(ref, workdir=str(Path(where).parent / FE_FOLDER))
         model = model.with_workdir(ref.workdir)
     lower, upper = search_box(model, config.lower, config.upper)
     modes = n_modes(model, data.frequencies_hz) if emulates_modes(config) else 0

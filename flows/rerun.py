@@ -14,20 +14,16 @@ The run's problem (model, measured data, box) is resolved once from its manifest
 
 from __future__ import annotations
 
-import dataclasses
 import datetime as dt
 from pathlib import Path
 
 import numpy as np
 
-from flows import preflight
 from flows import problem as problems
 from flows.config import ConfigError, UpdateConfig, stored_settings
 from tasks import hybrid as hybrid_tasks
 from tasks import paper as paper_tasks
 from tasks.intervals import INTERVALS_STAGE, intervals_task
-from tasks.io.measured import read_measured
-from tasks.problem import FE_FOLDER, Problem, black_box, search_box
 from tasks.runstore import RunStore
 
 __all__ = ["rerun_stage", "rerunnable", "run_problem"]
@@ -39,23 +35,8 @@ def rerunnable(strategy: str) -> tuple[str, ...]:
     return (*own, INTERVALS_STAGE)
 
 
-def run_problem(config: UpdateConfig, manifest: dict | None = None, where: Path | None = None) -> Problem:
-    """The problem of a stored run (its model, measured data and box, from its config). With the run's
-    ``manifest`` (at ``where``), a model or measured file whose content changed since is refused (ConfigError)."""
-    model, ref = problems.load_model(config.model)
-    inputs = problems.input_checksums(config, ref)
-    if manifest is not None:
-        changed = preflight.changed_inputs(manifest, inputs, config)
-        if changed:
-            raise ConfigError(f"{where}: {'; '.join(changed)}: the run's stored results belong to the files as they "
-                              "were; restore them, or start a new run with another --run-id")
-    data = problems.prepare_data(config, read_measured(config.resolve(config.measured)), model)
-    if where is not None and black_box(model):  # a black-box deck's solver folders: the run's own (reused)
-        ref = dataclasses.replace(ref, workdir=str(Path(where).parent / FE_FOLDER))  # where: its manifest.json
-        model = model.with_workdir(ref.workdir)
-    lower, upper = search_box(model, config.lower, config.upper)
-    modes = problems.n_modes(model, data.frequencies_hz) if problems.emulates_modes(config) else 0
-    return Problem(model, ref, data, lower, upper, modes, inputs)
+#: The problem of a stored run (kept under its old name for the tests and benchmarks that use it).
+run_problem = problems.stored_problem
 
 
 def rerun_stage(run_root: Path, iteration: int, stage: str, trainer: str | None = None, noise: float | None = None,

@@ -125,6 +125,9 @@ def _run_parser() -> argparse.ArgumentParser:
                    help="factor on each resonance's half-power band for --lines resonances (default 2)")
     p.add_argument("--min-coherence", type=float, metavar="C",
                    help="leave out measured values whose coherence is below C (default 0.9)")
+    p.add_argument("--averages", type=int, metavar="N",
+                   help="the number of averages (hits) behind the measured FRFs and coherence where the file does "
+                        "not say (UFF58 ID lines, a table's averages); with the coherence it sets the noise per line")
     p.add_argument("--residuals", choices=RESIDUALS,
                    help="amplitude residuals (Eq. 5), complex ones (real and imaginary parts of (Z - H)/|H|), or auto "
                         "(default: complex when the data carry phase, except the legacy sensor form)")
@@ -191,6 +194,7 @@ def main(argv: list[str] | None = None) -> int:
             intervals=args.intervals, noise=args.noise, posterior_fe=args.posterior_fe, lines=args.lines,
             line_windows=None if args.line_windows is None else parse_windows(args.line_windows),
             resonance_widen=args.resonance_widen, min_coherence=args.min_coherence, residuals=args.residuals,
+            averages=args.averages,
         )
         if config.run_id is None:
             stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
@@ -199,7 +203,8 @@ def main(argv: list[str] | None = None) -> int:
             from fe_core.benchmark import ALPHA_ACTUAL
 
             config = config.replace(true_parameters=ALPHA_ACTUAL.tolist())
-        read_measured(config.resolve(config.measured))  # refuse bad data before any work
+        # refuse bad data before any work; the file is read once
+        measured = read_measured(config.resolve(config.measured), averages=config.averages)
     except FileNotFoundError as exc:
         print(f"error: {exc.filename}: no such file", file=sys.stderr)
         return 2
@@ -208,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         # Refuse bad inputs, a run in use, or a full / read-only disk before any work.
-        problem = problems.resolve(config)
+        problem = problems.resolve(config, measured)
         if args.close_loop:
             from flows.diagnose import MASS_FACTORS_REFUSED
 
@@ -238,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
         from flows.diagnose import DiagnoseError, closure_options, diagnose, print_closure
 
         try:
-            closure = diagnose(config.run_id, config.runs_dir, args.closure_name or "closure",
+            closure = diagnose(config.run_id, config.runs_dir, args.closure_name or "closure", problem=problem,
                                **closure_options(args))
         except (DiagnoseError, MeasuredDataError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["MODELS", "Residual", "composite_model", "residual_jacobian", "TrustRegionGN", "Step"]
+__all__ = ["MODELS", "composite_model", "residual_jacobian", "TrustRegionGN", "Step"]
 
 MODELS = ("inverse", "receptance", "linear")
 
@@ -42,41 +42,10 @@ MIN_RADIUS = 1e-9
 MAX_RADIUS = 1.0
 
 
-class Residual:
-    """The residual of model receptances ``Z`` (shape (..., k), complex) against the measurement.
-
-    ``Residual(u)``: the paper's amplitude residual ``|Z| / u - 1`` (Eq. 5), shape (..., k).
-    ``Residual(u, zeta)``: with the measured complex FRF ``zeta`` (k,), the real and imaginary parts of
-    ``(Z - zeta) / |zeta|``, shape (..., 2 k) (:func:`mrgp_core.errors.complex_relative_residuals`).
-    """
-
-    def __init__(self, u: np.ndarray, zeta: np.ndarray | None = None):
-        self.u = np.asarray(u, float).ravel()
-        self.zeta = None if zeta is None else np.asarray(zeta, complex).ravel()
-
-    @property
-    def complex(self) -> bool:
-        return self.zeta is not None
-
-    def __call__(self, Z: np.ndarray) -> np.ndarray:
-        Z = np.asarray(Z)
-        if self.zeta is None:
-            return np.hypot(Z.real, Z.imag) / self.u - 1.0
-        r = (Z - self.zeta) / self.u
-        return np.concatenate([r.real, r.imag], axis=-1)
-
-    def error(self, Z: np.ndarray) -> float:
-        """Overall error (Eq. 6b: mean |residual|); inf for a failed run."""
-        r = self(Z)
-        return float(np.mean(np.abs(r))) if np.all(np.isfinite(r)) else np.inf
-
-
-def residual_jacobian(Z: np.ndarray, dZ: np.ndarray, residual: Residual) -> np.ndarray:
-    """``d r / d theta``, shape (k, m) (amplitude: ``|Z| / u Re(dZ / Z)``) or (2 k, m) (complex)."""
-    if residual.complex:
-        d = dZ / residual.u[:, None]
-        return np.vstack([d.real, d.imag])
-    return (np.abs(Z) / residual.u)[:, None] * np.real(dZ / Z[:, None])
+def residual_jacobian(Z: np.ndarray, dZ: np.ndarray, residual) -> np.ndarray:
+    """``d r / d theta`` of ``residual`` (:class:`fe_core.inference.frf_data.FRFData`) at ``Z`` (k,) from ``dZ``
+    (k, m): shape (k, m), or (2 k, m) with complex residuals."""
+    return residual.jacobian(Z, dZ)
 
 
 def composite_model(Z: np.ndarray, dZ: np.ndarray, residual, model: str = "inverse") -> Callable:
@@ -86,10 +55,11 @@ def composite_model(Z: np.ndarray, dZ: np.ndarray, residual, model: str = "inver
     ----------
     Z : ndarray, shape (k,), complex, m/N
     dZ : ndarray, shape (k, m), complex, m/N per unit parameter
-    residual : Residual, or ndarray shape (k,) of measured amplitudes (the amplitude residual)
+    residual : FRFData
+        The measured data at the k values (:class:`fe_core.inference.frf_data.FRFData`): ``residual(Z)`` is the
+        relative residual.
     model : {"inverse", "receptance", "linear"}
     """
-    residual = residual if isinstance(residual, Residual) else Residual(residual)
     Z, dZ = np.asarray(Z), np.asarray(dZ)
     if model == "linear":
         r0, J = residual(Z), residual_jacobian(Z, dZ, residual)
@@ -119,7 +89,9 @@ class TrustRegionGN:
     x : ndarray, shape (m,)
         Current centre.
     Z, dZ : its receptance (k,) and derivative (k, m).
-    u : Residual, or ndarray shape (k,) of measured amplitudes (the amplitude residual)
+    residual : FRFData
+        The measured data at the k values; ``residual(Z)`` is the relative residual, the objective is its
+        sum of squares.
     lower, upper : ndarray, shape (m,)
         Search box.
     radius : float
@@ -136,7 +108,7 @@ class TrustRegionGN:
     x: np.ndarray
     Z: np.ndarray
     dZ: np.ndarray
-    u: np.ndarray
+    residual: object
     lower: np.ndarray
     upper: np.ndarray
     radius: float = 0.2
@@ -149,22 +121,21 @@ class TrustRegionGN:
 
     def __post_init__(self) -> None:
         self.x = np.asarray(self.x, float).copy()
-        self.u = self.u if isinstance(self.u, Residual) else Residual(self.u)
         self.lower, self.upper = np.asarray(self.lower, float), np.asarray(self.upper, float)
         self.f = self.objective(self.Z)
         self._pending: list[Step] = []
 
     @property
     def residuals(self) -> np.ndarray:
-        return self.u(self.Z)
+        return self.residual(self.Z)
 
     @property
     def error(self) -> float:
         """Overall error (Eq. 6b) at the centre."""
-        return self.u.error(self.Z)
+        return self.residual.error(self.Z)
 
     def objective(self, Z: np.ndarray) -> float:
-        r = self.u(Z)
+        r = self.residual(Z)
         return float(r @ r) if np.all(np.isfinite(r)) else np.inf
 
     def propose(self, scale: float = 1.0) -> Step:
@@ -177,7 +148,7 @@ class TrustRegionGN:
         lo = np.maximum(self.lower, self.x - rad) - self.x
         hi = np.minimum(self.upper, self.x + rad) - self.x
         hi = np.where(hi - lo > 0, hi, lo + MIN_RADIUS)  # a centre on a bound keeps a sliver to move in
-        fun = composite_model(self.Z, self.dZ, self.u, self.model)
+        fun = composite_model(self.Z, self.dZ, self.residual, self.model)
         sol = least_squares(fun, np.clip(np.zeros_like(self.x), lo, hi), bounds=(lo, hi), method="trf",
                             max_nfev=100, xtol=1e-12, ftol=1e-12, gtol=1e-12)
         step = Step(self.x + sol.x, float(2.0 * sol.cost))

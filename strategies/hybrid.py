@@ -36,29 +36,11 @@ from fe_core.inference.residual import (
 )
 
 from .base import Batch, Evaluate, StopDecision, run_loop
-from .gauss_newton import Residual
 from .hybrid_phases import HybridOptions, Minimum, global_phase, local_phase
 from .ledger import BudgetSpent, Ledger
 
-__all__ = ["HybridOptions", "Ledger", "Layout", "Minimum", "Check", "Hybrid", "HybridResult", "local_phase",
-           "check", "global_phase", "hybrid", "BudgetSpent", "Residual"]
-
-
-@dataclass(frozen=True)
-class Layout:
-    """Where the k measured values sit: line ``line[i]`` (of ``freqs_hz``) and channel ``channel[i]``.
-
-    ``Layout.grid(p, n)`` is the full frequency-major grid of Eq. 5.
-    """
-
-    freqs_hz: np.ndarray
-    line: np.ndarray
-    channel: np.ndarray
-
-    @classmethod
-    def grid(cls, freqs_hz, n: int) -> "Layout":
-        p = len(freqs_hz)
-        return cls(np.asarray(freqs_hz, float), np.repeat(np.arange(p), n), np.tile(np.arange(n), p))
+__all__ = ["HybridOptions", "Ledger", "Minimum", "Check", "Hybrid", "HybridResult", "local_phase",
+           "check", "global_phase", "hybrid", "BudgetSpent"]
 
 
 @dataclass(frozen=True)
@@ -73,8 +55,9 @@ class Check:
     p_chi2: float
 
 
-def check(Z: np.ndarray, residual: Residual, layout: Layout, n_fitted: int, options: HybridOptions) -> Check:
-    """Is the residual at ``Z`` (shape (k,)) noise? The chi-square test of the log amplitude residual.
+def check(Z: np.ndarray, data, n_fitted: int, options: HybridOptions) -> Check:
+    """Is the residual at ``Z`` (shape (k,), the model at the kept values of ``data``, an
+    :class:`fe_core.inference.frf_data.FRFData`) noise? The chi-square test of the log amplitude residual.
 
     ``ln(|Z| / |measured|)`` (:mod:`fe_core.inference.residual`: multiplicative noise is additive there) against the
     configured noise, or the noise estimated from second differences along frequency on the lines where every
@@ -84,25 +67,24 @@ def check(Z: np.ndarray, residual: Residual, layout: Layout, n_fitted: int, opti
     1 % on the benchmark's suite).
     """
     Z = np.asarray(Z)
-    error = residual.error(Z)
-    r = np.log(np.abs(Z) / residual.u)
+    error = data.error(Z)
+    r = data.log_residual(Z)
     rms = float(np.sqrt(np.mean(r**2)))
     if error <= options.target:
         return Check(True, f"overall error {error:.3e} <= target {options.target:.1e}", rms, float("nan"), "none", 1.0)
-    p, n = len(layout.freqs_hz), int(layout.channel.max()) + 1
-    grid = np.full((p, n), np.nan)
-    grid[layout.line, layout.channel] = r
-    complete = np.all(np.isfinite(grid), axis=1)
+    grid = data.log_grid(Z)
+    complete = data.complete_lines
+    freqs = np.asarray(data.frequencies_hz, float)
     if options.noise is not None:
         sigma, source = float(options.noise), "configured"
         T, dof, p_chi2 = chi_square_test(r, sigma, n_fitted)
     else:
-        sigma, source = estimate_noise(grid[complete], layout.freqs_hz[complete]), "estimated"
+        sigma, source = estimate_noise(grid[complete], freqs[complete]), "estimated"
         if not (np.isfinite(sigma) and sigma > 0):
             return Check(False, "the noise cannot be estimated (no band of three complete lines) and is not "
                                 "configured: treated as structure", rms, float("nan"), "none", 0.0)
         # The level's own spread counted: P(T >= T_observed) over white-noise residuals of the complete lines.
-        _, _, _, p_chi2 = estimated_noise_test(grid[complete], layout.freqs_hz[complete], n_fitted)
+        _, _, _, p_chi2 = estimated_noise_test(grid[complete], freqs[complete], n_fitted)
         T, dof = float(np.sum(r**2) / sigma**2), r.size - int(n_fitted)
     at_floor = p_chi2 >= options.significance or rms <= options.noise_ratio * sigma
     if source == "estimated" and (sigma > options.max_noise or not at_floor):
@@ -120,20 +102,18 @@ class Hybrid:
     """The strategy in memory: local phase, check, global cycles while the check finds structure and the
     budget lasts (:class:`.base.Strategy`).
 
-    ``residual`` is a :class:`Residual` (or the measured amplitudes, shape (k,)); ``layout`` a
-    :class:`Layout` of the k values (or the frequencies, shape (p,), of a full frequency-major grid).
+    ``data`` is the measured data (:class:`fe_core.inference.frf_data.FRFData`): its kept values, their
+    residual, where they sit; the FE runs give the model at its kept values, shape (k,).
     """
 
-    def __init__(self, x0: np.ndarray, residual, layout, lower: np.ndarray, upper: np.ndarray,
+    def __init__(self, x0: np.ndarray, data, lower: np.ndarray, upper: np.ndarray,
                  options: HybridOptions = HybridOptions(), screen=None):
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
         # Wrong basin or missing effect (issue 28): ``screen({label: x}) -> [fe_core.closure.evidence.Screen]`` on
         # the complete lines; None: no evidence (the cycles go on while the check finds structure).
         self.screen, self.screens, self.evidence = screen, [], None
         self.x0 = np.clip(np.asarray(x0, float), self.lower, self.upper)
-        self.residual = residual if isinstance(residual, Residual) else Residual(residual)
-        self.layout = layout if isinstance(layout, Layout) else Layout.grid(layout, self.residual.u.size
-                                                                            // len(layout))
+        self.residual = data
         self.options = options
         self.ledger = Ledger(self.residual, options.max_cost, options.jacobian_cost, cap=options.cap,
                              improve_rounds=options.improve_rounds, improve_rtol=options.improve_rtol)
@@ -183,7 +163,7 @@ class Hybrid:
             return True
         best = found[0]
         self.minima += found
-        verdict = check(best.Z, self.residual, self.layout, self.lower.size, self.options)
+        verdict = check(best.Z, self.residual, self.lower.size, self.options)
         self.checks.append((best, verdict))
         if best.status == "target" or verdict.at_floor:
             self.status = "target" if best.status == "target" else "floor"
@@ -212,19 +192,11 @@ class Hybrid:
             return False
         from fe_core.closure.evidence import weigh
 
-        rss, basin = min(((self._log_rss(m.Z), m) for m, _ in self.checks), key=lambda t: t[0])
+        rss, basin = min(((self.residual.log_rss(m.Z), m) for m, _ in self.checks), key=lambda t: t[0])
         if not any(np.max(np.abs(np.asarray(s.alpha) - basin.x)) <= 1e-9 for s in self.screens):
             self.screens += list(self.screen({"best basin": basin.x}))
         self.evidence = weigh(self.screens, rss)
         return self.evidence.choice == "closure"
-
-    def _log_rss(self, Z) -> float:
-        """Sum of squares of ``ln(|Z| / u)`` on the lines where every channel is kept (the screens' measure)."""
-        p, n = len(self.layout.freqs_hz), int(self.layout.channel.max()) + 1
-        grid = np.full((p, n), np.nan)
-        grid[self.layout.line, self.layout.channel] = np.log(np.abs(np.asarray(Z)) / self.residual.u)
-        complete = np.all(np.isfinite(grid), axis=1)
-        return float(np.sum(grid[complete] ** 2))
 
     # -- the strategy interface ------------------------------------------------------------------------
     def propose(self) -> Batch:
@@ -274,13 +246,13 @@ class HybridResult:
     evidence: object = None
 
 
-def hybrid(evaluate: Evaluate, x0: np.ndarray, residual, layout, lower: np.ndarray, upper: np.ndarray,
+def hybrid(evaluate: Evaluate, x0: np.ndarray, data, lower: np.ndarray, upper: np.ndarray,
            options: HybridOptions = HybridOptions()) -> HybridResult:
     """Run the whole strategy from ``x0`` (the nominal model); ``evaluate(batch)`` runs one round.
 
-    ``residual`` is a :class:`Residual` (or the measured amplitudes, shape (k,)); ``layout`` a
-    :class:`Layout` of the k values (or the frequencies, shape (p,), of a full frequency-major grid).
+    ``data`` is the measured data (:class:`fe_core.inference.frf_data.FRFData`): its kept values, their
+    residual, where they sit; the FE runs give the model at its kept values, shape (k,).
     """
-    strategy = Hybrid(x0, residual, layout, lower, upper, options)
+    strategy = Hybrid(x0, data, lower, upper, options)
     run_loop(strategy, evaluate)
     return strategy.result()

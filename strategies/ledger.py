@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .base import Batch
-from .gauss_newton import Residual
 
 __all__ = ["BudgetSpent", "Ledger", "drive"]
 
@@ -38,7 +37,7 @@ class Ledger:
     the rounds admitted past ``max_cost``.
     """
 
-    residual: Residual
+    residual: object  # the measured data (fe_core.inference.frf_data.FRFData): residual(Z), error(Z)
     max_cost: float
     jacobian_cost: float
     evaluations: int = 0

@@ -64,7 +64,7 @@ def predict(X: np.ndarray, Y: np.ndarray, E: np.ndarray, layout: ModalLayout, hy
 
     ``X`` (r, m), ``Y`` (r, n_outputs), ``E`` (r,): the FE runs, their emulated outputs and overall errors;
     ``hyper``: :class:`mrgp_core.Hyperparameters`; ``residual``: the run's residual of the receptance at the
-    kept values (a :class:`strategies.gauss_newton.Residual`); ``low``, ``high``: the box of the
+    kept values (:class:`fe_core.inference.frf_data.FRFData`, called on the receptance); ``low``, ``high``: the box of the
     Gauss-Newton runs.
     """
     best = X[np.argsort(E, kind="stable")[:GN_STARTS]]

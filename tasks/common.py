@@ -14,7 +14,7 @@ import time
 
 from tasks.runstore import RunStore
 
-__all__ = ["logger", "done", "finish", "fitted", "heartbeat", "beating", "HEARTBEAT_ENV"]
+__all__ = ["logger", "done", "finish", "heartbeat", "beating", "HEARTBEAT_ENV"]
 
 #: Environment variable: seconds between the "still running" lines of a long stage (default 30; tests set less).
 HEARTBEAT_ENV = "MRGP_HEARTBEAT_SECONDS"
@@ -46,21 +46,6 @@ def finish(store: RunStore, iteration: int, stage: str, names: list[str], info: 
     ``order`` (and the summary) are stale and removed."""
     if store.finish(iteration, stage, names, info) and order:
         store.invalidate_after(iteration, stage, order)
-
-
-def fitted(data):
-    """(:class:`~strategies.gauss_newton.Residual`, :class:`~strategies.hybrid.Layout`) of a
-    run's data: its residual of the receptance at the kept values (``data.cells``, frequency-major) and where
-    those values sit."""
-    import numpy as np
-
-    from strategies.gauss_newton import Residual
-    from strategies.hybrid import Layout
-
-    line, channel = data.cells
-    zeta = data.complex_frf[line, channel] if data.residual == "complex" else None
-    return (Residual(data.amplitude[line, channel], zeta),
-            Layout(np.asarray(data.frequencies_hz, float), line, channel))
 
 
 @contextlib.contextmanager

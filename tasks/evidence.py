@@ -22,19 +22,20 @@ import pandas as pd
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from fe_core.closure.evidence import Screen, log_rss, screen_points, weigh, weigh_round
+from fe_core.closure.evidence import Screen, screen_points, weigh, weigh_round
 from tasks import record
 from tasks.common import done, logger
 from tasks.problem import black_box
 from tasks.runstore import RunStore
 
-__all__ = ["EVIDENCE_STAGE", "WEIGH_STAGE", "evidence_task", "weigh_task", "screen_inputs"]
+__all__ = ["EVIDENCE_STAGE", "WEIGH_STAGE", "evidence_task", "weigh_task", "screen_model"]
 
 EVIDENCE_STAGE, WEIGH_STAGE = "evidence", "weigh"
 
 
-def screen_inputs(problem):
-    """(model seen through the channels, frequencies, amplitudes) on the complete lines, or a reason why not."""
+def screen_model(problem):
+    """(the model seen through the data's channels, "") when the effect library can be screened on the run's data
+    (:func:`fe_core.closure.evidence.screen_points` on ``problem.data``), else (None, why not)."""
     data = problem.data
     if black_box(problem.model):
         return None, "not screened: the effects are terms of K and M, which a black-box solver deck does not expose"
@@ -44,10 +45,9 @@ def screen_inputs(problem):
         model = data.single_reference_model(problem.model)
     except ValueError as exc:
         return None, f"not screened: {exc}"
-    complete = data.complete_lines
-    if complete.sum() < 3:
+    if data.complete_lines.sum() < 3:
         return None, "not screened: fewer than three lines with every channel kept"
-    return (model, np.asarray(data.frequencies_hz, float)[complete], data.amplitude[complete]), ""
+    return model, ""
 
 
 @task(name="evidence", task_run_name="iteration-{iteration}-evidence", cache_policy=NO_CACHE)
@@ -57,9 +57,9 @@ def evidence_task(root: str, problem, config, iteration: int, local_x) -> dict:
     if done(store, iteration, EVIDENCE_STAGE):
         return store.stage_info(iteration, EVIDENCE_STAGE)
     t0 = time.perf_counter()
-    inputs, why = screen_inputs(problem)
-    screens = [] if inputs is None else screen_points(*inputs, {"nominal": problem.nominal,
-                                                                "local fit": np.asarray(local_x, float)})
+    model, why = screen_model(problem)
+    screens = [] if model is None else screen_points(model, problem.data, {"nominal": problem.nominal,
+                                                                           "local fit": np.asarray(local_x, float)})
     info = {"screens": [s.to_dict() for s in screens], "skipped": why, "seconds": time.perf_counter() - t0}
     table = pd.DataFrame({"at": [s.at for s in screens], "effect": [s.effect or "" for s in screens],
                           "location": [s.location or "" for s in screens], "rss": [s.rss for s in screens],
@@ -79,8 +79,7 @@ def _sample_rss(store: RunStore, problem, iteration: int, sample_id: int) -> flo
     data = problem.data
     p, n = data.amplitude.shape
     Z, _ = record.grid(record.responses(store, iteration, [int(sample_id)]), p, n, problem.m)
-    complete = data.complete_lines
-    return log_rss(Z[complete], data.amplitude[complete])
+    return data.log_rss(data.kept(Z))
 
 
 @task(name="weigh", task_run_name="iteration-{iteration}-weigh", cache_policy=NO_CACHE)
@@ -93,10 +92,11 @@ def weigh_task(root: str, problem, config, iteration: int, evidence: dict, check
     found = [c for c in checks if c.get("sample_id") is not None and c.get("minimum")]
     basins = {int(c["sample_id"]): _sample_rss(store, problem, iteration, c["sample_id"]) for c in found}
     screens = [Screen.from_dict(s) for s in evidence.get("screens", [])]
-    inputs, _ = screen_inputs(problem)
-    if found and inputs is not None:
+    model, _ = screen_model(problem)
+    if found and model is not None:
         best = min(found, key=lambda c: basins[int(c["sample_id"])])
-        decision, screens = weigh_round(*inputs, screens, best["minimum"]["x"], basins[int(best["sample_id"])])
+        decision, screens = weigh_round(model, problem.data, screens, best["minimum"]["x"],
+                                        basins[int(best["sample_id"])])
     else:  # nothing to screen at: the screens so far against what re-fitting alpha alone leaves
         decision = weigh(screens, float("inf"))
     info = {**decision.to_dict(), "basins": {str(k): v for k, v in basins.items()},

@@ -28,7 +28,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 from joblib import delayed
 
-from mrgp_core.errors import overall_error
+from fe_core.inference.residual import overall_error
 from strategies.base import Outcome
 from tasks.faults import kill_point
 from tasks.common import finish

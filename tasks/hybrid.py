@@ -25,7 +25,7 @@ from prefect.cache_policies import NO_CACHE
 from strategies.hybrid import BudgetSpent, HybridOptions, Ledger, check, global_phase, local_phase
 from strategies.ledger import drive
 from tasks import record
-from tasks.common import done, fitted, heartbeat, logger
+from tasks.common import done, heartbeat, logger
 from tasks.fe_runs import JACOBIAN_COST, FEStage
 from tasks.problem import black_box
 from tasks.runstore import RunStore
@@ -58,7 +58,7 @@ def hybrid_options(config, problem=None) -> HybridOptions:
 
 def _phase_ledger(store: RunStore, problem, config, iteration: int) -> Ledger:
     options = hybrid_options(config, problem)
-    residual, _ = fitted(problem.data)
+    residual = problem.data
     used = record.spent(store, iteration - 1)
     ledger = Ledger(residual, options.max_cost - used["cost"], options.jacobian_cost,
                     cap=None if options.cap is None else options.cap - used["cost"],
@@ -147,9 +147,7 @@ def check_point(store: RunStore, problem, config, run):
     data = problem.data
     p, n = data.amplitude.shape
     Z, _ = record.grid(record.responses(store, int(run["iteration"]), [int(run["sample_id"])]), p, n, problem.m)
-    residual, layout = fitted(data)
-    line, channel = data.cells
-    return check(Z[line, channel], residual, layout, problem.m, hybrid_options(config))
+    return check(data.kept(Z), data, problem.m, hybrid_options(config))
 
 
 @task(name="check", task_run_name="iteration-{iteration}-check", cache_policy=NO_CACHE)
@@ -172,9 +170,7 @@ def check_task(root: str, problem, config, iteration: int, output_stage: str = C
         p, n = data.amplitude.shape
         resp = store.read_table(iteration, stage, "responses")
         Z, _ = record.grid(resp[resp["sample_id"] == sid], p, n, problem.m)
-        residual, layout = fitted(data)
-        line, channel = data.cells
-        verdict = check(Z[line, channel], residual, layout, problem.m, hybrid_options(config))
+        verdict = check(data.kept(Z), data, problem.m, hybrid_options(config))
         out.update({"sample_id": sid, "at_floor": bool(verdict.at_floor or best["status"] == "target"),
                     "reason": verdict.reason,
                     "rms": verdict.rms, "sigma": verdict.sigma if np.isfinite(verdict.sigma) else None,

@@ -24,7 +24,7 @@ from prefect.cache_policies import NO_CACHE
 from mrgp_core.modal_outputs import ModalLayout
 from strategies import paper as steps
 from tasks import record
-from tasks.common import beating, done, finish, fitted, logger
+from tasks.common import beating, done, finish, logger
 from tasks.fe_runs import FEStage
 from tasks.runstore import RunStore
 
@@ -263,7 +263,7 @@ def predict_task(root: str, problem, config, iteration: int, train_stage: str = 
         if options.modes:
             X, Y, E, layout = modal_training_set(store, problem, iteration)
             C, predicted = steps.predict(options, C, X, Y, E, hyper, fitted_outputs, layout,
-                                         fitted(problem.data)[0], problem.solver_box)
+                                         problem.data, problem.solver_box)
         else:
             _, X, Y, E = training_data(store, iteration)
             C, predicted = steps.predict(options, C, X, Y, E, hyper, fitted_outputs)

@@ -22,9 +22,9 @@ Lines
     :func:`tasks.lines.select_lines` (config keys ``lines``, ``line_windows``,
     ``resonance_widen``, ``min_coherence``).
 Residual
-    ``residuals = "amplitude"``: Eq. (5), ``(|Z| - u) / u``; ``"complex"``:
+    ``residuals = "amplitude"``: Eq. (5), ``|Z| / u - 1``; ``"complex"``:
     the real and imaginary parts of ``(Z - H) / |H|``
-    (:func:`mrgp_core.errors.complex_relative_residuals`), k doubles;
+    (:class:`fe_core.inference.frf_data.FRFData`, which computes every residual), k doubles;
     ``"auto"``: complex when the data carry phase, except the legacy form,
     which keeps the paper's amplitude residual (its ``real``/``imag``
     columns were optional extras, and the benchmark's results stay as they
@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mrgp_core import errors
+from fe_core.inference.frf_data import FRFData
 from tasks.io.measured import MeasuredDataError, MeasuredFRF, dof_label, parse_dof
 from tasks.io.measured.problems import Problems
 from tasks.lines import select_lines
@@ -53,44 +53,33 @@ __all__ = ["UpdateData", "update_data", "RESIDUALS", "resolve_channels"]
 log = logging.getLogger(__name__)
 
 RESIDUALS = ("auto", "amplitude", "complex")
+#: The power of ``j w`` from a receptance to each FRF kind as measured (the noise floor is in those units).
+NATIVE_POWER = {"receptance": 0, "mobility": 1, "accelerance": 2}
 _AXES = "xyz"
 
 
 @dataclass(frozen=True, eq=False)
-class UpdateData:
-    """The measured values an update fits, matched to the model.
+class UpdateData(FRFData):
+    """The measured values an update fits, matched to the model: :class:`fe_core.inference.frf_data.FRFData`
+    (the values, which are kept, every residual) with where they came from.
 
-    Attributes
+    Attributes (besides FRFData's ``frequencies_hz``, ``amplitude``, ``complex_frf``, ``mask``, ``residual``)
     ----------
     measured : MeasuredFRF
         As read (every line).
-    frequencies_hz : ndarray, shape (p,), Hz
-        The selected lines.
-    amplitude : ndarray, shape (p, n), m/N
-        Receptance amplitude at them (``n`` channels).
-    complex_frf : ndarray, shape (p, n), complex, or None
-        Receptance, sign-corrected to the model's directions, when the data carry phase.
-    mask : ndarray of bool, shape (p, n)
-        The values that enter the residual (coherence).
     responses, references : ndarray of int, shape (n,), or None
         Model sensor and excitation (0-based) of each channel; None when the
         channels are the model's sensors in order under its default
         excitation (then :meth:`fe_core.model.ParametricModel.frf` is used).
-    residual : {"amplitude", "complex"}
     selection : dict
         What was selected and dropped, for the manifest and the report.
     channel_info : list of dict
         Per channel: label, response, reference, sensor, excitation, sign, kind, place.
     """
 
-    measured: MeasuredFRF
-    frequencies_hz: np.ndarray
-    amplitude: np.ndarray
-    complex_frf: np.ndarray | None
-    mask: np.ndarray
-    responses: np.ndarray | None
-    references: np.ndarray | None
-    residual: str = "amplitude"
+    measured: MeasuredFRF | None = None
+    responses: np.ndarray | None = None
+    references: np.ndarray | None = None
     selection: dict = field(default_factory=dict)
     channel_info: list = field(default_factory=list)
 
@@ -105,23 +94,9 @@ class UpdateData:
         return self.measured.sensors
 
     @property
-    def n_channels(self) -> int:
-        return int(self.amplitude.shape[1])
-
-    @property
     def channels(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(responses, references)`` for :func:`tasks.stages.evaluate_sample`, or None (the model's FRF)."""
+        """``(responses, references)`` for :func:`tasks.fe_runs.evaluate_sample`, or None (the model's FRF)."""
         return None if self.responses is None else (self.responses, self.references)
-
-    @property
-    def n_values(self) -> int:
-        """k, the length of the residual vector."""
-        return int(self.mask.sum()) * (2 if self.residual == "complex" else 1)
-
-    @property
-    def cells(self) -> tuple[np.ndarray, np.ndarray]:
-        """(line, channel) indices of the kept values, frequency-major."""
-        return np.nonzero(self.mask)
 
     def line_place(self, i: int) -> str:
         """Where selected line ``i`` first appears in the file."""
@@ -132,18 +107,6 @@ class UpdateData:
     def selection_lines(self) -> np.ndarray:
         return np.asarray(self.selection["line_mask"], dtype=bool)
 
-    # -- residuals -------------------------------------------------------------------------------
-    def residuals(self, Z: np.ndarray) -> np.ndarray:
-        """Residual vector(s) of model FRFs ``Z`` (..., p, n) complex -> (..., k)."""
-        line, channel = self.cells
-        # C order, as the legacy (r, p, n) -> (r, p n) reshape: numpy's sums (Eq. 6b) depend on the layout
-        # in the last bit, and the legacy path must stay bit for bit what it was.
-        z = np.ascontiguousarray(np.asarray(Z)[..., line, channel])
-        if self.residual == "complex":
-            return errors.complex_relative_residuals(z, self.complex_frf[line, channel])
-        u = self.amplitude[line, channel]
-        return (_modulus(z) - u) / u
-
     def residual_columns(self, Z: np.ndarray) -> dict:
         """Long residual rows of one FE run ``Z`` (p, n): the kept values, frequency-major.
 
@@ -152,34 +115,15 @@ class UpdateData:
         complex residuals, ``residual_real``, ``residual_imag``.
         """
         line, channel = self.cells
-        z = np.asarray(Z)[line, channel]
-        u = self.amplitude[line, channel]
+        z = self.kept(Z)
         out = {"frequency_hz": self.frequencies_hz[line], "sensor": self.sensors[channel].astype(np.int64),
-               "residual": (_modulus(z) - u) / u}
-        if self.residual == "complex":
-            r = errors.complex_relative_residuals(z, self.complex_frf[line, channel])
+               "residual": self.amplitude_residual(z)}
+        if self.complex:
+            r = self(z)
             out.update(residual_real=r[: line.size], residual_imag=r[line.size:])
         return out
 
-    def channel_errors(self, residuals: np.ndarray) -> np.ndarray:
-        """Eq. (15) per channel: mean |residual| over its kept values (and both parts), (..., n)."""
-        r = np.abs(np.asarray(residuals, float))
-        _, channel = self.cells
-        if self.residual == "complex":
-            channel = np.concatenate([channel, channel])
-        counts = np.bincount(channel, minlength=self.n_channels)
-        sums = np.stack([np.bincount(channel, weights=row, minlength=self.n_channels)
-                         for row in r.reshape(-1, r.shape[-1])])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out = sums / counts
-        return out.reshape(r.shape[:-1] + (self.n_channels,))
-
     # -- views for stages that need one load and a full grid ----------------------------------------
-    @property
-    def complete_lines(self) -> np.ndarray:
-        """Selected lines where every channel is kept, bool (p,)."""
-        return self.mask.all(axis=1)
-
     def single_reference_model(self, model):
         """The model seen through the channels: their sensors as outputs, their one reference as the load.
 
@@ -231,12 +175,6 @@ class UpdateData:
                    f"of {s['values_in_windows']} values dropped{empty}")
         out.append(f"residual: {self.residual}, k = {self.n_values} values")
         return out
-
-
-def _modulus(z: np.ndarray) -> np.ndarray:
-    """``|z|`` as the errors stage always computed it (``hypot``; numpy's complex ``abs`` may differ in the last
-    bit), so the legacy path gives the same residuals, bit for bit, as before channels existed."""
-    return np.hypot(z.real, z.imag)
 
 
 def _match(label: str, names: list[str], tests: list, what: str, table: str, source: str, place: str):
@@ -377,6 +315,8 @@ def update_data(measured: MeasuredFRF, model, lines: str = "all", line_windows=N
         "values_kept": int(sel.mask.sum()), "band_hz": [float(f[0]), float(f[-1])],
         "line_mask": sel.lines.tolist(),
     }
+    powers = np.array([NATIVE_POWER.get(c["kind"], 0) for c in info], dtype=int)
     return UpdateData(measured=measured, frequencies_hz=f, amplitude=measured.amplitude[sel.lines], complex_frf=cplx,
+                      native_power=powers,
                       mask=sel.mask, responses=responses, references=references, residual=mode, selection=selection,
                       channel_info=info)

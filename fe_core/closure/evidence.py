@@ -37,7 +37,7 @@ from .fits import Fit
 from .screening import screen
 from ..model import ParametricModel
 
-__all__ = ["Screen", "Evidence", "screen_point", "screen_points", "weigh", "weigh_round", "log_rss", "FAR_BETTER"]
+__all__ = ["Screen", "Evidence", "screen_point", "screen_points", "weigh", "weigh_round", "FAR_BETTER"]
 
 #: The closure takes over when the best effect leaves at most this share of the best basin's sum of squares.
 #: Measured: the cantilever with an undeclared 0.6 kg point mass, 2.0 % (the mass at its true node, screened at
@@ -96,12 +96,6 @@ class Screen:
         return cls(**kw)
 
 
-def log_rss(amplitude_model: np.ndarray, amplitude: np.ndarray) -> float:
-    """Sum of squares of ``ln(|Z| / u)``."""
-    r = np.log(np.abs(amplitude_model) / np.asarray(amplitude, float))
-    return float(np.sum(r**2))
-
-
 def screen_point(model: ParametricModel, freqs_hz, amplitude, alpha, library: Sequence[Effect] | None = None,
                  at: str = "point") -> Screen:
     """Screen every candidate of ``library`` (all registered effects that apply) at ``alpha``.
@@ -135,11 +129,13 @@ def screen_point(model: ParametricModel, freqs_hz, amplitude, alpha, library: Se
                   values_n=int(r.size), seconds=time.perf_counter() - t0)
 
 
-def screen_points(model: ParametricModel, freqs_hz, amplitude, points: dict,
-                  library: Sequence[Effect] | None = None) -> list[Screen]:
-    """:func:`screen_point` at every point of ``points`` (label -> alpha), one library for all."""
+def screen_points(model: ParametricModel, data, points: dict, library: Sequence[Effect] | None = None) -> list[Screen]:
+    """:func:`screen_point` at every point of ``points`` (label -> alpha), one library for all, on the lines of
+    ``data`` (:class:`fe_core.inference.frf_data.FRFData`) where every channel is kept; ``model`` gives the
+    data's channels as its outputs (the model seen through them)."""
     library = build_library(model) if library is None else list(library)
-    return [screen_point(model, freqs_hz, amplitude, alpha, library, at) for at, alpha in points.items()]
+    freqs, u = data.complete()
+    return [screen_point(model, freqs, u, alpha, library, at) for at, alpha in points.items()]
 
 
 @dataclass(frozen=True)
@@ -179,12 +175,13 @@ def weigh(screens: Sequence[Screen], rss_basin: float, far_better: float = FAR_B
                               "searching basins", best.rss_effect, float(rss_basin), best)
 
 
-def weigh_round(model: ParametricModel, freqs_hz, amplitude, screens: Sequence[Screen], basin_alpha,
-                rss_basin: float, library: Sequence[Effect] | None = None) -> tuple[Evidence, list[Screen]]:
-    """After the first global round: screen at its best basin ``basin_alpha`` (unless screened there already), then
-    :func:`weigh` every screen against ``rss_basin``. Returns the decision and all screens."""
+def weigh_round(model: ParametricModel, data, screens: Sequence[Screen], basin_alpha, rss_basin: float,
+                library: Sequence[Effect] | None = None) -> tuple[Evidence, list[Screen]]:
+    """After the first global round: screen at its best basin ``basin_alpha`` (unless screened there already, on
+    ``data`` as :func:`screen_points`), then :func:`weigh` every screen against ``rss_basin``. Returns the
+    decision and all screens."""
     screens = list(screens)
     basin_alpha = np.asarray(basin_alpha, float)
     if not any(np.max(np.abs(np.asarray(s.alpha) - basin_alpha)) <= 1e-9 for s in screens):
-        screens.append(screen_point(model, freqs_hz, amplitude, basin_alpha, library, at="best basin"))
+        screens += screen_points(model, data, {"best basin": basin_alpha}, library)
     return weigh(screens, rss_basin), screens

@@ -43,6 +43,7 @@ __all__ = [
     "check_task",
     "emulated_check",
     "decide_task",
+    "measured",
 ]
 
 
@@ -88,13 +89,21 @@ def _cached_library(model, effects) -> dict:
     return cache[key]
 
 
+def measured(problem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frequencies (p,), channel numbers (n,), amplitudes (p, n)) the closure fits: the run's measured data
+    (``problem.data``, :class:`fe_core.inference.frf_data.FRFData`) on the lines where every channel is kept."""
+    freqs, u = problem.data.complete()
+    return freqs, np.asarray(problem.data.sensors), u
+
+
 # -- tasks ---------------------------------------------------------------------------------------------
 @task(name="closure-baseline", cache_policy=NO_CACHE)
 @beating("closure baseline (alpha-only least squares from the run's parameters and the restarts)")
-def baseline_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: np.ndarray, u: np.ndarray) -> dict:
+def baseline_task(root: str, problem, settings: dict) -> dict:
     """Alpha-only least squares from the run's parameters; residual and its analysis. ``problem``: the run's
-    :class:`tasks.problem.Problem` (its model)."""
+    :class:`tasks.problem.Problem` (its model and measured data: the closure fits :func:`measured`)."""
     store = ClosureStore(root)
+    freqs, sensors, u = measured(problem)
     if not _done(store, "baseline"):
         model = problem.model
         fit, analysis = fits.baseline(model, freqs, u, settings["alpha_start"], settings["noise"],
@@ -112,9 +121,10 @@ def baseline_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors
 
 @task(name="closure-screen", cache_policy=NO_CACHE)
 @beating("closure screen (every candidate effect, linearised)")
-def screen_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndarray) -> dict:
+def screen_task(root: str, problem, settings: dict) -> dict:
     """Linearised explained share of every candidate effect at the baseline."""
     store = ClosureStore(root)
+    freqs, _, u = measured(problem)
     if not _done(store, "screen"):
         t0 = time.perf_counter()
         model = problem.model
@@ -158,9 +168,10 @@ def check_candidate(ref, effects, kind: str, location: str, linear_values, base_
 
 
 @task(name="closure-check", cache_policy=NO_CACHE)
-def check_task(root: str, problem, settings: dict, freqs: np.ndarray, u: np.ndarray) -> dict:
+def check_task(root: str, problem, settings: dict) -> dict:
     """Full FE least squares of the best-screened candidates, in parallel, each stored as it finishes."""
     store = ClosureStore(root)
+    freqs, _, u = measured(problem)
     logger = _logger()
     if not _done(store, "check"):
         analysis = store.info("baseline")["analysis"]
@@ -248,8 +259,7 @@ def _indexed(k, *args):
 
 @task(name="closure-decide", cache_policy=NO_CACHE)
 @beating("closure decision (forward selection, moves, swaps, intervals)")
-def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: np.ndarray, u: np.ndarray,
-                run_info: dict) -> dict:
+def decide_task(root: str, problem, settings: dict, run_info: dict) -> dict:
     """Scores, the decision, the updated model, residual tables and ``closure.json``.
 
     Returns ``closure.json`` as written; a finished decision (its stage and the file) is read back, not
@@ -260,6 +270,7 @@ def decide_task(root: str, problem, settings: dict, freqs: np.ndarray, sensors: 
         _logger().info("closure: decision finished earlier, read back")
         return json.loads((store.root / "closure.json").read_text())
     model = problem.model
+    freqs, sensors, u = measured(problem)
     library = _library(model, settings)
     base = _baseline_fit(store, model, freqs, u)
     before = analyse_residual(base.residual, freqs, base.n_parameters, settings["noise"], settings["significance"],

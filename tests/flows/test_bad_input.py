@@ -107,6 +107,42 @@ def _channels(response=None, reference=None, frequencies=(100.0, 110.0), comment
     return _csv(lines)
 
 
+def _hits(fs=256.0, n=256, hits=2):
+    """Two hits of a short synthetic hammer test: a half-sine force and a decaying response at 1:+z."""
+    t = np.arange(n) / fs
+    force = np.where((t > 0.02) & (t < 0.03), 100 * np.sin(np.pi * (t - 0.02) / 0.01), 0.0)
+    response = np.where(t > 0.02, np.exp(-20 * (t - 0.02)) * np.sin(2 * np.pi * 40 * (t - 0.02)), 0.0)
+    return np.tile(force, (hits, 1)), np.tile(response, (hits, 1, 1))
+
+
+def _records_uff(path: Path, rate_of_dataset_3=None) -> None:
+    from tasks.io.measured.time_records import write_uff
+
+    force, response = _hits()
+    write_uff(path, 256.0, force, response, ["1:+z"], "5:+z")
+    if rate_of_dataset_3:
+        sets = pyuff.UFF(str(path)).read_sets()
+        sets[2]["x"] = np.arange(sets[2]["data"].size) / rate_of_dataset_3
+        pyuff.UFF(str(path)).write_sets(sets, mode="overwrite")
+
+
+def _records_csv(path: Path, quiet_hit=None, force_column="force") -> None:
+    from tasks.io.measured.time_records import write_table
+
+    force, response = _hits()
+    if quiet_hit:
+        force[quiet_hit - 1] = 0.0
+    write_table(path, 256.0, force, response, ["1:+z"], reference="5:+z")
+    path.write_text(path.read_text().replace("hit,time,force,", f"hit,time,{force_column},"))
+
+
+def _uff_coherence_above_1(path: Path) -> None:
+    sets = pyuff.UFF(str(BENCHMARK.with_name("hammer.uff"))).read_sets()
+    sets[4]["data"] = sets[4]["data"].copy()  # the coherence of channel 2 (dataset 5; its FRF is dataset 4)
+    sets[4]["data"][40] = 1.2
+    pyuff.UFF(str(path)).write_sets(sets, mode="overwrite")
+
+
 # (id, measured file name, its content (str, bytes or a writer), config lines, extra CLI args, message parts).
 # "{measured}" and "{config}" in message parts are replaced by the paths.
 BAD_INPUTS = [
@@ -138,6 +174,15 @@ BAD_INPUTS = [
      ["{measured}", "line 5: coherence 1.5 is outside [0, 1]"]),
     ("coherence below 0", "m.csv", _channels(coherence={12: "-0.2"}), "", [],
      ["{measured}", "line 12: coherence -0.2 is outside [0, 1]"]),
+    ("UFF58 coherence above 1", "m.uff", _uff_coherence_above_1, "", [],
+     ["{measured}", "dataset 5 (coherence of response 2:+z, reference 5:+z) point 41: coherence 1.2 is outside [0, 1]"]),
+    ("time records without a force channel", "m.csv", lambda p: _records_csv(p, force_column="hammer"), "", [],
+     ["{measured}", "no 'force' column: a time record without a force channel"]),
+    ("time records with mismatched sample rates", "m.uff", lambda p: _records_uff(p, rate_of_dataset_3=512.0), "",
+     [], ["{measured}", "dataset 3: sample rate 512 Hz, but dataset 1 has 256 Hz: mismatched sample rates"]),
+    ("a hit without a pulse", "m.csv", lambda p: _records_csv(p, quiet_hit=2), "", [],
+     ["{measured}", "hit 2 (line", "no pulse"]),
+    ("command line averages of zero", None, None, "", ["--averages", "0"], ["command line", "key 'averages'"]),
     ("duplicated response, reference, frequency", "m.csv",
      _channels(extra_rows=["s2,hammer,100.0,3e-6,1e-7,0.9"]), "", [],
      ["{measured}", "line 3 and line 14 both give response 's2', reference 'hammer' at frequency_hz 100.0"]),

@@ -17,7 +17,7 @@ import pytest
 
 from flows import update
 from flows.config import REPO, UpdateConfig
-from flows.diagnose import DiagnoseError, closure_measurements
+from flows.diagnose import DiagnoseError, closure_data
 from fe_core.benchmark import ALPHA_ACTUAL
 from tasks.io.measured import read_measured, write_measured
 from flows.problem import load_model as _load
@@ -68,19 +68,22 @@ def test_accelerance_mobility_and_receptance_give_the_same_parameters(kinds, red
 
 
 def test_the_closure_takes_the_hammer_test_only_as_the_models_default_excitation(tmp_path):
+    model = load_model("three_plate")
     with pytest.raises(DiagnoseError, match="excitation = \"hammer\""):
-        closure_measurements(HAMMER, load_model("three_plate"), {"lines": "windows", "line_windows": WINDOWS})
+        closure_data(update_data(read_measured(HAMMER), model, lines="windows", line_windows=WINDOWS), model)
     for name in ("model.toml", "three_plate.inp"):
         shutil.copy(REPO / "data" / "benchmark" / name, tmp_path / name)
     toml = tmp_path / "model.toml"
     toml.write_text(toml.read_text().replace('excitation = "combined"', 'excitation = "hammer"'))
-    freqs, sensors, u = closure_measurements(HAMMER, load_model(str(toml)), {"lines": "windows", "line_windows": WINDOWS,
-                                                                 "min_coherence": 0.9})
+    hammer_model = load_model(str(toml))
+    data = closure_data(update_data(read_measured(HAMMER), hammer_model, lines="windows", line_windows=WINDOWS,
+                                    min_coherence=0.9), hammer_model)
+    freqs, u = data.complete()
     measured = read_measured(HAMMER)
     rows = np.flatnonzero((measured.frequencies_hz >= 100.0) & (measured.frequencies_hz <= 125.0))
     np.testing.assert_array_equal(freqs, measured.frequencies_hz[rows])
     np.testing.assert_array_equal(u, measured.amplitude[rows])
-    assert sensors.tolist() == [1, 2, 3, 4, 5, 6]
+    assert data.sensors.tolist() == [1, 2, 3, 4, 5, 6]
 
 
 def test_the_hammer_test_selects_its_two_resonances():

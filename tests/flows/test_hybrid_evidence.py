@@ -60,7 +60,6 @@ def test_the_strategy_in_memory_weighs_the_same_evidence_after_the_same_fe_runs(
     from flows.rerun import run_problem
     from strategies.base import run_loop
     from strategies.hybrid import Hybrid
-    from tasks.common import fitted
     from tasks.hybrid import hybrid_options
     from tasks.record import history as run_history
 
@@ -70,11 +69,10 @@ def test_the_strategy_in_memory_weighs_the_same_evidence_after_the_same_fe_runs(
     problem = run_problem(config)
     evaluate = in_memory_fe(problem)
 
-    inputs, why = etasks.screen_inputs(problem)
+    model, why = etasks.screen_model(problem)
     assert not why
-    residual, layout = fitted(problem.data)
-    strategy = Hybrid(problem.nominal, residual, layout, *problem.solver_box, hybrid_options(config),
-                      screen=lambda points: screen_points(*inputs, points))
+    strategy = Hybrid(problem.nominal, problem.data, *problem.solver_box, hybrid_options(config),
+                      screen=lambda points: screen_points(model, problem.data, points))
     decision = run_loop(strategy, evaluate)
     assert decision.stop and not decision.converged and strategy.status == "effect"
     assert strategy.evidence.choice == summary["evidence"]["choice"] == "closure"

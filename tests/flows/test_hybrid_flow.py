@@ -176,7 +176,6 @@ def test_the_strategy_in_memory_makes_the_flows_fe_runs(hybrid_run, measured_fil
     from flows.rerun import run_problem
     from strategies.base import run_loop
     from strategies.hybrid import Hybrid
-    from tasks.common import fitted
     from tasks.hybrid import hybrid_options
 
     summary, store = hybrid_run
@@ -184,8 +183,7 @@ def test_the_strategy_in_memory_makes_the_flows_fe_runs(hybrid_run, measured_fil
     problem = run_problem(config)
     evaluate = in_memory_fe(problem)
 
-    residual, layout = fitted(problem.data)
-    strategy = Hybrid(problem.nominal, residual, layout, *problem.solver_box, hybrid_options(config))
+    strategy = Hybrid(problem.nominal, problem.data, *problem.solver_box, hybrid_options(config))
     decision = run_loop(strategy, evaluate)
     flow = run_history(store)
     memory = strategy.result().history  # (round, x, error, with_jacobian, phase)

@@ -11,7 +11,6 @@ from tasks.record import history as run_history
 from flows.rerun import run_problem
 from strategies.base import Outcome, run_loop
 from strategies.paper import PaperLoop
-from tasks.common import fitted
 from tasks.paper import modal_layout, paper_options
 
 
@@ -40,7 +39,7 @@ def test_the_loop_in_memory_makes_the_flows_samples(emulate, reduced_config, pre
         return out
 
     layout = modal_layout(problem) if problem.modes else None
-    loop = PaperLoop(paper_options(config), fitted(problem.data)[0], problem.lower, problem.upper,
+    loop = PaperLoop(paper_options(config), problem.data, problem.lower, problem.upper,
                      problem.solver_box, layout)
     decision = run_loop(loop, evaluate)
     flow = run_history(config.resolve(config.runs_dir) / config.run_id)

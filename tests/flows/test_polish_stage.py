@@ -14,7 +14,7 @@ from flows import update
 from flows.problem import resolve
 from tasks.paper import loop_budget
 from flows.config import ConfigError, UpdateConfig
-from mrgp_core import errors
+from fe_core.inference.residual import relative_residual
 from strategies.polish import polish
 from tasks.io.measured import read_measured
 from tasks.polish import POLISH_STAGE, polish_task
@@ -33,7 +33,7 @@ def test_from_about_one_percent_the_polish_reaches_the_noise_floor_of_noise_free
     freqs, amp = measured.frequencies_hz, measured.amplitude
 
     def evaluate(points):
-        return [errors.relative_residuals(np.abs(benchmark_model.frf(x, freqs))[None], amp)[0] for x in points]
+        return [relative_residual(np.abs(benchmark_model.frf(x, freqs)), amp).ravel() for x in points]
 
     start = ALPHA_ACTUAL + np.array([0.004, -0.006, 0.006, 0.004, -0.004, 0.002])
     before = float(np.mean(np.abs(evaluate([start])[0])))
@@ -53,7 +53,7 @@ def test_on_noisy_data_the_polish_stops_where_the_error_levels_off_at_the_noise(
     freqs, amp = noisy.frequencies_hz, noisy.amplitude
 
     def evaluate(points):
-        return [errors.relative_residuals(np.abs(benchmark_model.frf(x, freqs))[None], amp)[0] for x in points]
+        return [relative_residual(np.abs(benchmark_model.frf(x, freqs)), amp).ravel() for x in points]
 
     floor = float(np.mean(np.abs(evaluate([ALPHA_FAR])[0])))
     assert 0.006 < floor < 0.01  # 1 % noise: mean |r| about 0.8 %

@@ -8,12 +8,14 @@ Its derivative is analytic, so the strategy's Jacobian runs are exact.
 import numpy as np
 import pytest
 
-from strategies.gauss_newton import Residual, TrustRegionGN, composite_model
+from fe_core.inference.frf_data import FRFData
+from strategies.gauss_newton import TrustRegionGN, composite_model
 from strategies.hybrid import HybridOptions, hybrid
 
 W = np.linspace(4.0, 9.0, 40)
 TRUTH = np.array([-0.75, 0.3])
 U = 1e-6 * (1.0 + 0.5 * np.cos(W))  # measured amplitudes, m/N
+DATA = FRFData.grid(W, U)
 LOWER, UPPER = -np.ones(2), np.ones(2)
 
 
@@ -50,13 +52,14 @@ def test_inverse_model_is_exact_for_one_mode_and_the_linear_one_is_not():
     dZ0 = -(Z0**2)[:, None] * np.array([0.4, -0.2])[None, :]  # dZ = -Z^2 dk
     u = np.abs(Z_of(np.array([0.1, 0.1])))
     exact = np.abs(Z_of(x0 + s)) / u - 1.0
-    assert np.allclose(composite_model(Z0, dZ0, u, "inverse")(s), exact, rtol=1e-12, atol=1e-12)
-    assert np.max(np.abs(composite_model(Z0, dZ0, u, "linear")(s) - exact)) > 0.1
+    data = FRFData.grid(w, u)
+    assert np.allclose(composite_model(Z0, dZ0, data, "inverse")(s), exact, rtol=1e-12, atol=1e-12)
+    assert np.max(np.abs(composite_model(Z0, dZ0, data, "linear")(s) - exact)) > 0.1
 
 
 def test_broyden_update_satisfies_the_secant_condition():
     Z0, dZ0 = _toy(np.zeros(2))
-    gn = TrustRegionGN(np.zeros(2), Z0, dZ0, U, LOWER, UPPER, radius=0.05)
+    gn = TrustRegionGN(np.zeros(2), Z0, dZ0, DATA, LOWER, UPPER, radius=0.05)
     step = gn.propose()
     Z1, _ = _toy(step.x)
     assert gn.tell(step.x, Z1, None)  # a downhill step, taken without its derivative
@@ -65,7 +68,7 @@ def test_broyden_update_satisfies_the_secant_condition():
 
 def test_goes_global_from_a_wrong_basin_and_finds_the_truth():
     rounds = []
-    res = hybrid(_evaluate(log=rounds), np.zeros(2), U, W, LOWER, UPPER, OPTIONS)
+    res = hybrid(_evaluate(log=rounds), np.zeros(2), DATA, LOWER, UPPER, OPTIONS)
     assert res.status == "target"
     assert not res.checks[0][1].at_floor  # the local phase stalled in a wrong basin; the check saw structure
     assert res.checks[0][0].error > 0.05
@@ -77,7 +80,7 @@ def test_goes_global_from_a_wrong_basin_and_finds_the_truth():
 
 
 def test_stays_local_when_the_start_is_in_the_basin():
-    res = hybrid(_evaluate(), np.array([-0.6, 0.0]), U, W, LOWER, UPPER, OPTIONS)
+    res = hybrid(_evaluate(), np.array([-0.6, 0.0]), DATA, LOWER, UPPER, OPTIONS)
     assert res.status == "target" and len(res.checks) == 1
     assert {p for *_, p in res.history} == {"local"}
     assert res.rounds == res.evaluations == res.jacobians  # one FE run with its Jacobian per round
@@ -86,7 +89,7 @@ def test_stays_local_when_the_start_is_in_the_basin():
 
 def test_noisy_data_stop_at_the_floor():
     noise = 0.01 * np.random.default_rng(3).standard_normal(W.size)
-    res = hybrid(_evaluate(noise), np.array([-0.6, 0.0]), U, W, LOWER, UPPER, OPTIONS)
+    res = hybrid(_evaluate(noise), np.array([-0.6, 0.0]), DATA, LOWER, UPPER, OPTIONS)
     assert res.status == "floor" and len(res.checks) == 1
     assert res.checks[0][1].sigma == pytest.approx(0.01, rel=0.5)  # estimated from second differences
     assert np.max(np.abs(res.x - TRUTH)) < 0.05
@@ -94,7 +97,7 @@ def test_noisy_data_stop_at_the_floor():
 
 def test_the_budget_is_never_exceeded():
     options = HybridOptions(candidates=500, starts=4, space_filling=12, max_cost=40.0)
-    res = hybrid(_evaluate(), np.zeros(2), U, W, LOWER, UPPER, options)
+    res = hybrid(_evaluate(), np.zeros(2), DATA, LOWER, UPPER, options)
     assert res.status == "budget" and res.cost <= 40.0
 
 
@@ -115,14 +118,13 @@ def test_global_points_are_uniform_in_the_square_root_of_the_factor():
 def test_a_noise_level_estimated_from_a_structured_residual_is_labelled_an_upper_bound():
     """Issue 33: the check's estimate from a residual it calls structure is not presented as the noise."""
     from fe_core.inference.residual import STRUCTURED_ESTIMATE
-    from strategies.hybrid import Layout, check
+    from strategies.hybrid import check
 
-    layout = Layout.grid(W, 1)
     wrong, _ = _toy(np.array([0.2, 0.0]))  # a wrong basin: smooth misfit far above any noise
-    verdict = check(wrong, Residual(U), layout, 2, HybridOptions())
+    verdict = check(wrong, DATA, 2, HybridOptions())
     assert not verdict.at_floor and verdict.sigma_source == STRUCTURED_ESTIMATE
     assert f"({STRUCTURED_ESTIMATE})" in verdict.reason
     noise = np.random.default_rng(3).normal(0.0, 0.01, W.size)
     right, _ = _toy(TRUTH, noise)  # at the truth: what is left is the noise
-    verdict = check(right, Residual(U), layout, 2, HybridOptions())
+    verdict = check(right, DATA, 2, HybridOptions())
     assert verdict.at_floor and verdict.sigma_source == "estimated"

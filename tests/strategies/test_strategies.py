@@ -6,13 +6,14 @@ import numpy as np
 import pytest
 
 from strategies.base import Batch, Outcome, StopDecision, run_loop
-from strategies.gauss_newton import Residual
+from fe_core.inference.frf_data import FRFData
 from strategies.hybrid import Hybrid, HybridOptions
 from strategies.paper import PaperLoop, PaperOptions
 
 W = np.linspace(4.0, 9.0, 40)
 TRUTH = np.array([-0.55, 0.3])
 U = 1e-6 * (1.0 + 0.5 * np.cos(W))  # measured amplitudes, m/N
+DATA = FRFData.grid(W, U)
 LOWER, UPPER = -np.ones(2), np.ones(2)
 
 
@@ -62,13 +63,13 @@ def test_the_paper_loop_in_memory_keeps_table_2s_batches_and_narrows_on_the_trut
     options = PaperOptions(q=12, s=6, z=8, w=3000, threshold=1e-3, max_iterations=8, max_fe=60, emulate="errors",
                            seed=3)
     evaluate = Counting()
-    loop = PaperLoop(options, Residual(U), LOWER, UPPER, (LOWER + 1e-3, UPPER))
+    loop = PaperLoop(options, DATA, LOWER, UPPER, (LOWER + 1e-3, UPPER))
     decision = run_loop(loop, evaluate)
     sizes = [len(b) for b in evaluate.batches]
     assert sizes[0] == 12 and all(n == 6 for n in sizes[1:]) and sum(sizes) <= 60
     assert [b.label for b in evaluate.batches] == [f"iteration-{k}" for k in range(1, len(sizes) + 1)]
     assert all(not any(b.jacobian) for b in evaluate.batches)  # the paper's loop never asks for derivatives
-    first = np.mean([np.mean(np.abs(Residual(U)(_toy(x)[0]))) for x in evaluate.batches[0].points])
+    first = np.mean([np.mean(np.abs(DATA(_toy(x)[0]))) for x in evaluate.batches[0].points])
     x, error = loop.best()
     assert error < 0.1 * first  # the loop narrows on the measurement ...
     assert decision.stop and (decision.converged == (error <= options.threshold))
@@ -77,13 +78,13 @@ def test_the_paper_loop_in_memory_keeps_table_2s_batches_and_narrows_on_the_trut
 
 def test_the_modal_loop_refuses_to_start_without_its_layout():
     with pytest.raises(ValueError, match="modal layout"):
-        PaperLoop(PaperOptions(emulate="modes"), Residual(U), LOWER, UPPER, (LOWER, UPPER))
+        PaperLoop(PaperOptions(emulate="modes"), DATA, LOWER, UPPER, (LOWER, UPPER))
 
 
 def test_the_hybrid_asks_local_rounds_then_global_ones_and_stops_within_its_budget():
     options = HybridOptions(candidates=2000, starts=4, space_filling=12, max_cost=200.0)
     evaluate = Counting()
-    strategy = Hybrid(np.zeros(2), U, W, LOWER, UPPER, options)
+    strategy = Hybrid(np.zeros(2), DATA, LOWER, UPPER, options)
     assert strategy.stop() == StopDecision(False, False, "continue")
     decision = run_loop(strategy, evaluate)
     labels = [b.label for b in evaluate.batches]

@@ -1,35 +1,12 @@
-"""The pure pieces of the adaptive loop: error metrics, sampling distribution, selection, stopping."""
+"""The pure pieces of the adaptive loop: sampling distribution, selection, stopping (the error metrics:
+tests/fe_core/test_frf_data.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from mrgp_core import errors
 from strategies import table2
-
-
-def test_residual_layout_and_errors_follow_eqs_5_6b_15(rng):
-    p, n = 4, 3
-    measured = rng.uniform(1.0, 2.0, (p, n))
-    model = measured * (1 + rng.normal(0, 0.1, (p, n)))
-    res = errors.relative_residuals(model, measured)
-    # Eq. 5: [du_11 .. du_n1, du_12, ..., du_np] -- sensors fastest.
-    expected = [(model[j, i] - measured[j, i]) / measured[j, i] for j in range(p) for i in range(n)]
-    np.testing.assert_allclose(res, expected)
-    overall = sum(abs(model[j, i] - measured[j, i]) / measured[j, i] for i in range(n) for j in range(p)) / (n * p)
-    assert errors.overall_error(res) == pytest.approx(overall)
-    sensor = [np.mean([abs(model[j, i] / measured[j, i] - 1) for j in range(p)]) for i in range(n)]
-    np.testing.assert_allclose(errors.per_sensor_error(res, n), sensor)
-
-
-def test_errors_broadcast_over_many_samples(rng):
-    measured = rng.uniform(1.0, 2.0, (5, 2))
-    models = measured * (1 + rng.normal(0, 0.1, (7, 5, 2)))
-    res = errors.relative_residuals(models, measured)
-    assert res.shape == (7, 10)
-    np.testing.assert_allclose(errors.overall_error(res)[3], errors.overall_error(res[3]))
-    assert errors.per_sensor_error(res, 2).shape == (7, 2)
 
 
 def test_distribution_is_fitted_on_the_best_z_samples(rng):

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from fe_core.benchmark import ALPHA_ACTUAL
-from mrgp_core import errors
+from fe_core.inference.residual import relative_residual
 from tasks.io.measured import MeasuredDataError, MeasuredFRF
 from tasks.lines import resonance_windows, select_lines
 from flows.problem import load_model as _load
@@ -59,11 +59,11 @@ def test_the_models_own_channels_take_the_legacy_path(model):
     d = update_data(m, model, residuals="amplitude")
     assert d.channels is None
     Z = model.frf(ALPHA_ACTUAL, FREQS)
-    # As the errors stage computed it before channels existed: hypot of the stored real and imaginary parts.
-    np.testing.assert_array_equal(d.residuals(Z[None])[0],
-                                  errors.relative_residuals(np.hypot(Z.real, Z.imag)[None], m.amplitude)[0])
+    # Eq. 5 of the model's own FRF (|Z| / u - 1 against (|Z| - u) / u: the same to the last bits of a division).
+    np.testing.assert_allclose(d.residuals(Z[None])[0], relative_residual(np.abs(Z), m.amplitude).ravel(),
+                               rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(d.channel_errors(d.residuals(Z)),
-                                  errors.per_sensor_error(d.residuals(Z), 6))
+                                  np.mean(np.abs(d.residuals(Z)).reshape(-1, 6), axis=0))
 
 
 @pytest.mark.parametrize("responses, references, expected", [

@@ -8,7 +8,9 @@
   columns; the legacy ``sensor, frequency_hz, amplitude[, real, imag]`` table
   reads as before);
 - :mod:`.uff`: Universal File Format dataset 58 (FRFs and coherence; response
-  and reference nodes and directions, ordinate kind).
+  and reference nodes and directions, ordinate kind; the number of averages from the ID lines).
+- :mod:`.time_records`: raw hammer records, UFF58 time records (function type 1) or a table of samples
+  (a ``time`` column), turned into H1 FRFs with coherence over the hits by :mod:`.records`.
 
 - :mod:`.units`: the units labels test systems write (``g``, ``mm/s``,
   ``lbf``, ...), UFF58 records 8-10 and dataset 164; every value is converted
@@ -39,16 +41,19 @@ from pathlib import Path
 
 import numpy as np
 
-from tasks.io.measured import table, uff
+import dataclasses
+
+from tasks.io.measured import table, time_records, uff
 from tasks.io.measured.frf import (AMPLITUDE_RTOL, KINDS, MeasuredDataError, MeasuredFRF, dof_label, kind_of,
                                    parse_dof)
+from tasks.io.measured.records import RecordOptions
 from tasks.io.measured.table import COLUMNS, LEGACY_COLUMNS
 from tasks.io.measured.uff import UFF_FREQUENCY_RTOL, UFF_ORDINATE_RTOL
 
 __all__ = [
     "MeasuredFRF", "MeasuredDataError", "read_measured", "write_measured", "describe", "main", "KINDS",
     "AMPLITUDE_RTOL", "UFF_FREQUENCY_RTOL", "UFF_ORDINATE_RTOL", "COLUMNS", "LEGACY_COLUMNS", "FORMATS",
-    "SUPPORTED_SUFFIXES", "parse_dof", "dof_label", "kind_of",
+    "SUPPORTED_SUFFIXES", "parse_dof", "dof_label", "kind_of", "RecordOptions",
 ]
 
 logger = logging.getLogger(__name__)
@@ -73,7 +78,8 @@ def _checked_suffix(path: Path) -> str:
     return suffix
 
 
-def read_measured(path, *, expected_sensors=None, expected_frequencies_hz=None, frequency_rtol=1e-9):
+def read_measured(path, *, expected_sensors=None, expected_frequencies_hz=None, frequency_rtol=1e-9, averages=None,
+                  records: RecordOptions | None = None):
     """Read and validate a measured-FRF file.
 
     Parameters
@@ -88,6 +94,12 @@ def read_measured(path, *, expected_sensors=None, expected_frequencies_hz=None, 
         within ``frequency_rtol``. UFF keeps 6 significant digits of an
         uneven abscissa: use ``frequency_rtol=UFF_FREQUENCY_RTOL`` for UFF files.
     frequency_rtol : float
+    averages : int, optional
+        The number of averages behind every channel when the file states none (``--averages``); a file that
+        states its own keeps them (noted when they differ).
+    records : RecordOptions, optional
+        How raw records (:mod:`.time_records`) become FRFs: windows, record length, line spacing, band;
+        default :class:`RecordOptions` ().
 
     Returns
     -------
@@ -106,10 +118,29 @@ def read_measured(path, *, expected_sensors=None, expected_frequencies_hz=None, 
     suffix = _checked_suffix(path)
     if path.stat().st_size == 0:
         raise MeasuredDataError(f"{path}: empty file")
-    measured = FORMATS[suffix][0](path)
+    if time_records.is_time_records(path):
+        measured = time_records.read(path, records)
+    else:
+        measured = FORMATS[suffix][0](path)
+    measured = _with_averages(measured, averages)
     _check_expected(measured, expected_sensors, expected_frequencies_hz, frequency_rtol)
     for note in measured.notes:
         logger.info("%s: %s", path, note)
+    return measured
+
+
+def _with_averages(measured: MeasuredFRF, averages) -> MeasuredFRF:
+    """Fill the number of averages from the user where the file states none; note a disagreement."""
+    if averages is None:
+        return measured
+    if measured.averages is None:
+        return dataclasses.replace(measured, averages=np.full(measured.n_channels, int(averages)),
+                                   notes=measured.notes + (f"number of averages {int(averages)} as given (the file "
+                                                           "states none)",))
+    if np.any(measured.averages != int(averages)):
+        stated = ", ".join(map(str, sorted(set(measured.averages.tolist()))))
+        return dataclasses.replace(measured, notes=measured.notes + (
+            f"the file states {stated} averages; the {int(averages)} given are not used",))
     return measured
 
 
@@ -200,6 +231,9 @@ def describe(measured: MeasuredFRF) -> str:
         extra += ", read as " + "/".join(sorted(set(measured.kinds)))
     if measured.coherence is not None:
         extra += f", coherence {measured.coherence.min():.3g}..{measured.coherence.max():.3g}"
+    if measured.averages is not None:
+        counts = sorted(set(measured.averages.tolist()))
+        extra += f", {'/'.join(map(str, counts))} averages"
     return (
         f"{measured.source}: {what}, {f.size} frequencies ({f[0]:g}..{f[-1]:g} Hz), receptance amplitude "
         f"{a.min():.3g}..{a.max():.3g} m/N, {kind}{extra}"

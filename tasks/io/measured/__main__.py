@@ -1,11 +1,16 @@
-"""``python -m tasks.io.measured FILE``: validate a measured-FRF file, print a summary and what was converted."""
+"""``python -m tasks.io.measured FILE``: validate a measured-FRF file, print a summary and what was converted.
+
+Raw hammer records (:mod:`.time_records`) are turned into FRFs with the processing options given
+(``--force-window``, ``--exponential-end``, ``--record``, ``--line-spacing``, ``--band``); ``--write OUT``
+writes the result (FRFs, coherence, averages) as an FRF file for ``python -m flows.update --measured OUT``.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from tasks.io.measured import MeasuredDataError, describe, read_measured
+from tasks.io.measured import MeasuredDataError, RecordOptions, describe, read_measured, write_measured
 
 
 def main(argv=None) -> int:
@@ -13,7 +18,17 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m tasks.io.measured", description="Validate a measured-FRF file (.csv, .parquet, .uff, .unv)."
     )
-    parser.add_argument("path", help="measured-FRF file (.csv, .parquet, .uff, .unv)")
+    parser.add_argument("path", help="measured-FRF file (.csv, .parquet, .uff, .unv) or raw hammer records")
+    parser.add_argument("--averages", type=int, metavar="N", help="averages behind each FRF where the file says none")
+    raw = parser.add_argument_group("raw hammer records (time records, tables of samples)")
+    raw.add_argument("--force-window", type=float, metavar="S", help="length of the rectangular force window, s "
+                     "(default: one pulse width before the pulse to two after, at least 16 samples each side)")
+    raw.add_argument("--exponential-end", type=float, metavar="E", help="exponential window on force and "
+                     "responses, E at the record's end, e.g. 0.01 (default none; adds damping, noted)")
+    raw.add_argument("--record", type=float, metavar="S", help="use the first S seconds of each record")
+    raw.add_argument("--line-spacing", type=float, metavar="DF", help="line spacing, Hz (default 1 / record length)")
+    raw.add_argument("--band", metavar="LO-HI", help="lines kept, Hz (default above 0 up to the sample rate / 2.56)")
+    parser.add_argument("--write", metavar="OUT", help="write what was read as an FRF file (.uff, .csv, .parquet)")
     args = parser.parse_args(argv)
     from tasks.io.measured.modes import describe_modes, is_modal_file, read_modes
 
@@ -26,13 +41,27 @@ def main(argv=None) -> int:
         print(describe_modes(modes))
         return 0
     try:
-        measured = read_measured(args.path)
-    except (MeasuredDataError, OSError) as exc:
+        band = None
+        if args.band is not None:
+            try:
+                band = tuple(float(v) for v in args.band.split("-"))
+            except ValueError:
+                band = (args.band,)
+            if len(band) != 2:
+                raise MeasuredDataError(f"--band {args.band!r}: give LO-HI in Hz, e.g. 0-400")
+        options = RecordOptions(force_window_s=args.force_window, exponential_end=args.exponential_end,
+                                record_s=args.record, line_spacing_hz=args.line_spacing, band_hz=band)
+        measured = read_measured(args.path, averages=args.averages, records=options)
+        if args.write:
+            write_measured(args.write, measured)
+    except (MeasuredDataError, OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(describe(measured))
     for note in measured.notes:
         print(f"  {note}")
+    if args.write:
+        print(f"wrote {args.write}")
     return 0
 
 

@@ -163,6 +163,10 @@ class MeasuredFRF:
         What was converted or dropped while reading, one sentence each.
     units : tuple of str, length n, or None
         The unit each channel had in the file (``"g/N"``), before the conversion to SI; None = SI.
+    averages : ndarray, shape (n,), int, or None
+        Number of averages (hits) behind each channel's FRF and coherence, when the file says or the user
+        gave it (``--averages``); with the coherence it gives the noise per line
+        (:func:`fe_core.inference.coherence_noise.frf_random_error`).
     """
 
     frequencies_hz: np.ndarray
@@ -178,6 +182,7 @@ class MeasuredFRF:
     line_places: tuple | None = None
     notes: tuple = ()
     units: tuple | None = None
+    averages: np.ndarray | None = None
 
     def __post_init__(self):
         f = _read_only(self.frequencies_hz, float)
@@ -201,6 +206,12 @@ class MeasuredFRF:
         if g is not None and (g.shape != a.shape or not np.all((g >= 0) & (g <= 1))):
             raise ValueError("coherence must be shaped as amplitude, with values in [0, 1]")
         n = s.size
+        if self.averages is not None:
+            raw = np.asarray(self.averages)
+            v = _read_only(raw, np.int64)
+            if v.shape != (n,) or np.any(v != raw) or np.any(v < 1):
+                raise ValueError(f"averages must be whole numbers >= 1, one per channel ({n})")
+            object.__setattr__(self, "averages", v)
         for name, value in (("responses", self.responses), ("references", self.references),
                             ("kinds", self.kinds), ("places", self.places), ("units", self.units)):
             if value is not None and len(value) != n:
@@ -273,7 +284,8 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
     columns : dict of str to ndarray, shape (r,)
         ``sensor`` (legacy) or ``response`` (str) and optionally ``reference``
         (str, "" = the default excitation); ``frequency_hz``; ``amplitude``
-        and/or ``real``, ``imag``; optionally ``coherence`` (all float).
+        and/or ``real``, ``imag``; optionally ``coherence`` and ``averages`` (a whole number per channel)
+        (all float).
     where : list of str, length r
         Place of each row in the file.
     source : str
@@ -296,7 +308,8 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
     # Every check below runs; each names its first row and counts the others.
     problems = Problems(source) if problems is None else problems
     kinds = np.full(r, "receptance", dtype=object) if kinds is None else np.asarray(kinds, dtype=object)
-    numeric = [k for k in ("sensor", "frequency_hz", "amplitude", "real", "imag", "coherence") if k in columns]
+    numeric = [k for k in ("sensor", "frequency_hz", "amplitude", "real", "imag", "coherence", "averages")
+               if k in columns]
     # Rows with no problem yet: a later check does not repeat an earlier one's row.
     ok = np.ones(r, dtype=bool) if bad_rows is None else ~np.asarray(bad_rows, dtype=bool)
     for name in numeric:
@@ -337,6 +350,11 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
     if coherence is not None:
         first_bad(ok & ((coherence < 0) | (coherence > 1)), coherence, "coherence {!r} is outside [0, 1]", where,
                   source, problems)
+    averages = columns.get("averages")
+    if averages is not None:
+        bad = ok & ((averages < 1) | (averages != np.round(averages)))
+        first_bad(bad, averages, "averages {!r} is not a whole number >= 1", where, source, problems)
+        ok &= ~bad
 
     # Channel keys and duplicates.
     if legacy:
@@ -382,6 +400,10 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
             problems.add(f"{where[i0]} and {where[other[0]]}: {_describe_key(channel_keys[c])} is given as "
                          f"{kinds[i0]} and as {kinds[other[0]]}; one kind per channel")
         channel_kind.append(str(kinds[i0]))
+        if averages is not None and np.any(averages[mine] != averages[i0]):
+            j = mine[averages[mine] != averages[i0]][0]
+            problems.add(f"{where[i0]} and {where[j]}: {_describe_key(channel_keys[c])} has {averages[i0]:g} and "
+                         f"{averages[j]:g} averages; one number per channel")
         if units is not None and np.any(units[mine] != units[i0]):
             j = mine[units[mine] != units[i0]][0]
             problems.add(f"{where[i0]} and {where[j]}: {_describe_key(channel_keys[c])} is given in {units[i0]} "
@@ -448,6 +470,7 @@ def grid_from_rows(columns: dict, where: list[str], source: str, kinds=None, com
         line_places=tuple(where[line_first[k]] for k in range(frequencies.size)),
         notes=tuple(notes),
         units=None if units is None else tuple(str(units[i]) for i in channel_first),
+        averages=None if averages is None else averages[channel_first].astype(np.int64),
     )
 
 

@@ -21,7 +21,12 @@ column             unit          meaning
 ``coherence``      -             optional, ordinary coherence in [0, 1]
 ``kind``           -             optional, per row: receptance (m/N), mobility ((m/s)/N) or
                                  accelerance ((m/s^2)/N), or those units
+``averages``       -             optional: the number of averages (hits) behind the channel's FRF
+                                 and coherence, one whole number per channel
 =================  ============  ================================================================
+
+The number of averages of a whole file: a comment line ``# averages = 10`` (CSV) or the Parquet schema
+metadata key ``averages``; an ``averages`` column wins over it.
 
 ``unit``: optional, per row: the unit of the row's values, response over force (``g/N``, ``mm/s/N``,
 ``m/s^2/lbf``; :mod:`.units`); it fixes the row's kind, and the values are converted to SI. The unit of a
@@ -54,10 +59,11 @@ from .units import SI_FRF_UNIT, UnitError, frf_unit
 __all__ = ["read_csv", "read_parquet", "write_csv", "write_parquet", "table_columns", "LEGACY_COLUMNS", "COLUMNS"]
 
 LEGACY_COLUMNS = ("sensor", "frequency_hz", "amplitude", "real", "imag")
-COLUMNS = LEGACY_COLUMNS + ("response", "reference", "coherence", "kind", "unit")
+COLUMNS = LEGACY_COLUMNS + ("response", "reference", "coherence", "kind", "unit", "averages")
 TEXT_COLUMNS = ("response", "reference", "kind", "unit")
 _DECLARATION = re.compile(r"^#\s*kind\s*[=:]\s*(.*?)\s*$", re.IGNORECASE)
 _UNIT_DECLARATION = re.compile(r"^#\s*units?\s*[=:]\s*(.*?)\s*$", re.IGNORECASE)
+_AVERAGES_DECLARATION = re.compile(r"^#\s*averages\s*[=:]\s*(.*?)\s*$", re.IGNORECASE)
 
 
 def _check_header(names, source):
@@ -174,19 +180,32 @@ def _units(columns, where, source, kinds, explicit, unit, unit_at):
     return labels, notes
 
 
-def _rows(names, records, where, source, declared=None, declared_at="", unit=None, unit_at="", problems=None):
+def _rows(names, records, where, source, declared=None, declared_at="", unit=None, unit_at="", problems=None,
+          averages=None):
     problems = problems if problems is not None else Problems(source)
     bad = np.zeros(len(where), dtype=bool)
     columns = {}
     for name, cells in zip(names, records):
         reader = _to_text if name in TEXT_COLUMNS else _to_float
         columns[name] = reader(cells, name, where, source, problems, bad)
-    return _grid(columns, where, source, declared, declared_at, unit, unit_at, problems, bad)
+    return _grid(columns, where, source, declared, declared_at, unit, unit_at, problems, bad, averages)
 
 
-def _grid(columns, where, source, declared, declared_at, unit, unit_at, problems=None, bad=None):
-    """Kinds and units of the rows, then :func:`.frf.grid_from_rows`; the problems of every step in one message."""
+def _grid(columns, where, source, declared, declared_at, unit, unit_at, problems=None, bad=None, averages=None):
+    """Kinds and units of the rows, then :func:`.frf.grid_from_rows`; the problems of every step in one message.
+
+    ``averages``: ``(text, place)`` of the file's ``averages`` declaration, or None.
+    """
     problems = problems if problems is not None else Problems(source)
+    if averages is not None and "averages" not in columns:
+        text, place = averages
+        try:
+            value = float(text)
+        except ValueError:
+            value = float("nan")
+        if not (value >= 1 and value == round(value)):
+            raise MeasuredDataError(f"{source}: {place}: averages {text!r} is not a whole number >= 1")
+        columns["averages"] = np.full(len(where), value)
     explicit = np.full(len(where), declared is not None)
     if "kind" in columns:
         explicit |= np.array([bool(c) for c in columns["kind"]], dtype=bool)
@@ -204,7 +223,7 @@ def _grid(columns, where, source, declared, declared_at, unit, unit_at, problems
 # -- CSV ---------------------------------------------------------------------------------------
 def read_csv(path) -> MeasuredFRF:
     records, where = [], []
-    declared, declared_at, unit, unit_at = None, "", None, ""
+    declared, declared_at, unit, unit_at, averages = None, "", None, "", None
     try:
         # utf-8-sig: spreadsheet programs put a byte-order mark before the header.
         with open(path, newline="", encoding="utf-8-sig") as fh:
@@ -218,6 +237,9 @@ def read_csv(path) -> MeasuredFRF:
             if record[0].lstrip().startswith("#"):
                 match = _DECLARATION.match(",".join(record).strip())
                 unit_match = _UNIT_DECLARATION.match(",".join(record).strip())
+                averages_match = _AVERAGES_DECLARATION.match(",".join(record).strip())
+                if averages_match:
+                    averages = (averages_match.group(1), f"line {reader.line_num}")
                 if unit_match:
                     if unit is not None or len(records) > 1:
                         raise MeasuredDataError(f"{path}: line {reader.line_num}: a second unit declaration or "
@@ -247,7 +269,7 @@ def read_csv(path) -> MeasuredFRF:
     if not kept:
         problems.check()
     cells = list(zip(*kept)) or [()] * len(names)
-    return _rows(names, cells, kept_where, path, declared, declared_at, unit, unit_at, problems)
+    return _rows(names, cells, kept_where, path, declared, declared_at, unit, unit_at, problems, averages)
 
 
 def _declaration(text, place, path, declared, declared_at, after_data):
@@ -299,8 +321,11 @@ def read_parquet(path) -> MeasuredFRF:
         else:
             columns[name] = _to_float(values, name, where, path, problems, bad)
     unit = metadata[b"unit"].decode("utf-8", errors="replace") if b"unit" in metadata else None
+    averages = None
+    if b"averages" in metadata:
+        averages = (metadata[b"averages"].decode("utf-8", errors="replace"), "the schema metadata 'averages'")
     return _grid(columns, where, path, declared, "the schema metadata", unit, "the schema metadata 'unit'", problems,
-                 bad)
+                 bad, averages)
 
 
 # -- writing -----------------------------------------------------------------------------------
@@ -332,6 +357,8 @@ def table_columns(measured: MeasuredFRF, kind: str | None = None) -> dict:
         columns["coherence"] = measured.coherence.ravel()
     if any(k != "receptance" for k in kinds):
         columns["kind"] = np.tile(np.array(kinds, dtype=object), p)
+    if measured.averages is not None:
+        columns["averages"] = np.tile(measured.averages, p)
     return columns
 
 

@@ -13,7 +13,13 @@ What is read from each dataset 58 (record numbers of the standard, pyuff's keys)
   8 displacement, 11 velocity, 12 acceleration), so the FRF is a receptance,
   mobility or accelerance; record 10: the denominator (13 excitation force,
   9 reaction force, 0 unknown are accepted as force);
-- record 12: abscissa (Hz) and ordinates.
+- record 12: abscissa (Hz) and ordinates;
+- records 1-5 (ID lines, free text): the number of averages when one says ``10 averages``,
+  ``averages = 10``, ``Avg: 10`` or ``NAVG 10`` (UFF58 has no field for it; the FRF's lines first, then its
+  coherence's); written as ``N averages`` in ID line 2.
+
+Datasets of function type 1 (time response) are raw records: a file with time records and no FRF is
+read by :mod:`.time_records` (H1 FRFs and coherence from the hits).
 
 Units (:mod:`.units`): the units labels of records 8-10 and the unit system of the last dataset 164
 before the dataset; values are converted to SI and the conversion noted. An unknown label, or one that
@@ -38,6 +44,7 @@ abscissa values in it from 1.
 from __future__ import annotations
 
 import logging
+import re
 
 import numpy as np
 
@@ -129,7 +136,7 @@ def _label(node_dir) -> str:
 
 
 def _rows(path, frfs, coherences, legacy, skipped, problems):
-    parts, ks, where, kinds, units, notes = [], [], [], [], [], []
+    parts, ks, where, kinds, units, notes, counts = [], [], [], [], [], [], []
     used = {_key(dataset) for _, dataset, _ in frfs}  # a coherence whose FRF is faulty is not also an orphan
     complex_kind = set()
     for k, dataset, system in frfs:
@@ -137,13 +144,30 @@ def _rows(path, frfs, coherences, legacy, skipped, problems):
             key, x, data, coherence, kind, place, unit = _part(path, k, dataset, system, legacy, coherences, used,
                                                                notes, complex_kind)
             parts.append((key, x, data, coherence, kind))
+            counts.append(averages_in_id_lines(dataset, coherences[key][1] if key in coherences else None))
             where += [f"{place} point {j + 1}" for j in range(data.size)]
             kinds += [kind] * data.size
             units += [unit["unit"]] * data.size
             ks.append(k)
     if not parts:
         problems.check()
-    return _grid(path, coherences, legacy, skipped, problems, parts, ks, where, kinds, units, notes, used)
+    return _grid(path, coherences, legacy, skipped, problems, parts, ks, where, kinds, units, notes, used, counts)
+
+
+#: The number of averages in a dataset 58's ID lines (records 1-5): UFF58 has no field for it, and exporters
+#: that write it put it there as text: "10 averages", "averages = 10", "Avg: 10", "NAVG 10".
+_AVERAGES = re.compile(r"(?:\b(\d+)\s*(?:averages|avgs?|averaged)\b)|(?:\b(?:averages|avgs?|navg|n_avg|number of "
+                       r"averages)\s*[=:]?\s*(\d+)\b)", re.IGNORECASE)
+
+
+def averages_in_id_lines(dataset, coherence_dataset=None) -> int | None:
+    """The number of averages an FRF dataset (else its coherence dataset) states in its ID lines, or None."""
+    for d in (dataset, coherence_dataset or {}):
+        for name in ("id1", "id2", "id3", "id4", "id5"):
+            match = _AVERAGES.search(str(d.get(name, "")))
+            if match and int(match.group(1) or match.group(2)) >= 1:
+                return int(match.group(1) or match.group(2))
+    return None
 
 
 def _part(path, k, dataset, system, legacy, coherences, used, notes, complex_kind):
@@ -190,10 +214,15 @@ def _part(path, k, dataset, system, legacy, coherences, used, notes, complex_kin
             raise MeasuredDataError(f"{path}: dataset {ck + 1}: the coherence of {place} must be real and "
                                     "have the FRF's frequency lines")
         coherence = cdata.astype(float)
+        bad = np.flatnonzero(~((coherence >= 0) & (coherence <= 1)))
+        if bad.size:  # named here, in the coherence's own dataset (the grid would name the FRF's)
+            more = f" ({bad.size - 1} more points like it)" if bad.size > 1 else ""
+            raise MeasuredDataError(f"{path}: dataset {ck + 1} (coherence of {place.split(' (', 1)[1][:-1]}) point "
+                                    f"{bad[0] + 1}: coherence {coherence[bad[0]].item()!r} is outside [0, 1]{more}")
     return key, x, data, coherence, kind, place, unit
 
 
-def _grid(path, coherences, legacy, skipped, problems, parts, ks, where, kinds, units, notes, used):
+def _grid(path, coherences, legacy, skipped, problems, parts, ks, where, kinds, units, notes, used, counts):
     """The datasets read as long rows, checked together (:func:`.frf.grid_from_rows`) with every problem so far."""
     given = [c is not None for *_, c, _ in parts]
     if any(given) and not all(given):
@@ -218,6 +247,12 @@ def _grid(path, coherences, legacy, skipped, problems, parts, ks, where, kinds, 
                                                for key, x, *_ in parts])
     if all(given):
         columns["coherence"] = np.concatenate([c for *_, c, _ in parts])
+    if all(n is not None for n in counts):
+        columns["averages"] = np.concatenate([np.full(x.size, n, dtype=float) for (_, x, *_), n in zip(parts, counts)])
+        notes.append(f"number of averages from the datasets' ID lines: {', '.join(map(str, sorted(set(counts))))}")
+    elif any(n is not None for n in counts):
+        notes.append(f"{sum(n is not None for n in counts)} of {len(counts)} FRF datasets state a number of averages "
+                     "in their ID lines, the others none: not used (give --averages)")
     complex_data = None
     if np.iscomplexobj(data):
         complex_data = data
@@ -325,15 +360,16 @@ def write(path, measured: MeasuredFRF, kind: str | None = None, even: bool = Fal
             record6 = dict(load_case_id=0, **_node_dir("rsp", measured.responses[j], path),
                            **_node_dir("ref", measured.references[j], path))
         units = "m/N" if measured.legacy and kinds[j] == "receptance" else _UNITS_LABEL[kinds[j]]
+        id2 = "NONE" if measured.averages is None else f"{int(measured.averages[j])} averages"
         datasets.append(pyuff.prepare_58(
-            binary=0, id1="measured FRF", func_type=4, **record6,
+            binary=0, id1="measured FRF", id2=id2, func_type=4, **record6,
             abscissa_spacing=spacing, abscissa_spec_data_type=18, abscissa_axis_units_lab="Hz",
             ordinate_spec_data_type=KIND_ORDINATE[kinds[j]], orddenom_spec_data_type=13,
             ordinate_axis_units_lab=units, orddenom_axis_units_lab="N", data=values.copy(), x=f.copy(),
         ))
         if measured.coherence is not None:
             datasets.append(pyuff.prepare_58(
-                binary=0, id1="coherence", func_type=6, **record6, abscissa_spacing=spacing,
+                binary=0, id1="coherence", id2=id2, func_type=6, **record6, abscissa_spacing=spacing,
                 abscissa_spec_data_type=18, abscissa_axis_units_lab="Hz", ordinate_spec_data_type=0,
                 orddenom_spec_data_type=0, data=measured.coherence[:, j].copy(), x=f.copy(),
             ))
