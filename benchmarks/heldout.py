@@ -64,8 +64,9 @@ def run_case(truth: dict, runs: Path, timeout: float, lock: Path | None = LOCK) 
         if handle:
             fcntl.flock(handle, fcntl.LOCK_UN)
             handle.close()
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout
     return {"exit": code, "wall_s": round(wall, 1), "load": [round(load0[0], 1), round(load1[0], 1)],
-            "log": str(log), "command": " ".join(cmd[3:])}
+            "log": str(log), "command": " ".join(cmd[3:]), "commit": commit.strip()}
 
 
 def _deck_coordinates() -> dict:

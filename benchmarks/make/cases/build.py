@@ -136,7 +136,7 @@ def make_case(spec: dict, root: Path = cs.ROOT) -> dict:
     H1, coherence = noise.simulate(acc, lines, settings, np.random.default_rng(dr["noise_seed"]))
     sensors = _sensor_names(spec["structure"])
     folder = root / spec["set"] / spec["id"]
-    sha = noise.write_table(folder / "measured.csv", sensors, lines, H1, coherence,
+    sha = noise.write_table(folder / "measured.csv", sensors, lines, H1, coherence, averages,
                             [f"held-out case {spec['id']} (issue 40): python -m benchmarks.make.cases --set "
                              f"{spec['set']} --only {spec['id']}",
                              f"impact test, hammer at '{_exc_name(spec['structure'])}'; averages per channel: "

@@ -199,7 +199,7 @@ def modes(Kc, Mc, top_hz: float, factor: Factor | None = None, start: int = 24):
     while True:
         k = min(k, Kc.shape[0] - 2)
         v0 = np.ones(Kc.shape[0])  # a fixed start vector: the same modes every run
-        vals, vecs = spla.eigsh(Kc, k=k, M=Mc, sigma=0.0, OPinv=op, which="LM", v0=v0, tol=1e-12)
+        vals, vecs = spla.eigsh(Kc, k=k, M=Mc, sigma=0.0, OPinv=op, which="LM", v0=v0)   # tol: machine eps
         order = np.argsort(vals)
         vals, vecs = vals[order], vecs[:, order]
         f = np.sqrt(np.abs(vals)) / (2 * np.pi)

@@ -15,8 +15,9 @@ The FRF is the H1 estimate ``sum X F* / sum |F|^2`` and the ordinary coherence
 same for the benchmark). A channel with fewer averages has the same per-hit noise, so more noise after averaging
 and a lower coherence.
 
-The file: a long table (``response,frequency_hz,real,imag,coherence``; ``# kind = accelerance``), every line
-from 0 Hz to the band's top at the step, 7 significant digits (a test system's single precision).
+The file: a long table (``response,frequency_hz,real,imag,coherence,averages``; ``# kind = accelerance``), every
+line from 0 Hz to the band's top at the step, 7 significant digits (a test system's single precision), each
+channel's number of averages in its rows (docs/measured-formats.md).
 """
 
 from __future__ import annotations
@@ -81,12 +82,13 @@ def simulate(accelerance: np.ndarray, f_hz: np.ndarray, settings: dict, rng: np.
     return H1, np.clip(coherence, 0.0, 1.0)
 
 
-def write_table(path: Path, names, f_hz, H1, coherence, header: list[str]) -> str:
+def write_table(path: Path, names, f_hz, H1, coherence, averages, header: list[str]) -> str:
     """Write the long table (module docstring) atomically; returns its SHA-256."""
-    rows = [f"# {h}" for h in header] + ["# kind = accelerance", "response,frequency_hz,real,imag,coherence"]
+    rows = [f"# {h}" for h in header] + ["# kind = accelerance", "response,frequency_hz,real,imag,coherence,averages"]
     for j, name in enumerate(names):
         for k, f in enumerate(f_hz):
-            rows.append(f"{name},{f:.7g},{H1[k, j].real:.7g},{H1[k, j].imag:.7g},{coherence[k, j]:.6f}")
+            rows.append(f"{name},{f:.7g},{H1[k, j].real:.7g},{H1[k, j].imag:.7g},{coherence[k, j]:.6f},"
+                        f"{int(averages[j])}")
     text = "\n".join(rows) + "\n"
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
