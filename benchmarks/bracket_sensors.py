@@ -1,6 +1,6 @@
 """Where to put the bracket's sensors: the parameter error each layout leaves, predicted before any update.
 
-    nice -n 5 python -m benchmarks.bracket_sensors      # docs/bracket-sensors.md (about 10 min, 3.5 GB)
+    nice -n 5 python -m benchmarks.bracket_sensors      # docs/results/bracket-sensors.md (about 10 min, 3.5 GB)
 
 Example (a) updates the default tet10 mesh from the FRF of a finer one. What the update can reach is
 limited twice: by the noise (1 %) and by the discretisation residual ``r = ln|Z_default(truth)| -
@@ -13,7 +13,7 @@ Linearised at the truth with the default mesh's exact log-amplitude Jacobian ``J
 so every layout of the candidate sensors below can be judged from one Jacobian of the default mesh and
 one FRF of the fine mesh at the truth, both at the measured frequencies (``truth.json``) and with the
 example's hammer. The script prints the layout of the example, the best layouts of 6, 7 and 8 sensors
-(exhaustive over the candidates) and writes ``docs/bracket-sensors.md``.
+(exhaustive over the candidates) and writes ``docs/results/bracket-sensors.md``.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ import numpy as np  # noqa: E402
 from benchmarks.make import bracket_example as mb  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-DOCS = REPO / "docs"
+DOCS = REPO / "docs" / "results"
 CACHE = REPO / "runs" / "bracket-sensors"
 
 #: Candidate sensors (name, point [m], direction), on the surface of both meshes. The ribs' hypotenuse is

@@ -3,7 +3,7 @@
     OMP_NUM_THREADS=1 python -m benchmarks.closure                  # every data set
     OMP_NUM_THREADS=1 python -m benchmarks.closure point_mass.csv    # one
     OMP_NUM_THREADS=1 python -m benchmarks.closure --speed           # FRF with each effect vs base
-    OMP_NUM_THREADS=1 python -m benchmarks.closure --table           # data/cases/three_plate_closure_table: docs/closure2.md
+    OMP_NUM_THREADS=1 python -m benchmarks.closure --table           # data/cases/three_plate_closure_table: docs/results/closure-table.md
     OMP_NUM_THREADS=1 python -m benchmarks.closure --time            # the two-effect closure, by stage
     OMP_NUM_THREADS=1 python -m benchmarks.closure --discretisation  # a finer mesh as the reference
     OMP_NUM_THREADS=1 python -m benchmarks.closure --seeds 3         # data/cases/three_plate_closure_table cases, other noise seeds
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("files", nargs="*", help="data file names in data/cases/three_plate_effects (default: all)")
     p.add_argument("--speed", action="store_true", help="time the extended FRF and the screening instead")
     p.add_argument("--table", action="store_true",
-                   help="forward selection on every data set of data/cases/three_plate_closure_table; markdown table to docs/closure2.md")
+                   help="forward selection on every data set of data/cases/three_plate_closure_table; markdown table to docs/results/closure-table.md")
     p.add_argument("--time", action="store_true", help="time the two-effect closure (CPU and wall) by stage")
     p.add_argument("--discretisation", action="store_true",
                    help="the benchmark mesh against finer meshes of the same plates (alpha-only residual)")
@@ -247,7 +247,7 @@ def table(files: list[str] | None = None) -> int:
         lines.append(line)
         print(line, flush=True)
     load.append(os.getloadavg()[0])
-    out = Path(__file__).resolve().parents[1] / "docs" / "closure2.md"
+    out = Path(__file__).resolve().parents[1] / "docs" / "results" / "closure-table.md"
     text = out.read_text() if out.exists() else ""
     marker = "<!-- table: python -m benchmarks.closure --table -->"
     block = (f"{marker}\nWritten by `python -m benchmarks.closure --table` (OPENBLAS_NUM_THREADS=1), settings "
@@ -259,7 +259,7 @@ def table(files: list[str] | None = None) -> int:
         _, _, tail = rest.partition(marker)
         text = head + block + tail
     else:
-        text = "# Closing the loop, second round (data/cases/three_plate_closure_table)\n\n" + block + "\n"
+        text = "# The closure table: several effects on the benchmark (data/cases/three_plate_closure_table)\n\n" + block + "\n"
     out.write_text(text)
     print(f"wrote {out}")
     return 0

@@ -1,7 +1,7 @@
 """Far-off models (issue 28): the plain command with ``--close-loop`` on data carrying a sizeable undeclared effect.
 
     python -m benchmarks.closure_far_off --make      # (re)write data/cases/far_off_masses/*.csv and truth.json
-    nice -n 10 python -m benchmarks.closure_far_off  # the table (docs/closure-far-off.md)
+    nice -n 10 python -m benchmarks.closure_far_off  # the table (docs/guide/closure-far-off.md)
 
 Cases (truths in ``data/cases/far_off_masses/truth.json``; measured data from a model other than the one fitted):
 

@@ -1,7 +1,7 @@
 """Issue 28's own cases: the plain command with ``--close-loop`` on three structures that are not the benchmark.
 
     python -m benchmarks.make.own_cases                  # (re)write data/cases/own_structures/ (scikit-fem, truth.json)
-    nice -n 10 python -m benchmarks.closure_own_cases    # the table of docs/closure-far-off.md
+    nice -n 10 python -m benchmarks.closure_own_cases    # the table of docs/guide/closure-far-off.md
     nice -n 10 python -m benchmarks.closure_own_cases --only plate-mass-5% --keep runs/own
 
 Per case (``data/cases/own_structures/truth.json``): the update's evidence decision, its FE runs (FE-run equivalents) and

@@ -37,8 +37,8 @@ overall error at its true parameters (0 for noise-free data, where 1e-4 is
 used); "floor" columns count a method as there when its error is within 1e-4
 of it.
 
-Writes ``<out>.md`` (the table), ``<out>.csv`` (the aggregated rows) and
-``<out>-runs.csv`` (one row per method, data set and seed) and prints the table.
+Writes ``<out>.md`` (the table) and ``<out>-runs.csv`` (one row per method, data set and seed) and prints
+the table (the aggregated rows are the table; no second copy as CSV that no page shows).
 """
 
 from __future__ import annotations
@@ -330,7 +330,7 @@ def main(argv=None) -> int:
                    help="seeds of the Bayesian-optimisation peer (about 5 min per run)")
     p.add_argument("--datasets", nargs="+", default=["benchmark", "far-noisy"], choices=["benchmark", "far-noisy"])
     p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
-    p.add_argument("--out", default=str(REPO / "docs" / "compare"), help="output path without suffix")
+    p.add_argument("--out", default=str(REPO / "docs" / "results" / "compare"), help="output path without suffix")
     args = p.parse_args(argv)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -360,7 +360,6 @@ def main(argv=None) -> int:
                 pd.DataFrame(records).to_csv(out.with_name(out.name + "-runs.csv"), index=False)
     runs = pd.DataFrame(records)
     table = aggregate(runs)
-    table.to_csv(out.with_suffix(".csv"), index=False)
     md = markdown_table(table)
     text = "\n".join(md) + "\n"
     out.with_suffix(".md").write_text(

@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--noise", type=float, nargs="+", default=[0.005, 0.01], help="relative amplitude noise levels")
     p.add_argument("--seed", type=int, default=19)
     p.add_argument("--n-jobs", type=int, default=2)
-    p.add_argument("--out", default=str(REPO / "docs" / "coverage"))
+    p.add_argument("--out", default=str(REPO / "docs" / "results" / "coverage"))
     p.add_argument("--from-runs", metavar="CSV", help="only rewrite the table from an earlier <out>-runs.csv")
     args = p.parse_args(argv)
     t0 = time.perf_counter()

@@ -7,7 +7,7 @@
 Two questions of issue 30 (a hidden figure of 0.89 on 20 data sets from an independent model):
 
 1. **Spread.** How far from 0.95 does the coverage of 20 data sets (120 intervals) fall by chance? From
-   the project's own study (``docs/coverage-n500-runs.csv``: 500 data sets of the fitted model at 1 %
+   the project's own study (``docs/results/coverage-n500-runs.csv``: 500 data sets of the fitted model at 1 %
    noise, noise estimated), 20 of the data sets drawn without replacement, many times: the quantiles of
    the 20-set coverage and P(coverage <= 107/120). The six intervals of one data set share its noise
    draw and their errors are correlated, so 120 intervals are not 120 independent trials.
@@ -40,7 +40,7 @@ REPO = Path(__file__).resolve().parents[1]
 LOWER, UPPER = -0.999, 1.0
 TRUTH_RANGE = 0.5
 START_OFFSET = 0.05
-RUNS_500 = REPO / "docs" / "coverage-n500-runs.csv"
+RUNS_500 = REPO / "docs" / "results" / "coverage-n500-runs.csv"
 
 
 def spread(size: int = 20, draws: int = 20000, seed: int = 0, path: Path = RUNS_500) -> dict:
@@ -123,7 +123,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     t0 = time.perf_counter()
     s = spread()
-    print(f"spread: {s['size']} of the {s['sets']} data sets of docs/coverage-n500-runs.csv (1 % noise, coverage "
+    print(f"spread: {s['size']} of the {s['sets']} data sets of docs/results/coverage-n500-runs.csv (1 % noise, coverage "
           f"{s['coverage']:.3f}): 20-set coverage quantiles " + ", ".join(f"{q:g}: {v:.3f}" for q, v in s["q"].items())
           + f"; P(<= {s['threshold']}) = {s['p_at_or_below']:.3f} (as 120 independent trials: "
           f"{s['p_binomial']:.4f}); P(in 0.92-0.98) = {s['in_target']:.3f}", flush=True)

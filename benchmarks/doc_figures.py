@@ -3,15 +3,15 @@
 ``nice -n 10 python -m benchmarks.doc_figures`` (3 min CPU; 16 min wall on 2 cores at load 8-14) runs, in a
 temporary runs folder, the commands the docs show and copies the figures their reports draw:
 
-1. ``python -m flows.update`` (the main job) and ``python -m flows.report``: ``docs/report-frf.png`` (the
-   report's FRF overview: measured points, initial and updated model) and ``docs/report-error.png`` (the
+1. ``python -m flows.update`` (the main job) and ``python -m flows.report``: ``docs/figures/report-frf.png`` (the
+   report's FRF overview: measured points, initial and updated model) and ``docs/figures/report-error.png`` (the
    overall error of every FE run);
-2. ``python -m flows.update --measured data/benchmark/hammer.uff`` and its report: ``docs/hammer-frf.png``
-   (the hammer test's channels, initial and updated model) and ``docs/hammer-lines.png`` (the lines used,
+2. ``python -m flows.update --measured data/benchmark/hammer.uff`` and its report: ``docs/figures/hammer-frf.png``
+   (the hammer test's channels, initial and updated model) and ``docs/figures/hammer-lines.png`` (the lines used,
    those left out for coherence, the coherence);
 3. ``python -m flows.update --measured data/cases/three_plate_effects/point_mass.csv --close-loop --noise 0.005``:
-   ``docs/closure-residuals.png`` (the residual per sensor before and after the closure adds the point mass);
-4. ``python -m flows.correlation --samples 10000``: ``docs/correlation.png`` (Pearson correlation of each
+   ``docs/figures/closure-residuals.png`` (the residual per sensor before and after the closure adds the point mass);
+4. ``python -m flows.correlation --samples 10000``: ``docs/figures/correlation.png`` (Pearson correlation of each
    parameter with each sensor's amplitude; ``--correlation-samples`` sets N; 10,000 FE runs: 6 CPU-min, 13 min wall).
 
 ``--only report hammer closure`` redraws some of them. Each command's printed summary goes to
@@ -29,7 +29,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-DOCS = REPO / "docs"
+DOCS = REPO / "docs" / "figures"
 
 #: name: (update options, or None for the correlation analysis, [(file the run folder holds, docs figure)]).
 FIGURES = {
@@ -52,7 +52,7 @@ def _run(args: list[str], log: Path) -> None:
 
 
 def draw(name: str, runs: Path, correlation_samples: int = 10000) -> list[Path]:
-    """Run ``name``'s update and report in ``runs`` and copy its figures into docs/; the paths written."""
+    """Run ``name``'s update and report in ``runs`` and copy its figures into docs/figures/; the paths written."""
     options, figures = FIGURES[name]
     run_id, log = f"docs-{name}", runs / f"{name}.log"
     t0 = time.perf_counter()

@@ -1,4 +1,4 @@
-"""Speed of the tet10 element family on the L-bracket example (docs/elements.md).
+"""Speed of the tet10 element family on the L-bracket example (docs/results/elements.md).
 
     nice -n 5 python -m benchmarks.elements [--mesh data/examples/bracket/bracket.msh]
 
@@ -14,7 +14,7 @@ One BLAS/MKL thread. Measured in one run:
   to the largest response;
 * the peak resident memory of the process after each stage.
 
-Writes ``docs/elements.md``. Nothing here is asserted: the tests check correctness.
+Writes ``docs/results/elements.md``. Nothing here is asserted: the tests check correctness.
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--mesh", type=Path, default=BRACKET / "bracket.msh")
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--out", type=Path, default=Path("docs/elements.md"))
+    parser.add_argument("--out", type=Path, default=Path("docs/results/elements.md"))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     logging.getLogger("skfem").setLevel(logging.WARNING)

@@ -31,8 +31,8 @@ Two parts, both against the truth:
 "Nearer the truth" is measured per data set in the metric of the Laplace covariance at
 the least-squares optimum, ``d^2 = (x - truth)^T C^-1 (x - truth)`` (chi-square with 6
 dof for a well-calibrated estimate), and plainly as the largest ``|x_i - truth_i|``.
-Writes ``docs/estimators-synthetic.csv`` and ``docs/estimators-runs.csv`` (one per part: a
-part run alone keeps the other's) and ``docs/estimators.md`` from both.
+Writes ``docs/results/estimators-synthetic.csv`` and ``docs/results/estimators-runs.csv`` (one per part: a
+part run alone keeps the other's) and ``docs/results/estimators.md`` from both.
 """
 
 from __future__ import annotations
@@ -219,7 +219,7 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=19, help="of the synthetic data (benchmarks.coverage's default)")
     p.add_argument("--run-seeds", type=int, nargs="+", default=[0, 1])
     p.add_argument("--n-jobs", type=int, default=2)
-    p.add_argument("--out", default=str(REPO / "docs" / "estimators"))
+    p.add_argument("--out", default=str(REPO / "docs" / "results" / "estimators"))
     args = p.parse_args(argv)
     command = " ".join(["python -m benchmarks.estimators"] + (sys.argv[1:] if argv is None else list(argv)))
     out = Path(args.out)

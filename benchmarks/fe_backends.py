@@ -4,10 +4,10 @@
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python -m benchmarks.fe_backends
 
-The stage is the flow's own ``fe`` task (``tasks.paper.fe_task.fn``: submit,
-write one Parquet file and one log line per result as it arrives, then the
-stage table), on ``--runs`` uniform samples of the three-plate model, in a
-fresh run folder each time. Cases:
+The stage is the run's own FE stage (:class:`tasks.fe_runs.FEStage`, as the driver runs every
+strategy's batches: submit, write one Parquet file and one log line per result as it arrives, then
+the stage's tables), on ``--runs`` uniform samples of the three-plate model (the paper loop's first
+batch), in a fresh run folder each time. Cases:
 
 - serial: ``n_jobs = 1`` (joblib runs in this process), the reference;
 - loky, ``n_jobs = 2``: first call (spawns the workers, each builds the model)
@@ -21,6 +21,7 @@ Every case's results are checked to be identical to the serial ones.
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import platform
 import tempfile
@@ -35,17 +36,22 @@ import pandas as pd  # noqa: E402
 
 from flows.config import UpdateConfig  # noqa: E402
 from flows.problem import resolve  # noqa: E402
-from tasks import paper  # noqa: E402
+from strategies.paper import PaperOptions, first_samples  # noqa: E402
+from tasks.fe_runs import FEStage  # noqa: E402
 from tasks.runstore import RunStore  # noqa: E402
 
 
 def stage_time(config: UpdateConfig) -> tuple[float, pd.DataFrame]:
     """Wall time of one FE stage (iteration 1) in a fresh run folder, and its responses table."""
-    root = str(Path(config.runs_dir) / config.run_id)
+    root = Path(config.runs_dir) / config.run_id
     problem = resolve(config)  # the model is read once per process (its file hashed once per call)
-    paper.samples_task.fn(root, problem, config, 1)
+    X = first_samples(PaperOptions(q=config.q, seed=config.seed, emulate=config.emulate), problem.lower, problem.upper,
+                      problem.nominal)
     t0 = time.perf_counter()
-    ran = paper.fe_task.fn(root, problem, config, 1)
+    stage = FEStage(RunStore(root), problem, config, 1, "fe", logging.getLogger("benchmarks.fe_backends"))
+    stage.run(range(len(X)), X, [False] * len(X))
+    stage.write({"n": len(X)})
+    ran = stage.ran
     seconds = time.perf_counter() - t0
     assert ran == config.q, (ran, config.q)
     return seconds, RunStore(root).read_table(1, "fe", "responses")

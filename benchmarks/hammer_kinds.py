@@ -8,7 +8,7 @@ read and written again as receptance and as mobility (UFF58, 12 significant
 digits, the same channels, lines and coherence; :func:`tasks.io.measured.write_measured`);
 each file is updated with the default settings and seed 0 (``python -m flows.update
 --measured FILE``). The three runs must give the same parameters to 1e-6 and
-recover the SPEC's actual alpha within 0.01. Prints the table of docs/measured-formats.md.
+recover the SPEC's actual alpha within 0.01. Prints the table of docs/guide/measured-formats.md.
 """
 
 from __future__ import annotations

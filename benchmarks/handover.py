@@ -13,7 +13,7 @@ point) was chosen. It also reports how far the hand-over sample is from the
 true parameters: the loop's best-error samples lie in a long low-error valley,
 not near the truth.
 
-Writes ``docs/handover.md`` and prints it.
+Writes ``docs/results/handover.md`` and prints it.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def loop_runs(ds, trainer: str, seed: int, runs_dir: Path):
 
     run_id = f"{ds.name}-{trainer}-seed{seed}"
     config = UpdateConfig(run_id=run_id, runs_dir=str(runs_dir), measured=str(ds.path), trainer=trainer, seed=seed,
-                          n_jobs=2, polish=False, max_fe_evaluations=3 * Q, q=Q, true_parameters=ds.truth.tolist())
+                          n_jobs=2, strategy="adaptive", polish=False, max_fe_evaluations=3 * Q, q=Q, true_parameters=ds.truth.tolist())
     update_flow(config)
     return RunStore(runs_dir / run_id)
 
@@ -58,14 +58,21 @@ def polish_from(ds, x0: np.ndarray, r0: np.ndarray) -> int | None:
     return first_reaching(np.array([e for _, e in oracle.history]), ds.floor)
 
 
-def main(argv=None) -> int:
-    from tasks.paper import training_data
+def training_data(store, k: int):
+    """(X (r, m), overall errors (r,)) of the successful FE runs of iterations 1..k (the run record)."""
+    from tasks import record
 
+    runs = record.fe_runs(store, k)
+    ok = runs[runs["status"] == "ok"]
+    return ok[record.parameter_columns(ok)].to_numpy(), ok["overall_error"].to_numpy()
+
+
+def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.handover", description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     p.add_argument("--trainers", nargs="+", default=["gradient", "sao"])
     p.add_argument("--datasets", nargs="+", default=["benchmark", "far-noisy"], choices=["benchmark", "far-noisy"])
-    p.add_argument("--out", default=str(REPO / "docs" / "handover.md"))
+    p.add_argument("--out", default=str(REPO / "docs" / "results" / "handover.md"))
     args = p.parse_args(argv)
     runs_dir = REPO / "runs" / "handover"
     lines = ["| data set | trainer | seed | k | loop FE runs | best error at hand-over | its distance to the truth "
@@ -78,9 +85,9 @@ def main(argv=None) -> int:
             for seed in args.seeds:
                 store = loop_runs(ds, trainer, seed, runs_dir)
                 for k in (1, 2, 3):
-                    _, X, Y, E = training_data(store, k)
+                    X, E = training_data(store, k)
                     b = int(np.argmin(E))
-                    n = polish_from(ds, X[b], Y[b])
+                    n = polish_from(ds, X[b], Oracle(ds.path).residuals(X[b]))
                     total = None if n is None else len(E) + n
                     totals.setdefault((ds.name, k), []).append(total)
                     line = (f"| {ds.name} | {trainer} | {seed} | {k} | {len(E)} | {E[b]:.2%} | "

@@ -16,7 +16,7 @@ For each model, in one process and one run (so the ratios share the machine's lo
 
 Times are medians over ``--repeat`` calls, CPU (``time.process_time``) and wall; the load average
 is printed. The accuracy columns compare the Krylov ``d ln|Z| / d alpha`` with the direct one (the
-largest difference over all entries, relative to the largest entry). Writes ``docs/jacobian.md``.
+largest difference over all entries, relative to the largest entry). Writes ``docs/results/jacobian.md``.
 """
 
 from __future__ import annotations
@@ -134,7 +134,7 @@ def main(argv=None) -> int:
     p.add_argument("--repeat", type=int, default=5)
     p.add_argument("--direct-max-dofs", type=int, default=10_000,
                    help="skip the direct Jacobian above this many DOFs (minutes per call on the fine bracket)")
-    p.add_argument("--out", default=str(REPO / "docs" / "jacobian.md"))
+    p.add_argument("--out", default=str(REPO / "docs" / "results" / "jacobian.md"))
     args = p.parse_args(argv)
     rows = []
     for name in args.models:

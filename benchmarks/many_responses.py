@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    python -m benchmarks.many_responses            # writes docs/many-responses.md
+    python -m benchmarks.many_responses            # writes docs/results/many-responses.md
 
 Data: the three-plate benchmark FE model (``fe_core.benchmark.three_plate``)
 at 240 training and 60 held-out parameter vectors drawn as in
@@ -57,7 +57,7 @@ from mrgp_core import ProfileLikelihood, condition, fit, fit_reduced, standardis
 from fe_core.inference.residual import relative_residual  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-DOC = REPO / "docs" / "many-responses.md"
+DOC = REPO / "docs" / "results" / "many-responses.md"
 BAND_HZ = 400.0
 LINES = (12, 333, 1667)
 N_CANDIDATES = 10_000

@@ -1,20 +1,20 @@
-"""The docs' mesh pictures (docs/model-files.md), and how long drawing and model.vtu take on the 35k-DOF tet10 bracket.
+"""The docs' mesh pictures (docs/guide/model-files.md), and how long drawing and model.vtu take on the 35k-DOF tet10 bracket.
 
 ``nice -n 5 python -m benchmarks.mesh_pictures`` (one run; about a minute on 2 busy cores plus the
 benchmark update when its run is missing):
 
 1. the benchmark's run ``--run-id`` (made with ``python -m flows.update --run-id <id>`` when missing):
-   ``docs/mesh-segments.png`` (segments, sensors, excitation) and ``docs/mesh-factors.png``
+   ``docs/figures/mesh-segments.png`` (segments, sensors, excitation) and ``docs/figures/mesh-factors.png``
    (its updated alpha per segment), drawn by the report's own functions;
 2. the L-bracket (``data/examples/bracket/bracket.msh``, tet10, 33,681 free DOFs) with its
    ``model.toml`` when there is one, else one written here (six segments, bolted at the holes,
-   three sensors and a hammer on the web): ``docs/mesh-bracket.png`` and the times of each step,
-   written to ``docs/mesh-pictures.md``.
+   three sensors and a hammer on the web): ``docs/figures/mesh-bracket.png`` and the times of each step,
+   written to ``docs/results/mesh-pictures.md``.
 
 ``python -m benchmarks.mesh_pictures --bracket-run <id>`` instead draws the updated factors of a finished
 update run of the bracket example (``python -m flows.update --model data/examples/bracket/model.toml ...``,
-minutes, so not started here) on its mesh, ``docs/mesh-bracket-factors.png``, and that model's segments,
-sensors and hammer, ``docs/mesh-bracket.png``.
+minutes, so not started here) on its mesh, ``docs/figures/mesh-bracket-factors.png``, and that model's segments,
+sensors and hammer, ``docs/figures/mesh-bracket.png``.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-DOCS = REPO / "docs"
+FIGURES = REPO / "docs" / "figures"
 BRACKET = REPO / "data" / "examples" / "bracket"
 
 #: The bracket as a model file, when data/examples/bracket/model.toml is not there (yet).
@@ -86,7 +86,7 @@ def _timed(fn, *args, repeat: int = 1, **kwargs):
 
 
 def benchmark_pictures(run_id: str, runs_dir: Path) -> dict:
-    """docs/mesh-segments.png and docs/mesh-factors.png from the benchmark run ``run_id``."""
+    """docs/figures/mesh-segments.png and docs/figures/mesh-factors.png from the benchmark run ``run_id``."""
     from tasks.report.mesh import MeshView, plot_mesh_factors, plot_mesh_segments, read_run_model
 
     root = runs_dir / run_id
@@ -98,14 +98,14 @@ def benchmark_pictures(run_id: str, runs_dir: Path) -> dict:
     model = read_run_model(json.loads((root / "manifest.json").read_text())["config"]["model"])
     alpha = np.array([summary["parameters"][n] for n in model.parameter_names])
     view = MeshView(model)
-    plot_mesh_segments(model, DOCS / "mesh-segments.png", view,
+    plot_mesh_segments(model, FIGURES / "mesh-segments.png", view,
                        "The benchmark (data/benchmark/model.toml): segments, sensors and excitation")
-    plot_mesh_factors(model, alpha, DOCS / "mesh-factors.png", view=view)
+    plot_mesh_factors(model, alpha, FIGURES / "mesh-factors.png", view=view)
     return {"run": run_id, "alpha": alpha.round(4).tolist(), "overall_error": summary["overall_error"]}
 
 
 def bracket_run_factors(run_id: str, runs_dir: Path) -> dict:
-    """docs/mesh-bracket-factors.png: the updated factors of the bracket run ``run_id``, and docs/mesh-bracket.png:
+    """docs/figures/mesh-bracket-factors.png: the updated factors of the bracket run ``run_id``, and docs/figures/mesh-bracket.png:
     its model's segments, sensors and hammer, by the report's functions."""
     from tasks.model_vtu import factors_from_parameters
     from tasks.report.mesh import MeshView, plot_mesh_factors, plot_mesh_segments, read_run_model
@@ -122,9 +122,9 @@ def bracket_run_factors(run_id: str, runs_dir: Path) -> dict:
     title = (f"The L-bracket's updated stiffness factors (run {run_id}, overall error {summary['overall_error']:.2%}); "
              f"truth {', '.join(f'{t:+.2f}' for t in truth)}")
     view = MeshView(model)
-    plot_mesh_segments(model, DOCS / "mesh-bracket.png", view,
+    plot_mesh_segments(model, FIGURES / "mesh-bracket.png", view,
                        "The L-bracket (tet10): segments, sensors and excitation")
-    plot_mesh_factors(model, alpha, DOCS / "mesh-bracket-factors.png", gamma, view, title=title)
+    plot_mesh_factors(model, alpha, FIGURES / "mesh-bracket-factors.png", gamma, view, title=title)
     return {"run": run_id, "alpha": alpha.round(4).tolist(), "truth": truth, "overall_error": summary["overall_error"]}
 
 
@@ -141,7 +141,7 @@ def bracket_timings(model_file: Path | None) -> dict:
             model_file.write_text(BRACKET_TOML.format(mesh=BRACKET / "bracket.msh", segments=segments))
         model, t_read = _timed(read_model, model_file)
         view, t_view = _timed(MeshView, model, repeat=3)
-        _, t_seg = _timed(plot_mesh_segments, model, DOCS / "mesh-bracket.png", view,
+        _, t_seg = _timed(plot_mesh_segments, model, FIGURES / "mesh-bracket.png", view,
                           "The L-bracket (tet10): segments, sensors and excitation", repeat=3)
         # The factors picture's cost does not depend on the values; these are not an update's result.
         alpha = np.linspace(-0.3, 0.3, model.n_segments)
@@ -191,11 +191,11 @@ def write_table(bench: dict, bracket: dict) -> Path:
         "Modes at alpha = " + ", ".join(f"{a:.2f}" for a in np.linspace(-0.3, 0.3, 6)) + ": "
         + ", ".join(f"{f:.0f}" for f in bracket["frequencies_hz"]) + " Hz.",
         "",
-        f"Benchmark pictures (`docs/mesh-segments.png`, `docs/mesh-factors.png`) from run `{bench['run']}`: "
+        f"Benchmark pictures (`docs/figures/mesh-segments.png`, `docs/figures/mesh-factors.png`) from run `{bench['run']}`: "
         f"overall error {bench['overall_error']:.3%}, alpha = {bench['alpha']}.",
         "",
     ]
-    path = DOCS / "mesh-pictures.md"
+    path = REPO / "docs" / "results" / "mesh-pictures.md"
     path.write_text("\n".join(lines))
     return path
 
@@ -207,7 +207,7 @@ def main(argv=None) -> int:
     p.add_argument("--bracket-model", type=Path, default=None,
                    help="the bracket's model.toml (default data/examples/bracket/model.toml when it exists)")
     p.add_argument("--bracket-run", metavar="ID",
-                   help="only draw docs/mesh-bracket-factors.png from this finished update run of the bracket")
+                   help="only draw docs/figures/mesh-bracket-factors.png from this finished update run of the bracket")
     args = p.parse_args(argv)
     if args.bracket_run:
         print(json.dumps(bracket_run_factors(args.bracket_run, Path(args.runs_dir)), indent=1))

@@ -10,7 +10,7 @@ cases' layouts: the estimate's mean and spread over draws (in units of sigma), a
 structure at 1 % -- against the chi-square with each estimate, and with the new test's p
 (:func:`fe_core.inference.residual.estimated_noise_test`). On the own cases (``data/cases/own_structures``): our model's
 residual at the truth with the effect (noise only) and without it (structure), each estimate beside the rms.
-Tables for docs/noise-estimate.md.
+Tables for docs/guide/noise-estimate.md.
 """
 
 from __future__ import annotations

@@ -15,8 +15,8 @@ reported ones (sampled where the check failed).
 Truths: ``far``, the truth of ``data/cases/three_plate_far_noisy/far_noisy.csv`` (alpha_4 = 0.8 near the upper
 bound 1, alpha_3 and alpha_4 anti-correlated and wide: the check fails there), and
 ``actual``, the benchmark's truth (all inside, where the coverage study found the
-linearisation right: how often the check fires for nothing). Writes ``docs/posterior.md``
-and ``docs/posterior-runs.csv``.
+linearisation right: how often the check fires for nothing). Writes ``docs/results/posterior.md``
+and ``docs/results/posterior-runs.csv``.
 """
 
 from __future__ import annotations
@@ -109,7 +109,7 @@ def main(argv=None) -> int:
     p.add_argument("--budget", type=int, default=400, help="FE runs of each sampled posterior")
     p.add_argument("--seed", type=int, default=19)
     p.add_argument("--n-jobs", type=int, default=2)
-    p.add_argument("--out", default=str(REPO / "docs" / "posterior"))
+    p.add_argument("--out", default=str(REPO / "docs" / "results" / "posterior"))
     args = p.parse_args(argv)
     from joblib import Parallel, delayed
 

@@ -9,7 +9,7 @@ right-hand side and with 8 (the Krylov FRF makes one single-column solve per bas
 vector), the relative residual, the resident memory held by the
 factorisation, and the whole 12-frequency Krylov FRF with the candidate in place of
 :func:`fe_core.solvers.frf.spd_solver`. The direct FRF's complex ``K - w^2 M + j w C`` is
-measured for the factorisations that take complex matrices. Writes ``docs/solvers.md``.
+measured for the factorisations that take complex matrices. Writes ``docs/results/solvers.md``.
 CHOLMOD is optional here (``pip install scikit-sparse==0.4.16`` with Debian's
 libsuitesparse-dev); a candidate that fails to import is reported and skipped.
 """
@@ -141,7 +141,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--mesh", type=Path, default=Path("data/examples/bracket/bracket.msh"))
     parser.add_argument("--one", choices=sorted(CANDIDATES), help=argparse.SUPPRESS)
-    parser.add_argument("--out", type=Path, default=Path("docs/solvers.md"))
+    parser.add_argument("--out", type=Path, default=Path("docs/results/solvers.md"))
     parser.add_argument("--only", nargs="*", choices=sorted(CANDIDATES))
     args = parser.parse_args(argv)
     if args.one:

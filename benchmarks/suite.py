@@ -2,7 +2,7 @@
 
     nice -n 5 python -m benchmarks.suite                 # 24 truths x 2 noise levels x 5 methods, one process
     python -m benchmarks.suite --noise 0 --out a & python -m benchmarks.suite --noise 0.01 --out b   # both cores
-    python -m benchmarks.suite --from-runs a-runs.csv b-runs.csv    # then one table (docs/suite.md) from both
+    python -m benchmarks.suite --from-runs a-runs.csv b-runs.csv    # then one table (docs/results/suite.md) from both
     python -m benchmarks.suite --truths 3 --methods default dfo-ls-nominal --out /tmp/suite
     python -m benchmarks.suite --only 9 13 21 --noise 0 --methods default --out /tmp/hard   # some truths only
 
@@ -32,7 +32,7 @@ iteration. "FE-run equivalents" count an FE run with its exact Jacobian as
 the CPU-time ratio of a Jacobian to an FE run measured at the start of this
 run (printed and written to the table). Success: floor reached and, on
 noise-free data, every parameter of the best point within 0.01 of the truth.
-Writes ``<out>.md``, ``<out>.csv`` (aggregated) and ``<out>-runs.csv``.
+Writes ``<out>.md`` (the aggregated table) and ``<out>-runs.csv``.
 """
 
 from __future__ import annotations
@@ -229,7 +229,7 @@ def main(argv=None) -> int:
                                                            "method and case; the paper's loop keeps Table 2's 240")
     p.add_argument("--trainer", default="gradient", help="MRGP trainer of the default's emulator and the paper's loop")
     p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
-    p.add_argument("--out", default=str(REPO / "docs" / "suite"))
+    p.add_argument("--out", default=str(REPO / "docs" / "results" / "suite"))
     p.add_argument("--from-runs", nargs="+", metavar="CSV",
                    help="no run: write the table from these <out>-runs.csv files (e.g. one per noise level)")
     args = p.parse_args(argv)
@@ -277,12 +277,11 @@ def main(argv=None) -> int:
 
 
 def write_tables(runs: pd.DataFrame, out: Path, head: str) -> int:
-    """``<out>.csv`` and ``<out>.md`` (``head``, the table, the paired comparison) from the per-run rows."""
+    """``<out>.md`` (``head``, the table, the paired comparison) from the per-run rows."""
     from benchmarks.compare import markdown_table
 
     out.parent.mkdir(parents=True, exist_ok=True)
     table = aggregate(runs)
-    table.to_csv(out.with_suffix(".csv"), index=False)
     text = head + "\n\n" + "\n".join(markdown_table(table)) + "\n\n" + "\n".join(paired(runs)) + "\n"
     out.with_suffix(".md").write_text(text)
     print(text)

@@ -36,7 +36,7 @@ def rows(run_dir: Path) -> list[str]:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.update_table",
-                                     description="Print the markdown table of docs/update-results.md from run folders.")
+                                     description="Print the markdown table of docs/results/update-results.md from run folders.")
     parser.add_argument("runs", nargs="+", type=Path, help="run folders (runs/<run-id>, --repeats folders)")
     dirs = parser.parse_args(sys.argv[1:] if argv is None else argv).runs
     print("| strategy / trainer | seed | iterations | FE runs | of which polish | overall error | "

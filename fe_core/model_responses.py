@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .assembly import DOFS_PER_NODE
+from .solvers import recycle
 from .solvers.frf import direct_frf, hz_to_rad, krylov_frf
 from .solvers.modal import classify_mode, eigenmodes
 
@@ -123,8 +124,12 @@ class ModelResponses:
         omegas = hz_to_rad(freqs)
         if method == "direct":
             Z = direct_frf(K, M, a * M + b * K, F, omegas, self._out_rows)
-        else:
-            Z = krylov_frf(K, M, a, b, F, omegas, self._out_rows)
+        else:  # a large model's space starts from its last FE run's (fe_core.solvers.recycle)
+            keep = {} if recycle.active(self) else None
+            point = np.concatenate([np.ravel(alpha), np.ravel(gamma if gamma is not None else [])])
+            Z = krylov_frf(K, M, a, b, F, omegas, self._out_rows, seed=recycle.take(self, point), keep=keep)
+            if keep is not None:
+                recycle.store(self, keep, point)
         # (p, k, n_loads) at the output DOFs -> (p, n_sensors, n_loads)
         return np.einsum("pkl,ks->psl", Z, self._out_weights)
 
@@ -164,9 +169,10 @@ class ModelResponses:
         forces = vecs.T @ loads  # (n_modes, n_loads)
         return (2.0 * np.pi * freqs) ** 2, at_sensors[:, responses] * forces[:, column]
 
-    def natural_frequencies(self, alpha, n_modes: int = 6, gamma=None) -> np.ndarray:
-        """Lowest natural frequencies, Hz, shape (n_modes,)."""
-        return eigenmodes(self.stiffness(alpha), self.mass(gamma), n_modes)[0]
+    def natural_frequencies(self, alpha, n_modes: int = 6, gamma=None, tol: float = 0.0) -> np.ndarray:
+        """Lowest natural frequencies, Hz, shape (n_modes,); ``tol``: ARPACK's relative tolerance (0: machine
+        precision)."""
+        return eigenmodes(self.stiffness(alpha), self.mass(gamma), n_modes, tol=tol)[0]
 
     def modes(self, alpha, n_modes: int = 6, gamma=None) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """Natural frequencies, nodal mode shapes and labels.

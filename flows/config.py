@@ -1,8 +1,13 @@
-"""Configuration of an updating run: defaults (Table 2), a TOML file, CLI overrides.
+"""Configuration of an updating run: defaults, a TOML file, CLI overrides, all made from one declaration.
 
-Every key is documented in ``data/update.example.toml``. A TOML file may set
-any subset of the keys at its top level; unknown keys and wrong types are
-refused with a :class:`ConfigError` that names the file and the key.
+Every setting is declared once, as a dataclass field with its help (:func:`strategies.options.setting`): the
+run's own settings in :class:`RunSettings` below, each strategy's in its options dataclass (``HybridOptions``,
+``PaperOptions``, ``PolishOptions``, ...), registered in :mod:`strategies.registry`. :class:`UpdateConfig` (the
+run's config, one flat set of keys), the keys a TOML file may set (``data/update.example.toml`` lists them all)
+and the command line's flags with their ``--help`` (:func:`add_setting_flags`) are made from those fields; a
+strategy's options are made back from the config (:func:`strategies.options.from_settings`). A TOML file may
+set any subset of the keys at its top level; unknown keys and wrong types are refused with a
+:class:`ConfigError` that names the file and the key.
 """
 
 from __future__ import annotations
@@ -10,17 +15,21 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
-from dataclasses import dataclass, field
+import typing
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["UpdateConfig", "ConfigError", "load_config", "stored_settings", "TRAINERS", "STRATEGIES",
-           "EMULATES", "MODELS", "OUTPUTS", "LINES", "RESIDUALS", "parse_windows"]
+from strategies import registry
+from strategies.options import Key, keys_of, setting
+from strategies.paper import EMULATES, TRAINERS
+
+__all__ = ["UpdateConfig", "RunSettings", "KEYS", "ConfigError", "load_config", "stored_settings", "TRAINERS",
+           "STRATEGIES", "EMULATES", "MODELS", "OUTPUTS", "LINES", "RESIDUALS", "parse_windows", "add_setting_flags",
+           "settings_from_args"]
 
 REPO = Path(__file__).resolve().parents[1]
-TRAINERS = ("sao", "pso", "gradient")
-STRATEGIES = ("hybrid", "adaptive", "conventional")
-EMULATES = ("modes", "errors")  # what the paper loop's MRGP emulates (strategies.paper)
+STRATEGIES = registry.names()
 MODELS = ("three_plate",)
 FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
 OUTPUTS = ("full", "reduced", "auto")  # strategies.emulation.reduced_outputs
@@ -32,7 +41,7 @@ RESIDUALS = ("auto", "amplitude", "complex")  # tasks.update_data.RESIDUALS
 BEFORE_THEIR_KEY = {"emulate": "errors"}
 #: Keys of earlier versions that are gone, and why.
 REMOVED_KEYS = {"loop": "the trust-region variant of the paper loop, dominated by its modal emulation: "
-                        "docs/update-results.md"}
+                        "git show 0cbca1f:docs/update-results.md"}
 
 
 def stored_settings(config: dict) -> dict:
@@ -46,188 +55,84 @@ class ConfigError(ValueError):
 
 
 @dataclass(frozen=True)
-class UpdateConfig:
-    """All settings of one updating run (defaults: Table 2 of Zhou & Tang).
+class RunSettings:
+    """The run's own settings (those of its strategy: the strategy's options dataclass)."""
 
-    Attributes
-    ----------
-    run_id : str or None
-        Folder name under ``runs_dir``; a new id is made when None.
-    runs_dir : str
-    measured : str
-        Measured FRF amplitudes (CSV, Parquet or UFF58).
-    model : str
-        FE model: a name (``three_plate``, the benchmark) or the path of a model
-        file ``model.toml`` (relative to the repository when not absolute; see
-        :mod:`fe_core.io.model_toml`). Parameter names and count come from the model.
-    strategy : {"hybrid", "adaptive", "conventional"}
-        ``hybrid`` (default, :mod:`flows.hybrid`): Gauss-Newton with exact
-        Jacobians from the nominal model; when what is left is not noise,
-        global cycles (``s`` space-filling FE runs, an MRGP emulator over
-        ``w`` candidates, ``starts`` parallel Gauss-Newton runs); its budget
-        ``max_fe_evaluations`` counts FE-run equivalents (an FE run with its
-        Jacobian costs :data:`tasks.fe_runs.JACOBIAN_COST`), its target is
-        ``polish_target``, its noise level ``noise`` (or estimated).
-        ``adaptive`` is the paper's MRGP loop (with ``polish = false``
-        exactly its procedure); ``conventional`` is Section 3.4's baseline:
-        ``conventional_samples`` uniform FE runs, one MRGP, the best of ``w``
-        predictions.
-    trainer : {"sao", "pso", "gradient"}
-        MRGP hyper-parameter trainer.
-    seed : int
-        Master seed; every stage derives its own generator from it.
-    n_jobs : int
-        Parallel FE runs (joblib; -1 = all cores); loky backend only.
-    fe_backend : {"loky", "dask"}
-        Where FE runs execute: loky processes on this machine, or the
-        workers of the Dask cluster at ``dask_address``
-        (:mod:`tasks.fe_backends`). Results do not depend on it.
-    dask_address : str or None
-        Scheduler address for ``fe_backend = "dask"``, e.g.
-        ``tcp://10.0.0.5:8786``; not used with loky.
-    repeats : int
-        Independent runs with seeds ``seed, seed + 1, ...`` (Figures 10-13).
-    q, w, s, z : int
-        Initial samples, candidates per iteration, FE runs per iteration,
-        best samples defining the sampling distribution.
-    threshold : float
-        Overall error (Eq. 6b) that ends the run, e.g. 0.01 = 1 %.
-    max_iterations, max_fe_evaluations : int
-        Budgets (iteration 1 is the initial sampling).
-    lower, upper : float
-        Search box for every parameter; ``lower`` must be >= -1 (the
-        domain's edge, itself excluded).
-    min_distance_factor : float
-        Minimum distance between samples selected in one iteration, as a
-        fraction of the sampling distribution's spread.
-    std_floor : float
-        Smallest standard deviation of the sampling distribution.
-    conventional_samples : int
-    polish : bool
-        After the MRGP loop (adaptive strategy only), run the polish stage:
-        trust-region least squares on the FE model from the best sample
-        (:mod:`tasks.polish`). Its FE runs count in ``fe_evaluations``.
-    polish_max_fe : int
-        FE runs reserved for the polish out of ``max_fe_evaluations``: the
-        MRGP loop stops at ``max_fe_evaluations - polish_max_fe``. The
-        default, 200 of 240, hands over after 2 iterations (40 FE runs):
-        ``python -m benchmarks.handover`` (docs/handover.md) polished from
-        the loop's best sample after k = 1, 2, 3 iterations; k = 2 reached
-        the noise floor in every seed with the fewest FE runs in total, k = 1
-        missed it in some seeds (and in session 2's trials, k = 5 and k = 8
-        in most: later iterations narrow in on wrong basins).
-    polish_target : float
-        Overall error at which the polish stops, e.g. 1e-4 = 0.01 %
-        (the noise floor of noise-free data; set it near the measurement's
-        noise level for real data).
-    polish_stall_rtol : float
-        The polish also stops when its best overall error improved by less
-        than this (relative) over its last three Jacobians and steps
-        (``3 * (m + 1)`` FE runs): on noisy data the error levels off at the
-        noise and cannot reach ``polish_target``. 0 turns this stop off.
-    true_parameters : list of float or None
-        Known true values (synthetic data), only for reporting errors;
-        each must be > -1.
-    intervals : bool
-        After the polish, 95 % intervals and the covariance of the
-        parameters (:mod:`tasks.intervals`: Gauss-Newton steps to the
-        log-amplitude least-squares optimum, exact Jacobian, at most
-        3 Jacobians), written to ``summary.json``.
-    posterior_fe : int
-        FE runs of the sampled posterior (:mod:`fe_core.inference.posterior`) that
-        replaces the Laplace intervals where their linearisation fails its
-        check (an interval crossing the box, a curved valley); 0 = never
-        sample. Default 400.
-    noise : float or None
-        Relative noise of the measured amplitudes (standard deviation, e.g.
-        0.01 = 1 %) for the intervals; None (default) estimates it from the
-        residual at the least-squares optimum.
-    averages : int or None
-        The number of averages (hits) behind each measured FRF and its coherence, where the file does not
-        say (UFF58 ID lines, a table's ``averages``); with the coherence it gives the noise per line
-        (:func:`fe_core.inference.coherence_noise.frf_random_error`). None (default): the file's, or unknown.
-    lines : {"all", "windows", "resonances"}
-        Which measured frequency lines enter the update (:mod:`tasks.lines`):
-        every line (default), those in ``line_windows``, or windows around the
-        measured resonances (half-power band widened by ``resonance_widen``).
-    line_windows : list of [low, high] or None
-        Hz, for ``lines = "windows"``.
-    resonance_widen : float
-        Factor (>= 1) on each resonance's half-power band, for ``lines = "resonances"``.
-    min_coherence : float
-        Values (line, channel) whose measured coherence is below this are left
-        out and counted (default 0.9; data without coherence lose nothing).
-    residuals : {"auto", "amplitude", "complex"}
-        The residual (:mod:`tasks.update_data`): the paper's amplitude
-        residual of Eq. (5), the real and imaginary parts of ``(Z - H)/|H|``,
-        or auto (default): complex when the data carry phase, amplitude for
-        the legacy ``sensor`` form.
-    min_free_mb : float
-        Free disk space the run folder needs before any work starts, MB;
-        0 (default) = twice the run's estimated output
-        (:func:`flows.preflight.expected_output_mb`).
-    outputs : {"auto", "full", "reduced"}
-        How the MRGP emulates the k responses: ``full`` (the paper's k x k
-        ``Q``), ``reduced`` (a reduced output basis, :mod:`mrgp_core.reduced`)
-        or ``auto`` (default): reduced when k > 200
-        (:data:`strategies.emulation.AUTO_REDUCED_ABOVE`), so the benchmark's k = 72
-        keeps the full MRGP.
-    starts : int
-        Parallel Gauss-Newton runs of a global cycle of the hybrid strategy,
-        started from the emulator's best distinct candidates.
-    emulate : {"modes", "errors"}
-        What the MRGP of the adaptive strategy's paper loop emulates.
-        ``modes`` (default, :mod:`strategies.modal_emulation`, a change to the
-        paper's loop): the lowest modes of each FE run and the remainder of
-        its receptance, one length scale per parameter; a candidate's error
-        is computed from the receptance they give, Gauss-Newton end points on
-        the emulator's mean join the candidates, the nominal model is one of
-        the first samples. ``errors``: the paper's emulation of the relative
-        residuals (isotropic, Table 1's ``l~`` bound). Other strategies and
-        the trust-region loop ignore it.
-    """
+    run_id: str | None = setting(None, metavar="ID", help="the run folder's name under runs_dir; an existing id "
+                                 "resumes that run; omitted: a new time-stamped id")
+    runs_dir: str = setting("runs", metavar="PATH", help="where run folders go")
+    measured: str = setting("data/benchmark/measured.csv", metavar="PATH", help="measured FRFs: .csv, .parquet or "
+                            ".uff (docs/guide/measured-formats.md); measured modes (.uff dataset 55, a modal CSV) take "
+                            "the modal update (docs/guide/modal-data.md)")
+    model: str = setting("three_plate", metavar="NAME|PATH", help="FE model: three_plate (the benchmark) or a model "
+                         "file model.toml (docs/guide/model-files.md), relative to the repository when not absolute")
+    strategy: str = setting("hybrid", choices=STRATEGIES, help="; ".join(
+        f"{s.name}: {s.help}" for s in registry.REGISTRY.values()) + " (docs/guide/strategies.md)")
+    seed: int = setting(0, help="master random seed; every stage derives its own generator from it")
+    n_jobs: int = setting(2, help="parallel FE processes (joblib; -1 = all cores); loky backend only")
+    fe_backend: str = setting("loky", choices=FE_BACKENDS, help="where FE runs execute: loky processes here, or the "
+                              "workers of the Dask cluster at dask_address (results do not depend on it)")
+    dask_address: str | None = setting(None, metavar="ADDR", help="Dask scheduler for fe_backend dask, e.g. "
+                                       "tcp://127.0.0.1:8786")
+    repeats: int = setting(1, help="independent runs with seeds seed..seed+N-1 (Figures 10-13)")
+    max_fe_evaluations: int = setting(240, help="FE-run budget of the strategy (the hybrid's in FE-run "
+                                      "equivalents: an FE run with its exact Jacobian costs 2.5)")
+    lower: float = setting(-1.0, help="lower end of every parameter's search box (>= -1, the domain's edge, itself "
+                           "excluded); a model file's bounds take precedence")
+    upper: float = setting(1.0, help="upper end of every parameter's search box")
+    true_parameters: list[float] | None = setting(None, metavar="A,B,...", help="known true values (synthetic "
+                                                  "data), only for reporting parameter errors; each > -1")
+    min_free_mb: float = setting(0.0, help="free disk space the runs folder needs before any work starts, MB; 0 = "
+                                 "twice the run's estimated output")
+    intervals: bool = setting(True, help="after the update, 95 % intervals and the covariance of the parameters "
+                              "(strategies ending with a local least-squares fit; their noise level: noise, else "
+                              "estimated from the residual)")
+    noise: float | None = setting(None, metavar="SIGMA", help="relative noise of the measured amplitudes (standard "
+                                  "deviation, e.g. 0.01 = 1 %) for the hybrid's check, the intervals and the closure; "
+                                  "default: estimated from the residual")
+    posterior_fe: int = setting(400, metavar="N", help="FE runs of the sampled posterior used instead of the Laplace "
+                                "intervals where their linearisation fails its check (a bound, a curved valley); "
+                                "0 = never")
+    lines: str = setting("all", choices=LINES, help="measured lines that enter the update: all, those in "
+                         "line_windows, or windows around the measured resonances (half-power band x "
+                         "resonance_widen)")
+    line_windows: list[list[float]] | None = setting(None, metavar="LO-HI[,LO-HI...]", help="frequency windows in "
+                                                     "Hz for lines = windows, e.g. 100-120,280-300")
+    resonance_widen: float = setting(2.0, metavar="F", help="factor (>= 1) on each resonance's half-power band for "
+                                     "lines = resonances")
+    min_coherence: float = setting(0.9, metavar="C", help="leave out measured values whose coherence is below C "
+                                   "(0 keeps every value; data without coherence lose nothing)")
+    averages: int | None = setting(None, metavar="N", help="the number of averages (hits) behind the measured FRFs "
+                                   "and coherence where the file does not say (UFF58 ID lines, a table's averages); "
+                                   "with the coherence it sets the noise per line")
+    residuals: str = setting("auto", choices=RESIDUALS, help="amplitude residuals (Eq. 5), complex ones (real and "
+                             "imaginary parts of (Z - H)/|H|), or auto: complex when the data carry phase, except "
+                             "the legacy sensor form")
 
-    run_id: str | None = None
-    runs_dir: str = "runs"
-    measured: str = "data/benchmark/measured.csv"
-    model: str = "three_plate"
-    strategy: str = "hybrid"
-    trainer: str = "gradient"
-    seed: int = 0
-    n_jobs: int = 2
-    fe_backend: str = "loky"
-    dask_address: str | None = None
-    repeats: int = 1
-    q: int = 20
-    w: int = 10_000
-    s: int = 20
-    z: int = 20
-    threshold: float = 0.01
-    max_iterations: int = 12
-    max_fe_evaluations: int = 240
-    lower: float = -1.0
-    upper: float = 1.0
-    min_distance_factor: float = 0.1
-    std_floor: float = 1e-4
-    conventional_samples: int = 300
-    polish: bool = True
-    polish_max_fe: int = 200
-    polish_target: float = 1e-4
-    polish_stall_rtol: float = 0.01
-    true_parameters: list[float] | None = field(default=None)
-    min_free_mb: float = 0.0
-    outputs: str = "auto"
-    intervals: bool = True
-    noise: float | None = None
-    averages: int | None = None
-    posterior_fe: int = 400
-    lines: str = "all"
-    line_windows: list[list[float]] | None = field(default=None)
-    resonance_widen: float = 2.0
-    min_coherence: float = 0.9
-    residuals: str = "auto"
-    starts: int = 6
-    emulate: str = "modes"
+
+def _keys() -> list[Key]:
+    """Every config key, declared once: the run's, then each registered strategy's options."""
+    out: dict[str, Key] = {}
+    bound: dict[str, str] = {}
+    for cls in [RunSettings, *registry.option_classes()]:
+        declared, uses = keys_of(cls)
+        for key in declared:
+            if key.name in out:
+                raise TypeError(f"config key {key.name!r} declared twice: by {out[key.name].owner} and {key.owner}")
+            out[key.name] = key
+        bound.update({k: cls.__name__ for k in uses.values()})
+    missing = sorted(set(bound) - set(out))
+    if missing:
+        raise TypeError(f"config keys used but declared nowhere: {', '.join(missing)}")
+    return list(out.values())
+
+
+#: Every key of the run's config, in the order of :class:`UpdateConfig`'s fields.
+KEYS = _keys()
+
+
+class _Config:
+    """The methods of :class:`UpdateConfig` (its fields: :data:`KEYS`)."""
 
     def __post_init__(self) -> None:
         self.validate("config")
@@ -257,6 +162,8 @@ class UpdateConfig:
             check_model_path(self, bad)
         if not self.threshold > 0:
             raise bad("threshold", f"must be positive, got {self.threshold}")
+        if self.averages is not None and not (isinstance(self.averages, int) and self.averages >= 1):
+            raise bad("averages", f"must be a whole number of averages >= 1, got {self.averages!r}")
         if self.lower < -1.0:
             raise bad("lower", f"must be >= -1 (stiffness factors live in (-1, inf)), got {self.lower}")
         if not self.lower < self.upper:
@@ -280,6 +187,8 @@ class UpdateConfig:
                 raise bad("polish_max_fe", f"{self.polish_max_fe} reserved for the polish leaves fewer than q = "
                                            f"{self.q} of max_fe_evaluations = {self.max_fe_evaluations} for the "
                                            "MRGP loop")
+        if not self.coordinate_step > 0:
+            raise bad("coordinate_step", f"must be positive, got {self.coordinate_step}")
         if not self.polish_target > 0:
             raise bad("polish_target", f"must be positive, got {self.polish_target}")
         if not 0 <= self.polish_stall_rtol < 1:
@@ -288,8 +197,6 @@ class UpdateConfig:
             raise bad("outputs", f"unknown output model {self.outputs!r}; choose one of {', '.join(OUTPUTS)}")
         if self.noise is not None and not (isinstance(self.noise, (int, float)) and 0 < self.noise < 1):
             raise bad("noise", f"must be a relative amplitude noise in (0, 1), e.g. 0.01 = 1 %, got {self.noise!r}")
-        if self.averages is not None and not (isinstance(self.averages, int) and self.averages >= 1):
-            raise bad("averages", f"must be a whole number of averages >= 1, got {self.averages!r}")
         if not (isinstance(self.posterior_fe, int) and self.posterior_fe >= 0):
             raise bad("posterior_fe", f"must be a whole number of FE runs >= 0 (0 = never sample), "
                                       f"got {self.posterior_fe!r}")
@@ -329,7 +236,22 @@ class UpdateConfig:
         return p if p.is_absolute() else REPO / p
 
 
-def check_model_path(config: UpdateConfig, bad) -> None:
+def _docstring() -> str:
+    lines = ["All settings of one updating run, one field per key of :data:`KEYS` (made from their declarations).",
+             "", "Attributes", "----------"]
+    for k in KEYS:
+        lines += [f"{k.name} : {getattr(k.type, '__name__', str(k.type))} (default {k.default!r}; {k.owner})",
+                  f"    {k.help}"]
+    return "\n".join(lines)
+
+
+UpdateConfig = dataclasses.make_dataclass(
+    "UpdateConfig", [(k.name, k.type, dataclasses.field(default=None if k.default is None else k.default))
+                     for k in KEYS], bases=(_Config,), frozen=True)
+UpdateConfig.__module__, UpdateConfig.__doc__ = __name__, _docstring()
+
+
+def check_model_path(config, bad) -> None:
     """``model`` is not a known name: it must be an existing ``.toml`` model file."""
     path = config.resolve(config.model)
     if path.suffix != ".toml":
@@ -339,22 +261,26 @@ def check_model_path(config: UpdateConfig, bad) -> None:
         raise bad("model", f"model file {str(path)!r} does not exist")
 
 
-_TYPES: dict[str, tuple[type, ...]] = {}
-for _f in dataclasses.fields(UpdateConfig):
-    if _f.name in ("true_parameters", "line_windows"):
-        _TYPES[_f.name] = (list,)
-    elif _f.type in ("bool", bool):
-        _TYPES[_f.name] = (bool,)
-    elif _f.type in ("int", int):
-        _TYPES[_f.name] = (int,)
-    elif _f.type in ("float", float, "float | None"):
-        _TYPES[_f.name] = (int, float)
-    else:
-        _TYPES[_f.name] = (str,)
+def _accepts(tp) -> tuple[type, ...]:
+    """The TOML value types a key of type ``tp`` accepts."""
+    args = [a for a in typing.get_args(tp) if a is not type(None)] or [tp]
+    base = typing.get_origin(args[0]) or args[0]
+    if base is list:
+        return (list,)
+    if base is bool:
+        return (bool,)
+    if base is int:
+        return (int,)
+    if base is float:
+        return (int, float)
+    return (str,)
+
+
+_TYPES: dict[str, tuple[type, ...]] = {k.name: _accepts(k.type) for k in KEYS}
 
 
 def _check_types(values: dict[str, Any], source: str) -> dict[str, Any]:
-    known = {f.name for f in dataclasses.fields(UpdateConfig)}
+    known = set(_TYPES)
     for key, value in values.items():
         if key in REMOVED_KEYS:
             raise ConfigError(f"{source}: key '{key}' was removed ({REMOVED_KEYS[key]}); delete it")
@@ -421,3 +347,47 @@ def load_config(path: str | Path | None = None, **overrides: Any) -> UpdateConfi
         origin = "command line" if key in cli else source
         raise ConfigError(str(exc).replace("config:", f"{origin}:", 1)) from None
     return config
+
+
+# -- the command line, from the same declarations ------------------------------------------------------------
+def _comma_floats(text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ConfigError(f"command line: {text!r} is not a comma-separated list of numbers") from None
+
+
+def add_setting_flags(parser, skip: tuple = ()) -> None:
+    """A flag for every key of :data:`KEYS` (its ``--help`` from the key's declaration; none for ``skip``):
+    ``--max-fe-evaluations``, ``-q``, ``--polish/--no-polish``, ``--true-parameters 0.1,0.2``,
+    ``--line-windows 100-120,280-300``. Every flag defaults to None (not given: the config file's or the
+    default value)."""
+    import argparse
+
+    for key in KEYS:
+        if key.name in skip or not key.flags:
+            continue
+        kind = _accepts(key.type)
+        default = "" if key.default is None else f" (default {key.default})"
+        kw = {"dest": key.name, "default": None, "help": (key.help + default).replace("%", "%%")}
+        if key.metavar:
+            kw["metavar"] = key.metavar
+        if kind == (bool,):
+            kw["action"] = argparse.BooleanOptionalAction
+        elif key.choices:
+            kw["choices"] = key.choices
+        elif key.name == "line_windows":
+            kw["type"] = str
+        elif kind == (list,):
+            kw["type"] = _comma_floats
+        else:
+            kw["type"] = {(int,): int, (int, float): float}.get(kind, str)
+        parser.add_argument(*key.flags, **kw)
+
+
+def settings_from_args(args) -> dict[str, Any]:
+    """The keys given on the command line (parsed by :func:`add_setting_flags`), for :func:`load_config`."""
+    out = {k.name: getattr(args, k.name, None) for k in KEYS}
+    if out.get("line_windows") is not None:
+        out["line_windows"] = parse_windows(out["line_windows"])
+    return out

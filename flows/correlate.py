@@ -4,7 +4,7 @@ The FE model's modes are read at the test DOFs (the model's sensors with ``test_
 the measured modes by the MAC, paired (assignment on the MAC, pairs below ``--threshold`` refused and
 named), with frequency differences and the COMAC of each test DOF. Writes ``correlation.json`` and
 ``mac.png`` (the MAC matrix) and ``shapes.png`` (the paired
-shapes on the mesh) to ``--out`` and prints the pairing table. See docs/modal-data.md.
+shapes on the mesh) to ``--out`` and prints the pairing table. See docs/guide/modal-data.md.
 
 Examples::
 

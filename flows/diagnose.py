@@ -53,6 +53,7 @@ from tasks.problem import Problem  # noqa: E402
 from tasks.runstore import atomic_write_json  # noqa: E402
 from tasks.closure import steps as ct  # noqa: E402
 from tasks.io.measured import MeasuredDataError  # noqa: E402
+from tasks.io.summary import read_summary  # noqa: E402
 
 __all__ = ["diagnose_flow", "diagnose", "run_folder", "main", "print_closure", "print_closure_intervals"]
 
@@ -71,7 +72,10 @@ def run_folder(run_id: str, runs_dir: str | Path = "runs") -> tuple[Path, dict, 
     summary_path = root / "summary.json"
     if not summary_path.exists():
         raise DiagnoseError(f"{summary_path}: no summary.json; is run {run_id!r} finished?")
-    summary = json.loads(summary_path.read_text())
+    summary = read_summary(summary_path)  # an older record in the current shape
+    if summary.get("kind") == "modal":
+        raise DiagnoseError(f"{summary_path}: run {run_id!r} is a modal update; its closure runs with the update "
+                            "(summary.json's closure), not python -m flows.diagnose")
     if "runs" in summary:  # repeats: diagnose the best one
         best = min(summary["runs"], key=lambda r: r["overall_error"])
         root = Path(best["run_folder"])
@@ -282,10 +286,13 @@ def print_closure_intervals(summary: dict, file=None) -> None:
               file=file)
 
 
-def add_closure_arguments(p: argparse.ArgumentParser) -> None:
-    """Options of the closure, shared with ``flows.update --close-loop``."""
-    p.add_argument("--noise", type=float, metavar="SIGMA",
-                   help="relative noise of the measured amplitudes, e.g. 0.005 (default: estimated from the residual)")
+def add_closure_arguments(p: argparse.ArgumentParser, noise: bool = True) -> None:
+    """Options of the closure, shared with ``flows.update --close-loop`` (whose ``--noise`` is the run's setting:
+    ``noise=False``)."""
+    if noise:
+        p.add_argument("--noise", type=float, metavar="SIGMA",
+                       help="relative noise of the measured amplitudes, e.g. 0.005 (default: estimated from the "
+                            "residual)")
     p.add_argument("--significance", type=float, help="chi-square level for 'structure' (default 0.01)")
     p.add_argument("--effects", metavar="A,B", help="effect types to consider (default all registered: "
                                                     + ", ".join(registered_effects()) + ")")
@@ -294,7 +301,7 @@ def add_closure_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--closure-name", metavar="NAME", help="sub-folder of the run for the closure (default closure)")
     p.add_argument("--closure-emulator", action="store_true",
                    help="where the baseline is far off, also search a point mass globally with the MRGP over "
-                        "(alpha, position, log size) and check its fit (docs/closure-emulator.md)")
+                        "(alpha, position, log size) and check its fit (docs/guide/closure-emulator.md)")
 
 
 def closure_options(args) -> dict:

@@ -28,6 +28,7 @@ import numpy as np
 from prefect import flow
 
 from flows.config import ConfigError, load_config
+from tasks.io.summary import SCHEMA_VERSION, interval_entries
 from tasks.modal_stages import MODAL_STAGES
 
 __all__ = ["route", "main", "run_modal_update", "modal_flow", "CLOSURE_EFFECTS"]
@@ -43,7 +44,7 @@ _FRF_ONLY = ("--trainer", "--lines", "--line-windows", "--residuals", "--emulate
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m flows.update (modal data)",
-                                description="Update the model's parameters on measured modes (docs/modal-data.md).")
+                                description="Update the model's parameters on measured modes (docs/guide/modal-data.md).")
     p.add_argument("--config", metavar="PATH")
     p.add_argument("--model", metavar="NAME|PATH")
     p.add_argument("--measured", metavar="PATH", required=True)
@@ -99,7 +100,7 @@ def main(argv: list[str]) -> int:
         if flag.startswith("-"):
             name = flag.split("=")[0]
             why = "applies to FRF data" if name in _FRF_ONLY else "is not an option of the modal update"
-            print(f"warning: {name} {why}, ignored for modal data (docs/modal-data.md)", file=sys.stderr)
+            print(f"warning: {name} {why}, ignored for modal data (docs/guide/modal-data.md)", file=sys.stderr)
     try:
         strategy = "adaptive" if args.strategy == "paper" else args.strategy
         config = load_config(args.config, measured=args.measured, model=args.model, run_id=args.run_id,
@@ -219,6 +220,7 @@ def modal_flow(job: "ModalJob", true_parameters=None, identified=None, stabilisa
     """The stages of one modal run (:mod:`tasks.modal_stages`), then its summary and report."""
     from tasks import modal, modal_stages
 
+    t0 = time.perf_counter()
     config, model, data, residual, names = job.config, job.model, job.data, job.residual, job.names
     folder = config.resolve(config.runs_dir) / config.run_id
     root = str(folder)
@@ -251,9 +253,11 @@ def modal_flow(job: "ModalJob", true_parameters=None, identified=None, stabilisa
     if paper is not None:
         summary["paper_loop"] = paper
         summary["fe_runs_fit"] = fit["fe_runs"] - paper["fe_runs_computed"]
+        summary["stop_reason"] = f"paper loop: {paper['reason']}; then {summary['stop_reason']}"
     if identified is not None:
         summary.update(identified_from=config.measured, identification_band_hz=list(job.settings["identify_modes"]),
                        stabilisation=stabilisation, seconds_identification=seconds_identify)
+    summary["wall_seconds"] = round(time.perf_counter() - t0 + seconds_identify, 3)
     modal.write_json(folder / "summary.json", summary)
     from tasks.modal_report import write_report
 
@@ -271,6 +275,12 @@ def paper_options(config):
                         emulate="errors", seed=config.seed)
 
 
+#: ``scipy.optimize.least_squares``'s ``status`` of the kept start, in words (``stop_reason``); > 0: converged.
+LEAST_SQUARES_STATUS = {-1: "improper input", 0: "the FE-run budget of the start (max_nfev) spent",
+                        1: "gradient tolerance met", 2: "cost tolerance met", 3: "step tolerance met",
+                        4: "cost and step tolerances met"}
+
+
 def modal_summary(job, fit: dict, closure: dict | None, true_parameters) -> dict:
     """``summary.json`` of a modal run from its stages' results."""
     config, names, m, residual = job.config, job.names, job.data.modes, job.residual
@@ -284,20 +294,27 @@ def modal_summary(job, fit: dict, closure: dict | None, true_parameters) -> dict
     numbers = [int(n.split()[-1]) for n in m.names if n.split()[-1].isdigit()]
     gaps = sorted(set(range(1, max(numbers) + 1)) - set(numbers)) if numbers else []
     s = job.settings
+    best = min(fit["starts"], key=lambda r: r["cost"])  # the start the fit kept (least cost)
     summary = {
-        "kind": "modal update", "run_id": config.run_id, "folder": str(folder), "model": config.model,
-        "measured": config.measured, "residual": "paired frequencies (f_model - f_test) / (sigma_f f_test) and "
-        "shape differences u - MSF psi of unit-norm measured shapes (|.|^2 = 1 - MAC) / (sigma_s / sqrt(n_dofs))",
+        "schema_version": SCHEMA_VERSION, "kind": "modal", "run_id": config.run_id, "run_folder": str(folder),
+        "strategy": config.strategy, "seed": config.seed,
+        "parameters": {n: float(v) for n, v in zip(names, fit["theta"])},
+        "intervals": interval_entries(names, lo95, hi95, sd), "covariance": fit["covariance"],
+        "interval_method": "laplace", "fe_evaluations": fit["fe_runs"], "jacobians": fit["jacobians"],
+        "converged": best["status"] > 0,
+        "stop_reason": f"local least squares from {len(fit['starts'])} start(s); the best start: "
+                       f"{LEAST_SQUARES_STATUS.get(best['status'], 'scipy status ' + str(best['status']))}",
+        "model": config.model, "measured": config.measured,
+        "residual": "paired frequencies (f_model - f_test) / (sigma_f f_test) and shape differences u - MSF psi "
+                    "of unit-norm measured shapes (|.|^2 = 1 - MAC) / (sigma_s / sqrt(n_dofs))",
         "sigma_f": s["sigma_f"], "sigma_s": s["sigma_s"],
         "uncertainties": "stated" if job.stated else "estimated from the residual",
-        "parameters": {n: {"value": float(v), "sd": float(d), "lower95": float(a), "upper95": float(b)}
-                       for n, v, d, a, b in zip(names, fit["theta"], sd, lo95, hi95)},
-        "covariance": fit["covariance"], "chi2": fit["chi2"], "n_residuals": fit["n_residuals"],
+        "chi2": fit["chi2"], "n_residuals": fit["n_residuals"],
         "n_parameters": len(names), "scale2": fit["scale2"], "paired_modes": paired,
         "unpaired_measured": sorted(set(missing + list(fit["unpaired"])), key=m.names.index),
         "left_out": [m.names[k] for k in range(m.n_modes) if k not in set(fit["active"])],
         "missing_mode_numbers": [f"mode {k}" for k in gaps],
-        "fe_runs": fit["fe_runs"], "jacobians": fit["jacobians"], "seconds": fit["seconds"], "starts": fit["starts"],
+        "seconds": fit["seconds"], "starts": fit["starts"],
         "mode_swaps": fit["swaps"], "n_test_dofs": len(m.dofs), "notes": list(m.notes) + list(job.notes),
         "stages": list(MODAL_STAGES),
     }
@@ -311,14 +328,15 @@ def modal_summary(job, fit: dict, closure: dict | None, true_parameters) -> dict
     if true_parameters is not None:
         t = np.asarray(true_parameters, float)
         summary["true_parameters"] = dict(zip(names, t.tolist()))
-        summary["inside95"] = dict(zip(names, ((lo95 <= t) & (t <= hi95)).tolist()))
+        summary["parameter_errors"] = dict(zip(names, np.abs(np.asarray(fit["theta"], float) - t).tolist()))
+        summary["intervals_contain_truth"] = dict(zip(names, ((lo95 <= t) & (t <= hi95)).tolist()))
     return summary
 
 
 def print_summary(summary: dict) -> None:
     print(f"modal update {summary['run_id']}: {len(summary['paired_modes'])} paired modes at "
-          f"{summary['n_test_dofs']} test DOFs; {summary['fe_runs']} FE runs ({summary['jacobians']} with Nelson "
-          f"derivatives), {summary['seconds']:.1f} s; chi2 {summary['chi2']:.1f} for {summary['n_residuals']} "
+          f"{summary['n_test_dofs']} test DOFs; {summary['fe_evaluations']} FE runs ({summary['jacobians']} with "
+          f"Nelson derivatives), {summary['seconds']:.1f} s; chi2 {summary['chi2']:.1f} for {summary['n_residuals']} "
           f"residuals ({summary['uncertainties']})")
     if "paper_loop" in summary:
         pl = summary["paper_loop"]
@@ -331,11 +349,11 @@ def print_summary(summary: dict) -> None:
               + "; ".join(n for n in summary["notes"] if "identified by" in n)
               + (f"; peaks without a stable pole dropped: {st['dropped_peaks_hz']} Hz" if st["dropped_peaks_hz"]
                  else ""))
-    for name, p in summary["parameters"].items():
-        flag = ""
-        if "inside95" in summary:
-            flag = "  (true value inside)" if summary["inside95"][name] else "  (true value OUTSIDE)"
-        print(f"  {name:<10} {p['value']:+.4f}  sd {p['sd']:.4f}  95 % [{p['lower95']:+.4f}, {p['upper95']:+.4f}]{flag}")
+    inside = summary.get("intervals_contain_truth")
+    for name, value in summary["parameters"].items():
+        iv = summary["intervals"][name]
+        flag = "" if inside is None else "  (true value inside)" if inside[name] else "  (true value OUTSIDE)"
+        print(f"  {name:<10} {value:+.4f}  sd {iv['sd']:.4f}  95 % [{iv['lower95']:+.4f}, {iv['upper95']:+.4f}]{flag}")
     for p in summary["paired_modes"]:
         print(f"  {p['test']:<8} {p['f_test_hz']:9.3f} Hz <-> {p['model']:<14} {p['f_model_hz']:9.3f} Hz  "
               f"MAC {p['mac']:.3f}")
@@ -358,4 +376,4 @@ def print_summary(summary: dict) -> None:
                                       f"(sd {ch['sd']:.2g})" for ch in c.get("added") or [c["chosen"]])
             line += f": chi2 {c['after']['chi2']:.1f} for {c['after']['dof']} dof"
         print(line + f"; {c['fe_runs']} FE runs)")
-    print(f"  written to {summary['folder']} (summary.json, report.html)")
+    print(f"  written to {summary['run_folder']} (summary.json, report.html)")

@@ -13,6 +13,12 @@ The model's frequency range
     benchmark (10 mm steel, largest element 14.375 mm) this is 13.1 kHz; the
     measurement is at 106-295 Hz.
 
+Memory
+    A mesh model whose update would not fit in the memory this machine has available is refused before
+    anything is assembled (:func:`check_memory`): the estimate of :mod:`flows.memory` (the model, one FE
+    run's factorisation and Krylov space, the FE runs at once, the first assembly) against
+    :func:`flows.memory.available_bytes`, with how much ``--n-jobs 1`` would need.
+
 Disk
     The runs folder must be writable (checked by writing and removing a
     file: permission bits, read-only mounts and immutable folders all count,
@@ -35,11 +41,12 @@ import numpy as np
 from flows.config import ConfigError, UpdateConfig, stored_settings
 from tasks.io.measured import MeasuredDataError
 
-__all__ = ["max_frequency_hz", "check_inputs", "check_resume", "check_disk", "expected_output_mb",
+__all__ = ["max_frequency_hz", "check_inputs", "check_resume", "check_disk", "check_memory", "expected_output_mb",
            "ELEMENTS_PER_WAVELENGTH"]
 
-#: The run folder's layout this version writes and resumes (flows.run.RECORD_VERSION).
-RECORD_VERSION = 2
+#: The run folder's layout this version writes and resumes (flows.run.RECORD_VERSION). 3: every strategy under
+#: one driver (tasks/driver.py): the batches' FE stages, the steps' stages with their ``inputs`` digest.
+RECORD_VERSION = 3
 #: Linear elements per bending wavelength below which the mesh no longer resolves the response.
 ELEMENTS_PER_WAVELENGTH = 6
 
@@ -106,6 +113,9 @@ def check_inputs(config: UpdateConfig, measured, model) -> None:
 #: The measured band is "far outside" the model's modes beyond this factor (a mesh in mm with SI
 #: materials puts every natural frequency 1000 times too low).
 BAND_FACTOR = 30.0
+#: Relative accuracy of a large model's eigenvalues in the band check (ARPACK's tol; the 150k panel: 21 solves
+#: of the nominal K instead of 32 at machine precision, its six frequencies the same to 1e-8).
+BAND_TOL = 1e-3
 
 
 def check_band(config: UpdateConfig, measured, model) -> None:
@@ -115,9 +125,15 @@ def check_band(config: UpdateConfig, measured, model) -> None:
     ``BAND_FACTOR`` times the highest of the lowest six natural frequencies, or
     below the lowest one divided by ``BAND_FACTOR``.
     """
+    from tasks.fe_runs import is_large, run_cores
+    from fe_core.solvers import pardiso
+
     n = min(6, model.n_dofs - 1)
-    try:
-        freqs = model.natural_frequencies(np.zeros(model.n_segments), n_modes=n)
+    try:  # a large model on the run's cores; its factor (the nominal K) is kept for the first FE run
+        with pardiso.threads(run_cores(config) if is_large(model) else 1):
+            # A large model's frequencies to BAND_TOL are plenty for a factor of BAND_FACTOR: 21 solves, not 32.
+            loose = {"tol": BAND_TOL} if is_large(model) else {}
+            freqs = model.natural_frequencies(np.zeros(model.n_segments), n_modes=n, **loose)
     except RuntimeError as exc:  # a black-box solver deck that its solver rejects (CcxError quotes its *ERROR lines)
         raise ConfigError(f"{config.model}: key 'deck': the nominal deck's modes: {exc}") from None
     lo, hi = float(np.min(measured.frequencies_hz)), float(np.max(measured.frequencies_hz))
@@ -128,6 +144,47 @@ def check_band(config: UpdateConfig, measured, model) -> None:
             "check the units: a mesh in mm needs units = \"mm-t-s\" (E in MPa, rho in t/mm^3), "
             "a mesh in m needs SI materials"
         )
+
+
+def check_memory(config: UpdateConfig, cache_root: Path | None = None):
+    """Refuse a mesh model whose update needs more memory than the machine has available (exit 2), naming the
+    model, the estimate and its parts, and what ``--n-jobs 1`` would need; returns the
+    :class:`flows.memory.Footprint` (None for a model of another kind). ``cache_root``: the model cache (a
+    model found there needs no assembly)."""
+    from fe_core.io import cache
+    from flows.memory import GB, available_bytes, estimate
+    from tasks.problem import model_checksum, model_path
+
+    if not config.model.endswith(".toml"):
+        return None
+    path = model_path(config.model)
+    if not path.exists():
+        return None  # the model's reader names the missing file
+    cached = False
+    if cache_root is not None:
+        try:
+            cached = cache.lookup(cache_root, model_checksum(path)) is not None
+        except (OSError, ValueError):
+            cached = False
+    jobs = (os.cpu_count() or 1) if config.n_jobs < 0 else config.n_jobs
+    if config.fe_backend != "loky":  # the global rounds' FE runs are the cluster's; Gauss-Newton runs here
+        jobs = 1
+    footprint = estimate(path, jobs, cached=cached)
+    if footprint is None:
+        return None
+    avail = available_bytes()
+    if footprint.total <= avail:
+        return footprint
+    single = footprint.with_jobs(1)
+    if jobs > 1 and single.total <= avail:
+        hint = (f"with --n-jobs 1 (one FE run at a time) it needs about {single.total / GB:.1f} GB: run with "
+                "--n-jobs 1, or FE runs on a Dask cluster (--fe-backend dask)")
+    else:
+        hint = (f"even one FE run at a time needs about {single.total / GB:.1f} GB: use a coarser mesh or a "
+                "machine with more memory")
+    raise ConfigError(f"{config.model}: the update would not fit in memory: {footprint.describe()}; this machine "
+                      f"has {avail / GB:.1f} GB available; {hint} (estimate from the mesh before any assembly; "
+                      f"docs/results/scaling.md)")
 
 
 def check_resume(config: UpdateConfig, root: Path, resumable: set[str], inputs: dict | None = None) -> None:
@@ -188,8 +245,9 @@ def expected_output_mb(config: UpdateConfig, n_values: int, m: int) -> float:
     (about 100 bytes a value in all). Per iteration: ``w`` candidates of
     ``m + 2`` doubles, plus small tables. Repeats multiply.
     """
-    n_fe = config.conventional_samples + 1 if config.strategy == "conventional" else config.max_fe_evaluations
-    iterations = 2 if config.strategy == "conventional" else config.max_iterations
+    from strategies import registry
+
+    n_fe, iterations = registry.get(config.strategy).budget(config)
     per_run = n_fe * (n_values * 100 + 4096) + iterations * (config.w * (m + 2) * 8 + 64 * 1024)
     return config.repeats * per_run / 1e6
 

@@ -32,13 +32,18 @@ RESUMABLE_CHANGES = {"n_jobs", "run_id", "runs_dir", "repeats", "min_free_mb", "
                      "intervals", "posterior_fe"}
 
 
-def load_model(name: str):
+#: The model cache's folder inside the runs folder (:mod:`fe_core.io.cache`).
+MODEL_CACHE_FOLDER = ".model-cache"
+
+
+def load_model(name: str, cache_root=None):
     """(model, :class:`tasks.problem.ModelRef`) of a run; a model file that cannot be used is a ConfigError
-    naming the file and key."""
+    naming the file and key. ``cache_root``: the model cache (a large model assembled once, mapped by every
+    process: :func:`tasks.problem.read_model_ref`)."""
     from fe_core.io import ModelFileError
 
     try:
-        return read_model_ref(name)
+        return read_model_ref(name, cache_root)
     except ModelFileError as exc:
         raise ConfigError(str(exc)) from None
 
@@ -56,8 +61,12 @@ def prepare_data(config: UpdateConfig, measured, model) -> UpdateData:
 
 
 def emulates_modes(config: UpdateConfig) -> bool:
-    """The adaptive strategy's paper loop with ``emulate = "modes"`` (:mod:`strategies.modal_emulation`)."""
-    return config.strategy == "adaptive" and config.emulate == "modes"
+    """The strategy's FE runs give their lowest modes (the paper loop's ``emulate = "modes"``,
+    :mod:`strategies.modal_emulation`), by its entry in :mod:`strategies.registry`."""
+    from strategies import registry
+
+    spec = registry.get(config.strategy)
+    return bool(spec.modes(*spec.settings(config)))
 
 
 def n_modes(model, freqs_hz) -> int:
@@ -88,7 +97,9 @@ def resolve(config: UpdateConfig, measured=None) -> Problem:
     (:func:`tasks.io.measured.read_measured` of ``config.measured``), else read here."""
     if measured is None:
         measured = read_measured(config.resolve(config.measured), averages=config.averages)
-    model, ref = load_model(config.model)
+    cache_root = config.resolve(config.runs_dir) / MODEL_CACHE_FOLDER
+    preflight.check_memory(config, cache_root)  # a model too big says so before it is assembled
+    model, ref = load_model(config.model, cache_root)
     data = prepare_data(config, measured, model)
     preflight.check_inputs(config, data, model)
     root = config.resolve(config.runs_dir) / config.run_id

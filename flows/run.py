@@ -1,9 +1,10 @@
 """One updating run, whatever its strategy: problem -> manifest -> strategy -> summary.
 
 :func:`run_update` resolves the run's problem once (:func:`flows.problem.resolve`), takes the run's lock,
-writes ``manifest.json`` and ``measured.parquet``, runs the strategy's subflows (:data:`STRATEGIES`), then
-the intervals, ``model.vtu`` and ``summary.json`` (:mod:`flows.summary`). Repeats run the same problem with
-seeds ``seed .. seed + repeats - 1`` in ``repeat=<i>/`` folders.
+writes ``manifest.json`` and ``measured.parquet``, runs the strategy of the registry
+(:mod:`strategies.registry`) under the one driver (:func:`flows.drive.run_strategy`), then the intervals,
+``model.vtu`` and ``summary.json`` (:mod:`flows.summary`). Repeats run the same problem with seeds
+``seed .. seed + repeats - 1`` in ``repeat=<i>/`` folders.
 """
 
 from __future__ import annotations
@@ -19,21 +20,17 @@ import pandas as pd
 from flows import preflight
 from flows import problem as problems
 from flows.config import ConfigError, UpdateConfig, stored_settings
-from flows.hybrid import run_hybrid
-from flows.paper import run_paper
+from flows.drive import run_strategy
 from flows.summary import finish_run, repeat_summary, run_summary
-from tasks.hybrid import HYBRID_STAGES
-from tasks.paper import STAGES as PAPER_STAGES
+from strategies import registry
 from tasks.runlock import RunLock
 from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes, atomic_write_json, git_commit, package_versions
 from tasks.update_data import UpdateData
 
-__all__ = ["run_update", "single_run", "write_manifest", "write_measured_table", "STRATEGIES", "RECORD_VERSION"]
+__all__ = ["run_update", "single_run", "write_manifest", "write_measured_table", "RECORD_VERSION"]
 
-#: What runs each strategy: ``run(problem, config, store) -> (last iteration, outcome)``.
-STRATEGIES = {"hybrid": run_hybrid, "adaptive": run_paper, "conventional": run_paper}
-#: The layout of the run folder this version writes (2: every FE stage writes ``runs`` and ``responses``,
-#: :mod:`tasks.record`); a run folder of another layout is not resumed (:func:`flows.preflight.check_resume`).
+#: The layout of the run folder this version writes (:data:`flows.preflight.RECORD_VERSION`); a run folder of
+#: another layout is not resumed (:func:`flows.preflight.check_resume`).
 RECORD_VERSION = preflight.RECORD_VERSION
 
 
@@ -53,7 +50,7 @@ def run_update(config: UpdateConfig, problem=None) -> dict:
         for i in range(config.repeats):
             sub = config.replace(seed=config.seed + i, repeats=1)
             runs.append(single_run(problem, sub, RunStore(root / f"repeat={i}"), time.perf_counter()))
-        summary = repeat_summary(config, runs, time.perf_counter() - t0)
+        summary = repeat_summary(config, runs, time.perf_counter() - t0, root)
         atomic_write_json(root / "summary.json", summary)
         return summary
 
@@ -64,9 +61,9 @@ def single_run(problem, config: UpdateConfig, store: RunStore, t0: float) -> dic
     for line in problem.data.describe():
         print(f"measured: {line}")
     write_measured_table(store, problem.data)
-    iteration, outcome = STRATEGIES[config.strategy](problem, config, store)
+    iteration, outcome = run_strategy(problem, config, store)
     summary = run_summary(problem, config, store, iteration, outcome, time.perf_counter() - t0)
-    return finish_run(problem, config, store, iteration, summary)
+    return finish_run(problem, config, store, iteration, summary, outcome["intervals"])
 
 
 def write_measured_table(store: RunStore, data: UpdateData) -> None:
@@ -116,7 +113,7 @@ def write_manifest(store: RunStore, config: UpdateConfig, problem=None) -> None:
         "seed": config.seed,
         "versions": {"python": sys.version.split()[0], **package_versions()},
         "git_commit": git_commit(),
-        "stages": list(HYBRID_STAGES if config.strategy == "hybrid" else PAPER_STAGES),
+        "stages": list(registry.get(config.strategy).stages),
         **({**problem.inputs, "measured_data": problem.data.manifest_entry()} if problem is not None else {}),
     })
 

@@ -9,19 +9,21 @@ adds the 95 % intervals (after a local least-squares stage: the hybrid's Gauss-N
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from tasks import record
 from tasks.intervals import cost_against_update, intervals_task
+from tasks.io.summary import SCHEMA_VERSION, entries_from_pairs
 from tasks.model_vtu import model_vtu_task
-from tasks.paper import uses_polish
 from tasks.fe_runs import JACOBIAN_COST
 from tasks.runstore import RunStore, atomic_write_json
 
 __all__ = ["run_summary", "finish_run", "repeat_summary", "print_summary", "interval_sentences",
-           "report_least_squares_optimum", "LEAST_SQUARES_SOURCE", "interval_status", "CONDITIONAL_WORDS"]
+           "report_least_squares_optimum", "LEAST_SQUARES_SOURCE", "interval_status", "CONDITIONAL_WORDS",
+           "summary_interval_fields"]
 
 
 def run_summary(problem, config, store: RunStore, iterations: int, outcome: dict, wall: float) -> dict:
@@ -33,6 +35,9 @@ def run_summary(problem, config, store: RunStore, iterations: int, outcome: dict
     used = record.spent(store, iterations)
     names, data = problem.names, problem.data
     summary = {
+        "schema_version": SCHEMA_VERSION,
+        "kind": "frf",
+        "run_id": config.run_id if store.root.name == config.run_id else f"{config.run_id}/{store.root.name}",
         "parameters": {n: float(best[n]) for n in names},
         "overall_error": float(best["overall_error"]),
         "per_sensor_error": {f"sensor_{int(s)}": float(best[f"error_sensor_{j + 1}"])
@@ -59,14 +64,16 @@ def run_summary(problem, config, store: RunStore, iterations: int, outcome: dict
         summary["evidence"] = outcome["evidence"]
     if config.true_parameters is not None:
         truth = np.asarray(config.true_parameters, float)
+        summary["true_parameters"] = {n: float(t) for n, t in zip(names, truth)}
         summary["parameter_errors"] = {n: float(abs(float(best[n]) - t)) for n, t in zip(names, truth)}
     return summary
 
 
-def finish_run(problem, config, store: RunStore, iteration: int, summary: dict) -> dict:
-    """Intervals (after a local least-squares stage), model.vtu, then summary.json."""
+def finish_run(problem, config, store: RunStore, iteration: int, summary: dict, intervals: bool = True) -> dict:
+    """Intervals (when the strategy ends with a local least-squares stage, ``intervals``), model.vtu, then
+    summary.json."""
     data = problem.data
-    if (uses_polish(config) or config.strategy == "hybrid") and config.intervals:
+    if intervals and config.intervals:
         summary.update(_interval_fields(problem, config, store, iteration, summary))
         if "intervals" in summary:
             summary.update(interval_status(summary))
@@ -110,14 +117,23 @@ def interval_status(summary: dict) -> dict:
     return {"interval_status": INTERVALS_CONDITIONAL, "conditional_on": f"{CONDITIONAL_WORDS}: {'; '.join(reasons)}"}
 
 
+def summary_interval_fields(info: dict) -> dict:
+    """The summary's interval fields from the intervals stage's record (:func:`tasks.intervals.intervals_task`):
+    its ``[low, high]`` pairs become the summary's ``{"lower95", "upper95", "sd"}`` entries (``sd`` from
+    ``interval_details["std"]``), the other fields are taken as they are."""
+    fields = {k: info[k] for k in ("intervals", "covariance", "interval_method", "noise_sigma", "interval_details",
+                                   "interval_cost", "estimate_errors", "residual_check", "noise_model") if k in info}
+    fields["intervals"] = entries_from_pairs(info["intervals"], info["interval_details"]["std"])
+    return fields
+
+
 def _interval_fields(problem, config, store: RunStore, iteration: int, summary: dict) -> dict:
     """95 % intervals at the least-squares optimum near the run's result (tasks.intervals), for summary.json."""
     start = np.array(list(summary["parameters"].values()))
     info = intervals_task(str(store.root), problem, config, iteration, start)
     if info.get("skipped"):
         return {"intervals_skipped": info["skipped"]}
-    fields = {k: info[k] for k in ("intervals", "covariance", "interval_method", "noise_sigma", "interval_details",
-                                   "interval_cost", "estimate_errors", "residual_check") if k in info}
+    fields = summary_interval_fields(info)
     fields["interval_cost"] = {**info["interval_cost"], **_cost_against_update(store, iteration, summary,
                                                                                info["interval_cost"]["seconds"])}
     if config.true_parameters is not None:
@@ -155,7 +171,7 @@ def report_least_squares_optimum(summary: dict, sensors, truth=None) -> dict:
 
     On noisy data the optimum of the noise-weighted residual is the better estimate: nearer the truth in
     76-85 % of synthetic data sets, with a mean Mahalanobis distance 30-35 % smaller than the minimiser
-    of the Eq. (6b) error (``python -m benchmarks.estimators``, docs/estimators.md). Only when the
+    of the Eq. (6b) error (``python -m benchmarks.estimators``, measured at efdea20: git show 0cbca1f:docs/estimators.md). Only when the
     Gauss-Newton steps settled at the optimum (else the lowest-error run is kept and
     ``parameters_source`` says so). ``overall_error`` and ``per_sensor_error`` then belong to the
     reported parameters (from the optimum's residual, no FE run); ``converged`` and ``best_sample_id``
@@ -186,19 +202,29 @@ def report_least_squares_optimum(summary: dict, sensors, truth=None) -> dict:
     return out
 
 
-def repeat_summary(config, runs: list[dict], wall: float) -> dict:
+def repeat_summary(config, runs: list[dict], wall: float, root=None) -> dict:
+    """The summary of a run with repeats (``kind`` "repeats"): the repeats' mean parameters and errors, their
+    statistics (``repeats``) and each repeat's own summary (``runs``); ``root``: the run's folder."""
     errors = np.array([r["overall_error"] for r in runs])
     params = pd.DataFrame([r["parameters"] for r in runs])
+    n_converged = sum(bool(r["converged"]) for r in runs)
     out = {
-        "parameters": params.mean().to_dict(),
+        "schema_version": SCHEMA_VERSION,
+        "kind": "repeats",
+        "run_id": config.run_id,
+        "parameters": {c: float(v) for c, v in params.mean().items()},
         "overall_error": float(errors.mean()),
         "per_sensor_error": pd.DataFrame([r["per_sensor_error"] for r in runs]).mean().to_dict(),
         "fe_evaluations": int(sum(r["fe_evaluations"] for r in runs)),
         "iterations": int(max(r["iterations"] for r in runs)),
-        "converged": bool(all(r["converged"] for r in runs)),
+        "converged": n_converged == len(runs),
+        "stop_reason": f"{len(runs)} repeats, {n_converged} converged (each repeat's reason: runs[i].stop_reason)",
+        "residual": runs[0]["residual"],
         "trainer": config.trainer,
         "strategy": config.strategy,
+        "seed": config.seed,
         "wall_seconds": round(wall, 3),
+        "run_folder": str(root) if root is not None else str(Path(runs[0]["run_folder"]).parent),
         "repeats": {
             "n": len(runs),
             "seeds": [r["seed"] for r in runs],
@@ -212,6 +238,7 @@ def repeat_summary(config, runs: list[dict], wall: float) -> dict:
     }
     if config.true_parameters is not None:
         pe = pd.DataFrame([r["parameter_errors"] for r in runs])
+        out["true_parameters"] = runs[0]["true_parameters"]
         out["repeats"]["parameter_errors"] = {c: _stats(pe[c].to_numpy()) for c in pe}
     return out
 
@@ -229,7 +256,7 @@ def print_summary(summary: dict, file=None) -> None:
              f"{summary['rounds']} rounds)" if "jacobians" in summary else "")
     print(f"strategy {summary['strategy']}, trainer {summary['trainer']}: "
           f"{'converged' if summary['converged'] else 'NOT converged'} after {summary['iterations']} "
-          f"{'cycles' if summary['strategy'] == 'hybrid' else 'iterations'}, "
+          f"{_round_word(summary['strategy'])}s, "
           f"{summary['fe_evaluations']} FE runs{extra}, {summary['wall_seconds']:.1f} s", file=file)
     lowest = summary.get("lowest_error")
     if lowest:
@@ -245,8 +272,8 @@ def print_summary(summary: dict, file=None) -> None:
     for name, value in summary["parameters"].items():
         extra = f" {summary['parameter_errors'][name]:>9.4f}" if "parameter_errors" in summary else ""
         if iv:
-            lo, hi = iv[name]
-            half = None if lo is None else (hi - lo) / 2
+            lo, hi = iv[name]["lower95"], iv[name]["upper95"]
+            half = None if lo is None or hi is None else (hi - lo) / 2
             extra += f" {'inf':>10}" if half is None else f" {half:>10.4f}" if half >= 1e-3 else f" {half:>10.1e}"
         if other:
             extra += f" {other[name]:>10.4f}"
@@ -256,6 +283,12 @@ def print_summary(summary: dict, file=None) -> None:
             print(line, file=file)
     print("per-sensor error: " + ", ".join(f"{k.split('_')[-1]}: {v:.3%}"
                                            for k, v in summary["per_sensor_error"].items()), file=file)
+
+
+def _round_word(strategy: str) -> str:
+    from strategies import registry
+
+    return registry.get(strategy).round_word if strategy in registry.names() else "iteration"
 
 
 def _half_label(summary: dict) -> str:
@@ -279,8 +312,10 @@ def interval_sentences(summary: dict) -> list[str]:
            f"{summary['interval_method']} of the posterior on the FE model around the least-squares optimum")
     conditional = summary.get("interval_status") == INTERVALS_CONDITIONAL
     title = ("intervals CONDITIONAL (not 95 % intervals)" if conditional else "95 % intervals")
-    lines = [f"{title}: {how}, noise {100 * summary['noise_sigma']:.3g} % ({d['noise_source']}, "
-             f"{d['distribution']} quantile {d['quantile']:.3f}); cost {spent}"]
+    noise = (f"weighted by the noise per line and channel ({d['noise']})" if "noise" in d else
+             f"noise {100 * summary['noise_sigma']:.3g} % ({d['noise_source']}")
+    noise += ", " if "noise" not in d else " ("
+    lines = [f"{title}: {how}, {noise}{d['distribution']} quantile {d['quantile']:.3f}); cost {spent}"]
     if conditional:
         lines.append(f"warning: the intervals are {summary['conditional_on']}; they hold only if the model were "
                      "right and understate the uncertainty of the parameters")

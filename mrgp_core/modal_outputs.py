@@ -3,7 +3,7 @@
 The paper emulates the response errors. Near a resonance the FRF amplitude, and every error made from
 it, changes over a small fraction of a parameter's range (a resonance moves by its half-power band for a
 few per cent of stiffness), so an emulator of errors from 20-240 samples in six parameters sees a rough
-surface and the loop stalls at 2-22 % on the benchmark (docs/update-results.md). The modes behind the
+surface and the loop stalls at 2-22 % on the benchmark (measured at 31854ac: git show 0cbca1f:docs/update-results.md). The modes behind the
 FRF are smooth functions of the parameters: ``w_r^2`` is a Rayleigh quotient, linear in a segment's
 stiffness factor at a fixed mode shape. With Rayleigh damping (``C = a M + b K``) the receptance of a
 channel c at the circular frequency w is exactly ::

@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from fe_core.inference.residual import log_residual
 from fe_core.model import ParametricModel
-from strategies.base import Batch, Outcome
+from strategies.base import Batch, Outcome, run_loop
 from strategies.paper import PaperLoop, PaperOptions
 
 from fe_core.closure.effects import Applied, Effect, extended_frf
@@ -223,20 +223,25 @@ def emulated_search(model: ParametricModel, freqs_hz, amplitude, effect: Effect,
     if options.alpha_radius is not None:
         lo, hi = np.maximum(lo, a0 - options.alpha_radius), np.minimum(hi, a0 + options.alpha_radius)
     space = EffectSpace(model, effect, lo, hi)
-    threshold = 0.0 if noise is None else 1.5 * np.sqrt(2.0 / np.pi) * float(noise)
+    level = noise if isinstance(noise, (int, float)) else None  # a noise model (not one level): run to the budgets
+    threshold = 0.0 if level is None else 1.5 * np.sqrt(2.0 / np.pi) * float(level)
     zeros, ones = np.zeros(space.dim), np.ones(space.dim)
     loop = PaperLoop(options.paper(threshold), np.real, zeros, ones, (zeros, ones))
-    history, fe_runs = [], 0
-    while not loop.stop().stop:
-        batch = loop.propose()
+    history, fe_runs, best = [], 0, np.inf
+
+    def evaluate(batch: Batch) -> list[Outcome]:
+        """The batch's FE runs; an outcome says where the run ended (the local steps' end point)."""
+        nonlocal fe_runs, best
         points, rows, solves = _evaluate(model, freqs, u, space, batch.points, options.n_jobs,
                                          options.local_steps, alpha_bounds)
         fe_runs += solves
-        # The loop learns the points evaluated: the end points of the local steps where they were taken.
-        loop.update(Batch(points, batch.jacobian, batch.label), [Outcome(r.astype(complex)) for r in rows])
-        history.append((loop.iteration, float(np.min(loop.E)), fe_runs))
-        log.info("emulated search, iteration %d: %d FE runs, best mean |r| %.4g", loop.iteration, fe_runs,
-                 history[-1][1])
+        errors = np.mean(np.abs(rows), axis=1)  # NaN for a failed run, which the loop excludes
+        best = min(best, float(np.nanmin(errors))) if np.isfinite(errors).any() else best
+        history.append((batch.iteration, best, fe_runs))
+        log.info("emulated search, iteration %d: %d FE runs, best mean |r| %.4g", batch.iteration, fe_runs, best)
+        return [Outcome(r.astype(complex), at=t) for r, t in zip(rows, points)]
+
+    run_loop(loop, evaluate)
     t_best, e_best = loop.best()
     alpha, location, values = space.decode(t_best)
     log.info("emulated search: the loop's best run has %s at %s = %.4g, alpha %s (mean |r| %.4g); %s",
@@ -313,7 +318,7 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
     out: dict = {"searches": searches}
     if chosen is None:
         return out
-    sigma = before.sigma if before.sigma_source == "configured" else None
+    sigma = before.next_noise
     fit = chosen.fit
     analysis = analyse_residual(fit.residual, freqs, fit.n_parameters, sigma, significance, fit.relative(u))
     log.info("first round with the emulated search: added %s at %s = %s (start: %s)", chosen.effect, chosen.location,

@@ -70,7 +70,7 @@ def predict_overall_error(X: np.ndarray, Y: np.ndarray, hyper: dict, C: np.ndarr
 # -- output model: full MRGP or reduced output basis (config key ``outputs``) ----------------------
 #: ``outputs = "auto"`` uses the reduced output basis above this many responses k. Up to it the full
 #: MRGP (the paper's method) is affordable and stays: one likelihood evaluation scales as k^3, 4.5 s at
-#: k = 1,998 (docs/many-responses.md), so about 5 ms at k = 200 against 0.07 s at k = 500 and 0.8 GB
+#: k = 1,998 (docs/results/many-responses.md), so about 5 ms at k = 200 against 0.07 s at k = 500 and 0.8 GB
 #: for Q at k = 10,000. The benchmark (k = 72) keeps the full MRGP. "k > n" is not a criterion: the
 #: benchmark's k = 72 exceeds n = 20 in every first iteration and the full MRGP handles it.
 AUTO_REDUCED_ABOVE = 200

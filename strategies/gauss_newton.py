@@ -16,7 +16,7 @@ is linearised (``model``):
 * ``"linear"``: the residual ``r`` (classical Gauss-Newton).
 
 Measured on the benchmark from the nominal model (exact Jacobians, one trial
-point per step; docs/suite.md): the linear model jumped to a wrong basin on 2
+point per step; docs/results/suite.md): the linear model jumped to a wrong basin on 2
 of 10 truths, the inverse model on none.
 
 The stepper is an ask-tell object (:class:`TrustRegionGN`): ``propose`` gives

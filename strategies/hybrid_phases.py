@@ -1,4 +1,4 @@
-"""The hybrid strategy's phases, each a generator of rounds (driven by :func:`.ledger.drive`).
+"""The hybrid strategy's phases, each a generator of rounds (driven by :class:`.hybrid.Hybrid`).
 
 1. :func:`local_phase`: trust-region Gauss-Newton from a start with exact derivatives and the composite
    inverse-receptance model (:mod:`.gauss_newton`), one FE run with its Jacobian per round.
@@ -24,8 +24,10 @@ from scipy.stats import qmc
 
 from fe_core.inference.residual import MAX_NOISE
 
+from .base import InMemory, Step
 from .gauss_newton import TrustRegionGN
 from .ledger import BudgetSpent, Ledger
+from .options import setting, uses
 
 __all__ = ["HybridOptions", "Minimum", "local_phase", "global_phase", "WARPS"]
 
@@ -34,7 +36,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class HybridOptions:
-    """Settings of :func:`hybrid` (defaults: the measured choices of docs/suite.md).
+    """Settings of :func:`hybrid` (defaults: the measured choices of docs/results/suite.md).
 
     target : overall error (Eq. 6b) at which a Gauss-Newton run stops (the floor of noise-free data);
     step_tol : ... once the last accepted step was also below this (max-norm), so that the parameters,
@@ -42,15 +44,15 @@ class HybridOptions:
     noise : relative amplitude noise (standard deviation) for the check; None = estimated;
     max_noise : an estimated noise level above this is not believed (the residual is called structure): second
         differences over lines spaced wider than a resonance's half-power band see a wrong basin's misfit as
-        "noise" of 25-90 % (measured on the cantilever example, docs/suite.md);
+        "noise" of 25-90 % (measured on the cantilever example, docs/results/suite.md);
     significance : chi-square level below which the residual is structure ...
     noise_ratio : ... unless its rms is within this factor of the noise: with thousands of values the test
         rejects a misfit far below the noise (hammer.uff: rms 1.34 % against an estimated 1.10 %, p = 1e-173);
     max_cost : budget in FE-run equivalents (an FE run 1, one with its Jacobian ``jacobian_cost``);
     cap : a budget that follows the evidence: a phase running when ``max_cost`` is reached goes on, up to
         ``cap`` FE-run equivalents, while its rounds still improve its best error by ``improve_rtol`` (relative)
-        over ``improve_rounds`` rounds (:meth:`.ledger.Ledger.admit`); None: stop at ``max_cost``. The flow's
-        cap is ``CAP_FACTOR`` times its budget (``tasks.hybrid``; measured in docs/closure-far-off.md);
+        over ``improve_rounds`` rounds (:meth:`.ledger.Ledger.admit`); None: stop at ``max_cost``. A run's
+        cap is ``CAP_FACTOR`` times its budget (:mod:`.hybrid`; measured in docs/guide/closure-far-off.md);
     radius : first trust-region radius (max-norm); shrink, expand : its factors after a rejected and a good
         step (:class:`TrustRegionGN`); model : Gauss-Newton local model;
     stall_window, stall_rtol : a run has converged when its objective improved by less than
@@ -62,19 +64,19 @@ class HybridOptions:
         the emulator's inputs are ``sqrt(1 + x)`` (x a stiffness or mass factor ``1 + x``; a mode's frequency
         goes with its square root, so uniform-in-x points leave the soft end, where the frequencies move
         fastest, sparse); "none": uniform in x. Measured on the suite's 24 noise-free truths with five cycle
-        seeds each: 112/120 solved with "none", 119/120 with "sqrt" (docs/suite.md); every truth that failed had
+        seeds each: 112/120 solved with "none", 119/120 with "sqrt" (docs/results/suite.md); every truth that failed had
         a parameter at or below -0.86;
     halve_every : rounds between dropping the worse half of the runs;
     trainer, kernel : of the emulator (:func:`mrgp_core.fit`); seed : of the Sobol points and the trainer.
     """
 
-    target: float = 1e-4
+    target: float = uses("polish_target", 1e-4)
     step_tol: float = 1e-3
-    noise: float | None = None
+    noise: float | None = uses("noise", None)
     max_noise: float = MAX_NOISE
     noise_ratio: float = 1.5
     significance: float = 0.01
-    max_cost: float = 300.0
+    max_cost: float = uses("max_fe_evaluations", 300.0)
     cap: float | None = None
     improve_rounds: int = 2
     improve_rtol: float = 0.05
@@ -85,16 +87,17 @@ class HybridOptions:
     model: str = "inverse"
     stall_window: int = 4
     stall_rtol: float = 1e-2
-    space_filling: int = 20
-    candidates: int = 10_000
-    starts: int = 6
+    space_filling: int = uses("s", 20)
+    candidates: int = uses("w", 10_000)
+    starts: int = setting(6, help="parallel Gauss-Newton runs of a global cycle of the hybrid strategy, started "
+                          "from the emulator's best distinct candidates")
     start_distance: float = 0.3
     basin_radius: float = 0.15
     halve_every: int = 2
     warp: str = "sqrt"
-    trainer: str = "gradient"
+    trainer: str = uses("trainer", "gradient")
     kernel: str = "ard"
-    seed: int = 0
+    seed: int = uses("seed", 0)
 
 
 @dataclass(frozen=True)
@@ -201,15 +204,29 @@ def _merge_duplicates(X, Y, rtol: float = 1e-9):
 
 
 def global_phase(ledger: Ledger, lower: np.ndarray, upper: np.ndarray, minima: list[np.ndarray],
-                 options: HybridOptions, cycle: int):
+                 options: HybridOptions, cycle: int, memo=None, iteration: int | None = None):
     """One global cycle; returns where its Gauss-Newton runs ended (best first). BudgetSpent in its first
-    two rounds (the space-filling points, the starts) goes through to the caller."""
+    two rounds (the space-filling points, the starts) goes through to the caller.
+
+    The emulator's starts are the step ``emulator`` of ``iteration`` (default ``cycle + 1``) of ``memo``
+    (:class:`.base.Memo`; default in memory): its table ``starts``, one row per start."""
+    memo = memo if memo is not None else InMemory()
+    iteration = cycle + 1 if iteration is None else iteration
     sobol = qmc.Sobol(lower.size, scramble=True, seed=np.random.default_rng([options.seed, cycle, 0]))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         points = list(_from_unit(sobol.random(options.space_filling), lower, upper, options))
     yield points, [False] * len(points)
-    starts = _emulator_starts(ledger, lower, upper, minima, options, cycle)
+
+    def emulate() -> Step:
+        found = _emulator_starts(ledger, lower, upper, minima, options, cycle)
+        columns = np.array(found).reshape(len(found), lower.size)
+        return Step({"starts": {f"x_{i + 1}": columns[:, i] for i in range(lower.size)}},
+                    {"cycle": cycle, "trained_on": len(ledger.responses), "starts": len(found)},
+                    f"{len(found)} starts from the emulator trained on {len(ledger.responses)} FE runs")
+
+    table = memo.step(iteration, "emulator", emulate).table("starts")
+    starts = list(np.column_stack([np.asarray(table[f"x_{i + 1}"], float) for i in range(lower.size)]))
     log.info("global cycle %d: %d starts from the emulator", cycle, len(starts))
     results = yield starts, [True] * len(starts)
     runs = [TrustRegionGN(x, Z, dZ, ledger.residual, lower, upper, radius=options.radius, model=options.model,

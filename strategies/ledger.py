@@ -1,22 +1,20 @@
-"""Counting the FE runs of a strategy's rounds, and driving a phase written as a generator.
+"""Counting the FE runs of a strategy's rounds against its budget.
 
 A phase of a strategy (:mod:`.hybrid_phases`) is a generator: it yields a request ``(points, jacobian)``
-for one round and receives the round's results ``[(Z, dZ or None), ...]``. :func:`drive` runs such a phase
-to its end against the caller's ``evaluate``: every round is first admitted against the budget (else
-:class:`BudgetSpent` is thrown into the phase, which may end on it or let it through), then evaluated
-and recorded in the :class:`Ledger`.
+for one round and receives the round's results ``[(Z, dZ or None), ...]``. :class:`.hybrid.Hybrid` admits
+every round against the budget first (else :class:`BudgetSpent` is thrown into the phase, which may end on it
+or let it through), then records it in the :class:`Ledger`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .base import Batch
 
-__all__ = ["BudgetSpent", "Ledger", "drive"]
+__all__ = ["BudgetSpent", "Ledger"]
 
 
 class BudgetSpent(Exception):
@@ -108,29 +106,3 @@ class Ledger:
     def best(self) -> tuple[np.ndarray, float]:
         i = int(np.argmin([h[2] for h in self.history]))
         return self.history[i][1], self.history[i][2]
-
-
-def drive(phase, ledger: Ledger, evaluate: Callable[[Batch], Sequence], label: str):
-    """Run the phase generator ``phase`` to its end; returns its value. ``evaluate(batch)`` runs one round.
-
-    A request with no points gets ``[]`` back at once (no round). A request over the budget gets
-    :class:`BudgetSpent` thrown in; if the phase lets it through, it propagates to the caller.
-    """
-    try:
-        request = next(phase)
-        while True:
-            points, jacobian = request
-            jacobian = [bool(j) for j in jacobian]
-            if not len(points):
-                request = phase.send([])
-                continue
-            try:
-                ledger.admit(jacobian)
-            except BudgetSpent as exc:
-                request = phase.throw(exc)
-                continue
-            points = [np.asarray(x, float).copy() for x in points]
-            results = evaluate(Batch(np.array(points), tuple(jacobian), label))
-            request = phase.send(ledger.record(points, jacobian, results, label))
-    except StopIteration as end:
-        return end.value

@@ -6,7 +6,7 @@ parameter, no Table 1 ``l~`` bound) emulates those outputs, a candidate's overal
 the receptance its emulated modes give (a composite objective), and Gauss-Newton end points on the
 emulator's mean from the best FE runs and the best candidates join the candidates.
 
-Why: docs/update-results.md (the paper's loop on the benchmark). With many outputs (``outputs`` reduced) the
+Why: the paper's loop on the benchmark, measured at 31854ac (git show 0cbca1f:docs/update-results.md). With many outputs (``outputs`` reduced) the
 modes get an MRGP of their own (:func:`separate_modes`).
 """
 

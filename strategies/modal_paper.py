@@ -1,6 +1,7 @@
 """The paper's adaptive MRGP loop (Zhou & Tang, Table 2) on measured modes.
 
-The loop is :class:`strategies.paper.PaperLoop` itself (ask/tell), with the MRGP emulating the
+The loop is :class:`strategies.paper.PaperLoop` itself (ask/tell, run by the one driver, ``tasks/driver.py``,
+from ``tasks/modal_stages.py``), with the MRGP emulating the
 *residual* outputs (``emulate = "errors"``, the paper's choice): each FE run is an eigen-solve whose output
 vector is the modal residual of :class:`~fe_core.modal_update.residual.ModalResidual` (paired frequencies
 ``(f_s - f_r)/(sigma_f f_r)`` and the scale-free shape terms ``(u_r - P_s u_r)/sigma_u``, |.|^2 = 1 - MAC),
@@ -26,7 +27,7 @@ import numpy as np
 from strategies.base import Outcome
 from strategies.paper import PaperLoop, PaperOptions
 
-__all__ = ["noise_threshold", "modal_paper_options", "run_modal_paper"]
+__all__ = ["noise_threshold", "modal_paper_options", "n_residuals", "paper_loop", "evaluate_row"]
 
 
 def noise_threshold(n_residuals: int, k: float = 2.0) -> float:
@@ -39,42 +40,26 @@ def modal_paper_options(options: PaperOptions, n_residuals: int) -> PaperOptions
     return replace(options, emulate="errors", conventional=False, threshold=noise_threshold(n_residuals))
 
 
-def _as_receptance(r: np.ndarray) -> np.ndarray:
-    """PaperLoop reads each FE run's output as a complex vector and maps it with ``residual``; a modal run's
-    output is its (real) residual vector, and ``residual`` is then its real part."""
-    return np.asarray(r, float).astype(complex)
+def n_residuals(residual) -> int:
+    """Entries of the modal residual of ``residual``'s active modes (frequencies, and shapes when stated)."""
+    return len(residual.active) * (1 + (0 if residual.sigma_u is None else residual.n_dofs))
 
 
-def run_modal_paper(residual, lower, upper, options: PaperOptions, replay=None, on_round=None) -> PaperLoop:
-    """Run the paper's loop on ``residual`` (:class:`ModalResidual` with its active modes set).
-
-    ``replay(iteration, points) -> residual rows (b, n) or None``: stored FE runs of an iteration (a resumed
-    run reads them back instead of solving); ``on_round(iteration, points, rows)``: called after the FE runs
-    of each iteration that was computed. A failed eigen-solve gives a row of NaN (left out by the loop).
-    Returns the loop (``best()``, ``history``, ``stop()``).
-    """
+def paper_loop(residual, lower, upper, options: PaperOptions, memo=None) -> PaperLoop:
+    """The paper's loop on ``residual`` (:class:`ModalResidual` with its active modes set): each FE run's outcome
+    is its residual row (as a complex vector, ``residual`` of the loop its real part, :func:`evaluate_row`); the
+    steps go to ``memo``. The driver runs it (``tasks/modal_stages.py``)."""
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
-    n_res = len(residual.active) * (1 + (0 if residual.sigma_u is None else residual.n_dofs))
-    n_swaps = len(residual.swaps)
-    loop = PaperLoop(modal_paper_options(options, n_res), lambda Z: np.real(Z), lower, upper, (lower, upper))
-    while not loop.stop().stop:
-        batch = loop.propose()
-        k = loop.iteration + 1
-        rows = None if replay is None else replay(k, batch.points)
-        if rows is None:
-            residual.label = f"paper-{k}"
-            rows = np.array([_evaluate(residual, x, n_res) for x in batch.points])
-            if on_round is not None:
-                on_round(k, batch.points, rows)
-        loop.update(batch, [Outcome(_as_receptance(r)) for r in rows])
-    residual.label = "fit"
-    del residual.swaps[n_swaps:]  # pairings of scattered samples differ by nature: no path to track a swap along
-    return loop
+    return PaperLoop(modal_paper_options(options, n_residuals(residual)), np.real, lower, upper, (lower, upper),
+                     memo=memo)
 
 
-def _evaluate(residual, x, n_res: int) -> np.ndarray:
+def evaluate_row(residual, x, n_res: int) -> Outcome:
+    """One FE run (an eigen-solve) of the loop: its residual row as the outcome's ``Z``; a failed eigen-solve
+    gives a row of NaN (left out by the loop)."""
     try:
         r = residual.evaluate(x, jacobian=False)["r"]
     except (np.linalg.LinAlgError, RuntimeError, ValueError):
-        return np.full(n_res, np.nan)
-    return r if r.size == n_res else np.full(n_res, np.nan)
+        r = np.full(n_res, np.nan)
+    r = r if r.size == n_res else np.full(n_res, np.nan)
+    return Outcome(np.asarray(r, float).astype(complex))

@@ -30,17 +30,52 @@ from the best FE-evaluated sample, with three additions:
 The procedure is deterministic: the same start and the same FE results give
 the same sequence of requested points, which is what makes a killed polish
 resumable from stored FE runs.
+
+:class:`Polish` is the same procedure as an ask-tell strategy (:mod:`.base`), by replay: each time it is
+asked for its next batch it runs :func:`polish` again from the start against the results it has been told,
+and the first batch of points it has no result for is that batch (the replay costs some least-squares
+algebra, no FE run: exact, and as deterministic as the procedure). The ``adaptive`` strategy is the paper's
+loop followed by it (:class:`.sequence.Sequence`).
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["PolishResult", "polish", "FAILED_RESIDUAL"]
+from .base import Batch, Report, StopDecision
+from .options import setting
+
+__all__ = ["PolishResult", "polish", "FAILED_RESIDUAL", "PolishOptions", "Polish", "STAGE"]
+
+log = logging.getLogger(__name__)
+
+#: The stage of the run folder the polish's FE runs go to.
+STAGE = "polish"
+
+
+@dataclass(frozen=True)
+class PolishOptions:
+    """Settings of the polish after the paper's loop (the ``adaptive`` strategy)."""
+
+    enabled: bool = setting(True, key="polish", help="after the MRGP loop (adaptive strategy only), least squares "
+                            "on the FE model from the best sample; its FE runs count in fe_evaluations")
+    max_evaluations: int = setting(200, key="polish_max_fe", metavar="N", help="FE runs reserved for the polish "
+                                   "out of max_fe_evaluations: the MRGP loop stops at max_fe_evaluations - "
+                                   "polish_max_fe (default 200 of 240: the loop hands over after 2 iterations, "
+                                   "git show 0cbca1f:docs/handover.md)")
+    target: float = setting(1e-4, key="polish_target", metavar="E", help="overall error at which the polish (and "
+                            "the hybrid's Gauss-Newton) stops, e.g. 1e-4 = 0.01 % (the floor of noise-free data; "
+                            "set it near the measurement's noise for real data)")
+    stall_rtol: float = setting(0.01, key="polish_stall_rtol", metavar="R", help="the polish also stops when its "
+                                "error improved by less than R (relative) over its last 3 Jacobians and steps, "
+                                "e.g. at the noise of real data (0 = off)")
+    diff_step: float = 1e-6
+    tolerance: float = 1e-12
 
 #: Residual given to the optimiser for a failed FE run: large, finite, so the
 #: trust region shrinks away from the point instead of the solver stopping.
@@ -247,3 +282,83 @@ def polish(
     error, x, r = state["best"]
     return PolishResult(x=x, residuals=r, error=error, error_start=error_start, evaluations=state["n"],
                         status=status, message=message, points=points)
+
+
+class _Need(Exception):
+    """The replayed procedure reached a batch of points without results."""
+
+    def __init__(self, points):
+        super().__init__("new points")
+        self.points = points
+
+
+class Polish:
+    """The polish as a strategy (:mod:`.base`): :func:`polish` from ``x0`` (with its receptance ``Z0`` at the
+    kept values, known already) inside ``lower``, ``upper``, on ``residual(Z) -> r``.
+
+    Its batches go to ``iteration=<iteration>/stage=polish``; ``threshold``: the overall error the run counts as
+    converged (the paper loop's). ``start_id``: the request index of the start (the run record's sample id).
+    """
+
+    def __init__(self, x0, Z0, residual, lower, upper, options: PolishOptions = PolishOptions(), iteration: int = 1,
+                 threshold: float | None = None, start_id: int | None = None):
+        self.x0 = np.asarray(x0, float)
+        self.residual, self.options, self.iteration = residual, options, int(iteration)
+        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+        self.r0 = np.asarray(residual(np.asarray(Z0)), float)
+        self.threshold, self.start_id = threshold, start_id
+        self.known: dict[bytes, np.ndarray] = {}
+        self.result: PolishResult | None = None
+        self._need = None
+        if options.max_evaluations < self.x0.size + 1:
+            log.warning("polish_max_fe = %d is less than one Jacobian and a step (%d FE runs): the polish can do "
+                        "nothing", options.max_evaluations, self.x0.size + 1)
+
+    def _replay(self) -> None:
+        def evaluate(points):
+            if any(x.tobytes() not in self.known for x in points):
+                raise _Need([np.asarray(x, float).copy() for x in points])
+            return [self.known[x.tobytes()] for x in points]
+
+        o = self.options
+        try:
+            self.result = polish(evaluate, self.x0, self.lower, self.upper, residuals0=self.r0, target=o.target,
+                                 max_evaluations=o.max_evaluations, diff_step=o.diff_step, tolerance=o.tolerance,
+                                 stall_window=None if o.stall_rtol > 0 else 0, stall_rtol=o.stall_rtol)
+            self._need = None
+        except _Need as need:
+            self._need = need.points
+
+    def stop(self) -> StopDecision:
+        if self.result is None and self._need is None:
+            self._replay()
+        if self.result is None:
+            return StopDecision(False, False, "continue")
+        return StopDecision(True, self.converged, self.result.status)
+
+    def propose(self) -> Batch:
+        if self._need is None:
+            self._replay()
+        return Batch(np.array(self._need), (False,) * len(self._need), STAGE, self.iteration, STAGE)
+
+    def update(self, batch: Batch, outcomes: Sequence) -> None:
+        for x, out in zip(self._need, outcomes):
+            self.known[x.tobytes()] = np.asarray(self.residual(np.asarray(out[0])), float)
+        self._need = None
+
+    @property
+    def converged(self) -> bool:
+        return self.threshold is not None and self.result is not None and self.result.error <= self.threshold
+
+    def stage_info(self, iteration: int, stage: str) -> dict:
+        if (iteration, stage) != (self.iteration, STAGE) or self.result is None:
+            return {}
+        r = self.result
+        return {"n": r.evaluations, "status": r.status, "message": r.message, "start_sample_id": self.start_id,
+                "error_before": r.error_start, "error_after": float(r.error)}
+
+    def report(self) -> Report:
+        r = self.result
+        summary = {"status": r.status, "n": r.evaluations, "error_before": r.error_start, "error_after": float(r.error)}
+        return Report(f"{r.status} after {r.evaluations} FE runs ({r.message})", self.converged,
+                      fields={"polish": summary}, iterations=self.iteration, intervals=True)

@@ -1,7 +1,7 @@
 """Helpers every stage module shares: the logger, "finished earlier?", and finishing a stage.
 
-The strategies' task modules (``tasks/paper.py``, ``tasks/hybrid.py``, ``tasks/polish.py``,
-``tasks/intervals.py``) import these, :mod:`tasks.fe_runs` and :mod:`tasks.record`, never each other.
+The stage modules (the one driver of every strategy, ``tasks/driver.py``; ``tasks/intervals.py``; the modal
+stages) import these, :mod:`tasks.fe_runs` and :mod:`tasks.record`.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """FE runs of any stage: evaluated in parallel, stored one file each as they finish, replayed on resume.
 
-Every stage that runs the FE model (the paper loop's ``fe``, the polish, the hybrid's ``local`` and
-``global``) goes through :class:`FEStage`:
+Every stage that runs the FE model (the driver's FE stages, ``tasks/driver.py``: the paper loop's ``fe``, the
+polish, the hybrid's ``local`` and ``global``) goes through :class:`FEStage`:
 
 * each run is written as soon as it finishes to ``iteration=<k>/stage=<name>/sample=<id>.parquet`` (the
   complex receptance of the measured channels, frequency-major; with its derivative columns
@@ -14,10 +14,18 @@ Every stage that runs the FE model (the paper loop's ``fe``, the polish, the hyb
   per FE run) and ``responses.parquet`` (the long complex table).
 
 The evaluation functions run in worker processes; they get a :class:`tasks.problem.ModelRef`, not the model.
+A large model (at least :data:`LARGE_DOFS` free DOFs) is run differently, so that both cores work and one
+factorisation serves as much as it can (issue 41): a round of one FE run (a Gauss-Newton step) runs in this
+process with PARDISO on all the run's cores (:func:`solver_threads`), where the factor of the previous run (or
+of the preflight's band check, at the nominal model) is still held and preconditions the next one
+(:mod:`fe_core.solvers.nearby`), and its Krylov space seeds the next one's (:mod:`fe_core.solvers.recycle`);
+a round of several goes to the worker processes, one core each, after this process has freed its idle
+factor, and each worker frees its own (and its kept space) after each run.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -38,7 +46,8 @@ from tasks.problem import black_box
 from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes
 
 __all__ = ["evaluate_sample", "evaluate_sample_jacobian", "FEStage", "JACOBIAN_COST", "FE_LOG", "append_log",
-           "read_fe_log", "FE_DELAY_ENV", "modal_columns", "fd_frame"]
+           "read_fe_log", "FE_DELAY_ENV", "modal_columns", "fd_frame", "LARGE_DOFS", "is_large", "solver_threads",
+           "run_cores"]
 
 #: Environment variable: seconds each FE run sleeps (only for interruption tests).
 FE_DELAY_ENV = "MRGP_FE_DELAY_SECONDS"
@@ -47,12 +56,51 @@ FE_LOG = "fe_evaluations.jsonl"
 RESULT_COLUMNS = ("sample_id", "sensor", "frequency_hz", "real", "imag", "status", "message", "seconds", "pid")
 #: Cost of an FE run with its exact Jacobian, in FE runs: the CPU time ratio of
 #: ``fe_core.solvers.sensitivity.frf_jacobian`` (Krylov) to ``model.frf`` on the benchmark, 2.3 measured (one
-#: thread, load 10), rounded up; ``python -m benchmarks.suite`` measures it again in every run (docs/suite.md).
+#: thread, load 10), rounded up; ``python -m benchmarks.suite`` measures it again in every run (docs/results/suite.md).
 #: Data with several references cost this once per reference.
 JACOBIAN_COST = 2.5
 #: Stored results are reused for requested points this close (max-norm, fraction of the box width): far below
 #: any step of the strategies (a resumed least-squares step can differ from the stored one in the last bits).
 REPLAY_TOLERANCE = 1e-12
+#: Models with at least this many free DOFs run single FE runs in this process on all the run's cores (see the
+#: module docstring); smaller ones keep one core per FE run in the workers (their factorisations take seconds).
+LARGE_DOFS = 50_000
+
+
+def is_large(model) -> bool:
+    """An in-process model with at least :data:`LARGE_DOFS` free DOFs (a black-box solver deck never is)."""
+    return not black_box(model) and getattr(model, "n_dofs", 0) >= LARGE_DOFS
+
+
+def run_cores(settings) -> int:
+    """The cores a run may use: ``n_jobs`` (-1: every core of this machine)."""
+    n = int(getattr(settings, "n_jobs", 1) or 1)
+    return os.cpu_count() or 1 if n < 0 else max(n, 1)
+
+
+def solver_threads(problem, settings):
+    """A context in which this thread's PARDISO calls use all the run's cores when the model is large (the
+    intervals' Jacobians, a single FE run in this process); otherwise nothing changes."""
+    from fe_core.solvers import pardiso
+
+    if not is_large(problem.model):
+        return contextlib.nullcontext()
+    return pardiso.threads(run_cores(settings))
+
+
+@contextlib.contextmanager
+def _fe_run(model, threads: int, keep_factor: bool):
+    """One FE run's solver settings: ``threads`` PARDISO threads; a large model's idle factors freed after it
+    unless ``keep_factor`` (this process's next FE run may be preconditioned by it)."""
+    from fe_core.solvers import pardiso, recycle
+
+    with pardiso.threads(threads):
+        try:
+            yield
+        finally:
+            if not keep_factor and is_large(model):
+                pardiso.release_idle()
+                recycle.forget(model)
 
 
 # -- in worker processes -------------------------------------------------------------------------------
@@ -74,7 +122,7 @@ def _delay() -> None:
 
 
 def evaluate_sample(ref, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray, channels=None,
-                    modes: int = 0) -> pd.DataFrame:
+                    modes: int = 0, threads: int = 1, keep_factor: bool = False) -> pd.DataFrame:
     """One FE run: the complex FRF of the measured channels as a long table.
 
     ``ref`` is the run's :class:`tasks.problem.ModelRef`; ``theta`` the parameter vector, shape (m,): the
@@ -86,6 +134,9 @@ def evaluate_sample(ref, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray
 
     A failed evaluation (a singular system, say) does not raise: its rows hold NaN responses, ``status =
     "failed"`` and the reason, so the run records it, excludes the sample and goes on.
+
+    ``threads``: PARDISO threads of this run; ``keep_factor``: keep a large model's factor afterwards (an FE
+    run in the flow's process, see the module docstring), else it is freed.
 
     Returns
     -------
@@ -99,13 +150,14 @@ def evaluate_sample(ref, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray
     _delay()
     theta = np.asarray(theta, dtype=float)
     try:
-        Z = model.parameter_frf(theta, freqs_hz, channels)
-        if not np.all(np.isfinite(Z)):
-            raise FloatingPointError("the FRF has non-finite values")
-        if modes:
-            omega2, participation = model.modal_terms(theta, modes, channels)
-            if not (np.all(np.isfinite(omega2)) and np.all(np.isfinite(participation))):
-                raise FloatingPointError("the modes have non-finite values")
+        with _fe_run(model, threads, keep_factor):
+            Z = model.parameter_frf(theta, freqs_hz, channels)
+            if not np.all(np.isfinite(Z)):
+                raise FloatingPointError("the FRF has non-finite values")
+            if modes:
+                omega2, participation = model.modal_terms(theta, modes, channels)
+                if not (np.all(np.isfinite(omega2)) and np.all(np.isfinite(participation))):
+                    raise FloatingPointError("the modes have non-finite values")
         status, message = "ok", ""
     except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:  # a solver's CcxError too
         Z = np.full((p, n), np.nan + 1j * np.nan)
@@ -119,12 +171,12 @@ def evaluate_sample(ref, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray
 
 
 def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray,
-                             channels=None) -> pd.DataFrame:
+                             channels=None, threads: int = 1, keep_factor: bool = False) -> pd.DataFrame:
     """One FE run with the exact derivative of the receptance (:func:`fe_core.solvers.sensitivity.frf_jacobian`).
 
     Columns of :func:`evaluate_sample` plus ``dreal_<i>``, ``dimag_<i>`` (i = 1..m, the parameter vector's
     order) and ``cost`` (FE-run equivalents: :data:`JACOBIAN_COST` per reference of the channels). A failed
-    run has NaN everywhere.
+    run has NaN everywhere. ``threads``, ``keep_factor``: as in :func:`evaluate_sample`.
     """
     from fe_core.solvers.sensitivity import frf_jacobian
 
@@ -136,7 +188,8 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
     references = 1 if channels is None else np.unique(channels[1]).size
     _delay()
     try:  # one Krylov space for all the channels' references
-        Z, dZ = frf_jacobian(model, theta, freqs_hz, channels=channels)
+        with _fe_run(model, threads, keep_factor):
+            Z, dZ = frf_jacobian(model, theta, freqs_hz, channels=channels)
         if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(dZ))):
             raise FloatingPointError("the FRF or its derivative has non-finite values")
         status, message = "ok", ""
@@ -219,7 +272,9 @@ class FEStage:
     gives (:func:`evaluate_sample`).
     """
 
-    def __init__(self, store: RunStore, problem, settings, iteration: int, stage: str, logger, modes: int = 0):
+    def __init__(self, store: RunStore, problem, settings, iteration: int, stage: str, logger, modes: int = 0,
+                 replay_only: bool = False):
+        self.replay_only = replay_only  # a rerun replaying the stages before its own: no FE run, nothing written
         self.store, self.problem, self.settings = store, problem, settings
         self.iteration, self.stage, self.logger, self.modes = iteration, stage, logger, modes
         self.p, self.n = problem.data.amplitude.shape
@@ -231,7 +286,7 @@ class FEStage:
         self.borrowed: dict[int, Path] = {}
         self.rows: list[dict] = []  # one per request: sample_id, round, jacobian, parameters
         self.results: dict[int, pd.DataFrame] = {}
-        self.rounds = self.ran = 0
+        self.rounds = self.ran = self.replayed = 0
 
     def _log(self, sid: int, event: str, **extra) -> None:
         append_log(self.store, {"iteration": self.iteration, "stage": self.stage, "sample_id": sid, "event": event,
@@ -299,9 +354,13 @@ class FEStage:
                 self.results[sid] = df
             else:
                 todo.append((sid, x, bool(jac)))
-        if len(todo) < len(ids):
+        self.replayed += len(ids) - len(todo)
+        if 0 < len(todo) < len(ids):
             self.logger.info("iteration %d, stage %s: %d of %d FE results found on disk", self.iteration,
                              self.stage, len(ids) - len(todo), len(ids))
+        if todo and self.replay_only:
+            raise RuntimeError(f"iteration {self.iteration}, stage {self.stage}: {len(todo)} of the {len(ids)} points "
+                               "asked for have no stored FE run (the settings changed what comes before the stage)")
         for sid, x, _ in todo:  # the model refuses these (recorded as failed); a strategy should never ask
             if np.any(~np.isfinite(x)) or np.any(x <= -1.0):
                 self.logger.warning("iteration %d: sample %d is outside the valid domain (factors > -1): %s",
@@ -310,7 +369,8 @@ class FEStage:
             self._evaluate(todo, len(ids))
         return [self.results[int(sid)] for sid in ids]
 
-    def _evaluate(self, todo: list, total: int) -> None:
+    def _calls(self, todo: list) -> tuple[dict, dict]:
+        """The round's calls ``{key: delayed(...)}`` and the forward-difference parts of a black box."""
         p = self.problem
         fd = black_box(p.model)  # no solver Jacobians: a Jacobian request is m + 1 runs in the same round
         jobs, parts = {}, {}
@@ -324,12 +384,30 @@ class FEStage:
             else:
                 jobs[sid] = (delayed(evaluate_sample_jacobian)(p.ref, sid, x, p.freqs_hz, p.channels) if jac else
                              delayed(evaluate_sample)(p.ref, sid, x, p.freqs_hz, p.channels, self.modes))
+        return jobs, parts
+
+    def _results(self, jobs: dict):
+        """The calls' results as they complete: a large model's single FE run here on every core of the run,
+        anything else on the backend (see the module docstring)."""
+        from fe_core.solvers import pardiso
+
+        s = self.settings
+        if is_large(self.problem.model) and s.fe_backend == "loky":
+            if len(jobs) == 1:
+                (func, args, kwargs), = jobs.values()
+                yield func(*args, **{**kwargs, "threads": run_cores(s), "keep_factor": True})
+                return
+            pardiso.release_idle()  # the workers need the memory of this process's idle factor
+        yield from run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=s.fe_backend,
+                                 n_jobs=s.n_jobs, dask_address=s.dask_address,
+                                 label=f"iteration {self.iteration}, stage {self.stage}", logger=self.logger)
+
+    def _evaluate(self, todo: list, total: int) -> None:
+        p = self.problem
+        jobs, parts = self._calls(todo)
         params = {sid: x for sid, x, _ in todo}
         done = total - len(todo)
-        s = self.settings
-        for result in run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=s.fe_backend,
-                                    n_jobs=s.n_jobs, dask_address=s.dask_address,
-                                    label=f"iteration {self.iteration}, stage {self.stage}", logger=self.logger):
+        for result in self._results(jobs):
             key = int(result["sample_id"].iloc[0])
             if key < 0:  # one run of a forward-difference Jacobian: the request is done with its m + 1 runs
                 sid, i = divmod(-key - 1, p.m + 1)
@@ -356,13 +434,19 @@ class FEStage:
         return float(df["cost"].iloc[0]) if jac and "cost" in df.columns else (JACOBIAN_COST if jac else 1.0)
 
     def outcomes(self, frames: list[pd.DataFrame], jacobian) -> list[Outcome]:
-        """The results at the run's kept values (``data.cells``): Z (k,), dZ (k, m) or None, cost."""
+        """The results at the run's kept values (``data.cells``): Z (k,), dZ (k, m) or None, cost, and the modes
+        ``(omega2 (r,), participation (r, n))`` when the stage's runs give them."""
         line, channel = self.problem.data.cells
         out = []
         for df, jac in zip(frames, jacobian):
             Z, dZ = grid(df, self.p, self.n, self.problem.m)
+            modes = None
+            if self.modes:
+                part = df.sort_values(["frequency_hz", "sensor"], kind="stable")
+                modes = (np.array([part[f"omega2_{r + 1}"].iloc[0] for r in range(self.modes)]),
+                         np.array([part[f"participation_{r + 1}"].to_numpy()[:self.n] for r in range(self.modes)]))
             out.append(Outcome(Z[line, channel], dZ[line, channel] if jac and dZ is not None else None,
-                               self.cost(df, jac)))
+                               self.cost(df, jac), modes))
         return out
 
     def write(self, info: dict, order: tuple[str, ...] = ()) -> dict:

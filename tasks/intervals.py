@@ -32,6 +32,7 @@ from fe_core.inference.intervals import parameter_intervals
 from fe_core.inference.residual import analyse_residual
 from fe_core.inference.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
 from tasks.common import beating
+from tasks.fe_runs import solver_threads
 from tasks.common import logger as run_logger
 from tasks.problem import black_box
 from tasks.runstore import RunStore
@@ -82,15 +83,23 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     freqs_hz, measured_amplitude = data.frequencies_hz[lines], data.amplitude[lines]
     lower, upper = problem.solver_box
     t0, c0 = time.perf_counter(), time.process_time()
-    refined = parameter_intervals(model, freqs_hz, measured_amplitude, np.asarray(start, float), lower, upper,
-                                  noise=config.noise, channels=channels)
-    jacobian_seconds = time.perf_counter() - t0
-    iv = refined.intervals
-    fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config,
-                                            channels)
+    noise = data.noise_spec(config.noise, lines)  # the configured level, the measured noise, or estimated
+    with solver_threads(problem, config):  # a large model: PARDISO on the run's cores (nothing else runs now)
+        refined = parameter_intervals(model, freqs_hz, measured_amplitude, np.asarray(start, float), lower, upper,
+                                      noise=noise, channels=channels)
+        jacobian_seconds = time.perf_counter() - t0
+        iv = refined.intervals
+        fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config,
+                                                channels)
+    if refined.noise_model is not None:  # weighted by the noise per line and channel: say which
+        fields["noise_model"] = refined.noise_model.to_dict()
+        fields["interval_details"]["noise"] = refined.noise_model.describe()
     if channels is not None:
         fields["interval_details"]["references"] = int(np.unique(data.references).size)
-    fields["residual_check"] = residual_check(refined.residual, freqs_hz, len(model.parameter_names), config.noise)
+    unweighted = refined.residual if refined.weights is None else refined.residual * refined.weights
+    tested = refined.noise_model if refined.noise_model is not None and refined.noise_model.source != "estimated" \
+        else (noise if refined.noise_model is not None else config.noise)  # an estimated model: estimated again
+    fields["residual_check"] = residual_check(unweighted, freqs_hz, len(model.parameter_names), tested)
     seconds = time.perf_counter() - t0
     cols = model.parameter_names
     reported = np.array(fields["covariance"], float)
@@ -110,7 +119,8 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     fe_runs = refined.fe_runs + (check.fe_runs if check is not None else 0) + (post.fe_runs if post else 0)
     # The run's own error measure (its lines, coherence mask and residual kind, which the log amplitudes of the
     # complete lines are not): one FE run at the optimum.
-    rel = data.residuals(full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))
+    with solver_threads(problem, config):
+        rel = data.residuals(full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))
     per_channel = data.channel_errors(rel)
     fe_runs += 1
     fields["estimate_errors"] = {"overall_error": float(np.mean(np.abs(rel))),
@@ -128,9 +138,10 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
         info["interval_cost"].update(jacobian_kind="forward-difference",
                                      solver_runs=refined.jacobians * (len(cols) + 1) + fe_runs)
     store.finish(iteration, output_stage, names, info)
-    logger.info("iteration %d, stage intervals: %s; %s noise %.3g %%, %d exact Jacobians with their FRF and %d FE "
-                "runs (%.2f s)", iteration, fields["interval_method"], iv.noise_source, 100 * iv.noise_sigma,
-                refined.jacobians, fe_runs, seconds)
+    noise_text = (f"the noise per line and channel, {refined.noise_model.describe()}" if refined.noise_model is not None
+                  else f"{iv.noise_source} noise {100 * iv.noise_sigma:.3g} %")
+    logger.info("iteration %d, stage intervals: %s; %s, %d exact Jacobians with their FRF and %d FE runs (%.2f s)",
+                iteration, fields["interval_method"], noise_text, refined.jacobians, fe_runs, seconds)
     for line in fields["interval_details"]["flags"]:
         logger.warning(line)
     return store.stage_info(iteration, output_stage)
@@ -163,9 +174,10 @@ def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper
     check = post = None
     if config.posterior_fe > 0 and flagged.any() and np.isfinite(iv.covariance).all():
         log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
+        weights = 1.0 if refined.weights is None else refined.weights  # as the intervals saw it
 
         def residual(alpha):
-            return np.log(np.abs(model.parameter_frf(alpha, freqs_hz, channels))).ravel() - log_u
+            return (np.log(np.abs(model.parameter_frf(alpha, freqs_hz, channels))).ravel() - log_u) / weights
 
         check = linearity_check(residual, iv, refined.residual, lower, upper, which=flagged)
         if check.poor.any():

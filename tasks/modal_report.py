@@ -43,13 +43,14 @@ def _closure(c: dict | None) -> str:
 def write_report(folder: Path, summary: dict) -> Path:
     """Write ``<folder>/report.html``; returns its path."""
     folder = Path(folder)
-    params = [[n, f"{p['value']:+.4f}", f"{p['sd']:.4f}", f"[{p['lower95']:+.4f}, {p['upper95']:+.4f}]"]
-              + ([("inside" if summary["inside95"][n] else "OUTSIDE")] if "inside95" in summary else [])
-              for n, p in summary["parameters"].items()]
+    inside, iv = summary.get("intervals_contain_truth"), summary["intervals"]
+    params = [[n, f"{v:+.4f}", f"{iv[n]['sd']:.4f}", f"[{iv[n]['lower95']:+.4f}, {iv[n]['upper95']:+.4f}]"]
+              + ([("inside" if inside[n] else "OUTSIDE")] if inside is not None else [])
+              for n, v in summary["parameters"].items()]
     pairs = [[p["test"], f"{p['f_test_hz']:.3f}", p["model"], f"{p['f_model_hz']:.3f}",
               f"{100 * (p['f_model_hz'] - p['f_test_hz']) / p['f_test_hz']:+.3f}", f"{p['mac']:.3f}"]
              for p in summary["paired_modes"]]
-    lines = [f"{summary['fe_runs']} FE runs ({summary['jacobians']} with Nelson derivatives), "
+    lines = [f"{summary['fe_evaluations']} FE runs ({summary['jacobians']} with Nelson derivatives), "
              f"{summary['seconds']:.1f} s; chi-square {summary['chi2']:.1f} for {summary['n_residuals']} residuals, "
              f"uncertainties {summary['uncertainties']} (sigma_f {summary['sigma_f']}, sigma_s {summary['sigma_s']})"]
     if "paper_loop" in summary:
@@ -74,7 +75,7 @@ def write_report(folder: Path, summary: dict) -> Path:
             f"<p>model {html.escape(str(summary['model']))}, measured {html.escape(str(summary['measured']))}</p>"
             + "".join(f"<p>{html.escape(line)}</p>" for line in lines)
             + "<h2>Parameters (95 % intervals)</h2>"
-            + _table(["parameter", "value", "sd", "95 %"] + (["truth"] if "inside95" in summary else []), params)
+            + _table(["parameter", "value", "sd", "95 %"] + (["truth"] if inside is not None else []), params)
             + "<h2>Paired modes</h2>"
             + _table(["measured", "f Hz", "model", "f Hz", "difference %", "MAC"], pairs)
             + f"<p>Residual: {html.escape(summary['residual'])}</p>" + _closure(summary.get("closure"))

@@ -4,8 +4,9 @@ Stages (``MODAL_STAGES``), all ``iteration=1`` of the run folder (:class:`tasks.
 
     identifiable -> correlation_before -> [paper-1 .. paper-K] -> fit -> correlation_after -> closure
 
-The ``paper-<k>`` stages (``--strategy adaptive``/``paper`` only) are the paper loop's iterations, one each:
-its FE runs (parameters and residual vectors) and what the loop decided; a resumed run replays them.
+The ``paper-<k>`` stages (``--strategy adaptive``/``paper`` only) are the paper loop's iterations, one each, run
+by the one driver (:class:`tasks.driver.Driver`): its FE runs (parameters and residual vectors), and its steps
+``paper-<k>-distribution``, ``-train``, ``-predict``, ``-select``; a resumed run replays them.
 
 Each writes one table ``<stage>.parquet`` and its record ``_stage.json`` whose ``info`` holds the stage's
 result (JSON); a resumed run (same inputs and settings, :func:`flows.preflight.check_resume`) reads a
@@ -109,43 +110,90 @@ def closure_task(root: str, residual, theta, lower, upper, stated: bool, effects
     return _store(store, "closure", table, result)
 
 
+class ModalEvaluations:
+    """One stage of the modal paper loop's FE runs (eigen-solves) under the driver (:class:`tasks.driver.Driver`,
+    the FE-stage interface): each point's modal residual row computed in this process
+    (:func:`strategies.modal_paper.evaluate_row`, logged to ``modal_runs.jsonl``), the stage's table ``paper``
+    (the points ``x<i>`` and rows ``r<j>``) written when the loop moves on and read back on a resume when the
+    loop asks for the same points."""
+
+    def __init__(self, store: RunStore, residual, iteration: int, stage: str, log, n_res: int):
+        self.store, self.residual, self.iteration, self.stage, self.logger = store, residual, iteration, stage, log
+        self.n_res, self.replay_only, self.stored = n_res, False, {}
+        self.rows: list = []
+        self.results: list = []
+        self.rounds = self.ran = self.replayed = 0
+        self.previous = None
+        if store.is_finished(iteration, stage):
+            table = store.read_table(iteration, stage, "paper")
+            self.previous = (table[[c for c in table.columns if c.startswith("x")]].to_numpy(),
+                             table[[c for c in table.columns if c.startswith("r")]].to_numpy())
+
+    def run(self, ids, points, jacobian) -> list:
+        from strategies.modal_paper import evaluate_row
+
+        self.rounds += 1
+        points = np.asarray(points, float)
+        X, R = self.previous if self.previous is not None else (None, None)
+        if X is not None and X.shape == points.shape and np.allclose(X, points, rtol=0, atol=1e-12):
+            out = [np.asarray(r, float).astype(complex) for r in R]
+            self.replayed += len(out)
+        else:  # another loop's samples (settings are checked before): computed
+            self.residual.label = self.stage
+            out = [evaluate_row(self.residual, x, self.n_res).Z for x in points]
+            self.ran += len(out)
+            modal.write_runs(self.residual, self.store.root)
+        self.rows += [(int(i), x) for i, x in zip(ids, points)]
+        self.results += out
+        return out
+
+    def outcomes(self, frames, jacobian) -> list:
+        from strategies.base import Outcome
+
+        return [Outcome(z) for z in frames]
+
+    def write(self, info: dict) -> dict:
+        X = np.array([x for _, x in self.rows])
+        R = np.real(np.array(self.results))
+        table = pd.concat([pd.DataFrame(X, columns=[f"x{i}" for i in range(X.shape[1])]),
+                           pd.DataFrame(R, columns=[f"r{i}" for i in range(R.shape[1])])], axis=1)
+        self.store.write_table(self.iteration, self.stage, "paper", table)
+        errors = np.mean(np.abs(R), axis=1)
+        self.store.finish(self.iteration, self.stage, ["paper"], {
+            "fe_runs": len(X), "best_error": float(np.nanmin(errors)), "evaluations": len(X), "ran_now": self.ran,
+            **info})
+        return self.store.stage_info(self.iteration, self.stage)
+
+
 @task(name="paper", task_run_name="paper", cache_policy=NO_CACHE)
 def paper_task(root: str, residual, lower, upper, options) -> dict:
-    """The paper's MRGP loop on the modal residual (:func:`strategies.modal_paper.run_modal_paper`), each
-    iteration stored as stage ``paper-<k>`` (its FE runs' parameters and residual rows) and replayed on a
-    resume; every FE run computed goes to ``modal_runs.jsonl``."""
-    from strategies.modal_paper import run_modal_paper
+    """The paper's MRGP loop on the modal residual (:func:`strategies.modal_paper.paper_loop`) under the one
+    driver: iteration k's FE runs are stage ``paper-<k>`` (their parameters and residual rows), its steps
+    ``paper-<k>-<step>`` (distribution, train, predict, select); a resume replays them (no eigen-solve, no MRGP
+    training); every FE run computed goes to ``modal_runs.jsonl``."""
+    from strategies.modal_paper import n_residuals, paper_loop
+    from tasks.driver import Driver
 
     store = RunStore(root)
     t0 = time.perf_counter()
     residual.set_active(np.zeros(len(lower)))
-    computed = []
+    n_res, n_swaps = n_residuals(residual), len(residual.swaps)
+    stages = []
 
-    def replay(k, points):
-        stage = f"paper-{k}"
-        if not done(store, ITERATION, stage):
-            return None
-        table = store.read_table(ITERATION, stage, "paper")
-        X = table[[c for c in table.columns if c.startswith("x")]].to_numpy()
-        if X.shape != points.shape or not np.allclose(X, points, rtol=0, atol=1e-12):
-            return None  # another loop's samples (settings are checked before): recompute
-        return table[[c for c in table.columns if c.startswith("r")]].to_numpy()
+    def evaluations(iteration, stage, log, modes, replay_only):
+        stages.append(ModalEvaluations(store, residual, iteration, stage, log, n_res))
+        return stages[-1]
 
-    def on_round(k, points, rows):
-        computed.append(len(points))
-        table = pd.concat([pd.DataFrame(points, columns=[f"x{i}" for i in range(points.shape[1])]),
-                           pd.DataFrame(rows, columns=[f"r{i}" for i in range(rows.shape[1])])], axis=1)
-        store.write_table(ITERATION, f"paper-{k}", "paper", table)
-        errors = np.mean(np.abs(rows), axis=1)
-        store.finish(ITERATION, f"paper-{k}", ["paper"], {"fe_runs": len(points),
-                                                           "best_error": float(np.nanmin(errors))})
-        modal.write_runs(residual, store.root)
-
-    loop = run_modal_paper(residual, lower, upper, options, replay, on_round)
+    driver = Driver(store, None, None, None, make=lambda memo: paper_loop(residual, lower, upper, options, memo),
+                    stages=evaluations, where=lambda k, s: (ITERATION, f"paper-{k}" if s == "fe" else f"paper-{k}-{s}"))
+    driver.run()
+    residual.label = "fit"
+    del residual.swaps[n_swaps:]  # pairings of scattered samples differ by nature: no path to track a swap along
+    loop = driver.strategy
     x, e = loop.best()
     decision = loop.stop()
     info = {"best": x, "best_error": e, "threshold": loop.options.threshold, "iterations": loop.iteration,
-            "fe_runs": int(sum(len(h[1]) for h in loop.history)), "fe_runs_computed": int(sum(computed)),
+            "fe_runs": int(sum(len(h[1]) for h in loop.history)), "fe_runs_computed": int(sum(s.ran for s in stages)),
             "per_iteration": [{"iteration": k, "fe_runs": len(X), "best_error": float(np.min(E)) if len(E) else None}
                               for k, X, E in loop.history],
             "converged": decision.converged, "seconds": time.perf_counter() - t0,

@@ -2,8 +2,10 @@
 
 The flow (``flows/problem.py``) builds one :class:`Problem` per run and hands it to every stage; no stage
 looks the model up again. FE runs in worker processes (loky, Dask) receive only the small
-:class:`ModelRef` and read the model file once per process (:func:`worker_model`), so a large mesh is
-never pickled per run.
+:class:`ModelRef` and load the model once per process (:func:`worker_model`), so a large mesh is
+never pickled per run. A large model (at least :data:`CACHE_MIN_DOFS` free DOFs) is assembled once: the flow
+writes it to the model cache (:mod:`fe_core.io.cache`, keyed by the model's checksum and the code) and every
+process, the flow's included, maps the cached arrays instead of assembling again (``ModelRef.cache``).
 
 Model names: ``three_plate`` is a shortcut for the benchmark's model file ``data/benchmark/model.toml``;
 anything else is the path of a model file (relative to the repository when not absolute).
@@ -11,14 +13,20 @@ anything else is the path of a model file (relative to the repository when not a
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import logging
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 __all__ = ["ModelRef", "Problem", "MODEL_SHORTCUTS", "DOMAIN_MARGIN", "model_path", "model_checksum",
-           "read_model_ref", "worker_model", "search_box", "FE_FOLDER", "black_box"]
+           "read_model_ref", "worker_model", "search_box", "FE_FOLDER", "black_box", "CACHE_MIN_DOFS",
+           "MODEL_CACHE_ENV"]
+
+log = logging.getLogger(__name__)
 
 REPO = Path(__file__).resolve().parents[1]
 #: Model names and the model files they stand for.
@@ -27,6 +35,11 @@ MODEL_SHORTCUTS = {"three_plate": "data/benchmark/model.toml"}
 FE_FOLDER = "fe"
 #: The FE model refuses alpha = -1 (zero stiffness): local solvers and fixed points stay this far inside.
 DOMAIN_MARGIN = 1e-3
+#: Models with at least this many free DOFs are cached (:func:`read_model_ref`); smaller ones are read in a
+#: few seconds, and their cache entries would only fill the disk.
+CACHE_MIN_DOFS = 50_000
+#: Environment variable: "0" turns the model cache off.
+MODEL_CACHE_ENV = "MRGP_MODEL_CACHE"
 
 
 def model_path(name: str) -> Path:
@@ -52,13 +65,16 @@ class ModelRef:
 
     ``name`` is what the run's config says (``three_plate`` or a path), kept for the records. ``workdir``: where
     a black-box model (a solver deck run per FE run, ``exact_jacobians = False``) writes its FE runs' folders,
-    the run's ``fe/`` folder ("" for in-process models).
+    the run's ``fe/`` folder ("" for in-process models). ``cache``: the model's entry in the model cache
+    (:mod:`fe_core.io.cache`), mapped instead of reading the file ("" for none; a worker that cannot reach it,
+    on another machine, reads the file).
     """
 
     name: str
     path: str
     checksum: str
     workdir: str = ""
+    cache: str = ""
 
     def load(self):
         """The model (built once per process for this checksum)."""
@@ -73,28 +89,64 @@ _MODELS: dict[tuple[str, str], object] = {}
 def worker_model(ref: ModelRef):
     """The model of ``ref``, read from its file the first time this process asks for it.
 
-    The checksum was taken once when the run's problem was resolved; the file is not hashed again here.
+    The checksum was taken once when the run's problem was resolved; the file is not hashed again here. With
+    ``ref.cache`` the model is mapped from its cache entry (named by that checksum), not assembled.
     """
-    from fe_core.io import read_model
-
     key = (ref.path, ref.checksum)
     if key not in _MODELS:
         while len(_MODELS) >= _CACHE_SIZE:
             del _MODELS[next(iter(_MODELS))]
-        _MODELS[key] = read_model(Path(ref.path))
+        _MODELS[key] = _load(ref)
     model = _MODELS[key]
     if ref.workdir and hasattr(model, "with_workdir"):  # a black-box model: FE runs under the run folder
         return model.with_workdir(ref.workdir)
     return model
 
 
-def read_model_ref(name: str):
+def _load(ref: ModelRef):
+    from fe_core.io import cache, read_model
+
+    if ref.cache:
+        try:
+            return cache.load(ref.cache)
+        except (OSError, ValueError) as exc:  # e.g. a Dask worker on another machine
+            log.info("model cache entry %s not usable here (%s); reading %s", ref.cache, exc, ref.path)
+    return read_model(Path(ref.path))
+
+
+def read_model_ref(name: str, cache_root: str | Path | None = None):
     """(model, :class:`ModelRef`) of a model name or file: hashed and read once (the flow's call).
+
+    ``cache_root``: the model cache's folder (:mod:`fe_core.io.cache`). A model found there is mapped from
+    it; one read from its file with at least :data:`CACHE_MIN_DOFS` free DOFs is written there, and this
+    process then keeps the mapped copy (its pages shared with the FE workers'), not the assembled one.
+    ``MRGP_MODEL_CACHE=0`` turns the cache off.
 
     Raises :class:`fe_core.io.ModelFileError` for a file that cannot be used.
     """
+    from fe_core.io import cache
+
     path = model_path(name)
     ref = ModelRef(name, str(path), model_checksum(path) if path.exists() else "")
+    if cache_root is None or not ref.checksum or os.environ.get(MODEL_CACHE_ENV, "1") == "0":
+        return worker_model(ref), ref
+    folder = cache.lookup(cache_root, ref.checksum)
+    if folder is not None:
+        ref = dataclasses.replace(ref, cache=str(folder))
+        _MODELS.pop((ref.path, ref.checksum), None)  # an assembled copy read earlier makes way for the shared one
+        return worker_model(ref), ref
+    model = worker_model(ref)
+    if black_box(model) or getattr(model, "n_dofs", 0) < CACHE_MIN_DOFS:
+        return model, ref
+    try:
+        folder = cache.save(model, cache_root, ref.checksum, {"n_dofs": int(model.n_dofs)})
+        cache.prune(cache_root)
+    except OSError as exc:  # a full or read-only disk: the run goes on without the cache
+        log.warning("model cache %s not written (%s); every FE worker assembles the model itself", cache_root, exc)
+        return model, ref
+    ref = dataclasses.replace(ref, cache=str(folder))
+    del model
+    _MODELS.pop((ref.path, ref.checksum), None)
     return worker_model(ref), ref
 
 

@@ -1,7 +1,7 @@
 """The run record: every FE run of a run, whatever the strategy, in two tables per FE stage.
 
-Every stage that runs the FE model (:class:`tasks.fe_runs.FEStage`: the paper loop's ``fe``, the polish,
-the hybrid's ``local`` and ``global``) writes
+Every stage that runs the FE model (:class:`tasks.fe_runs.FEStage`, the stages the driver makes of a
+strategy's batches: the paper loop's ``fe``, the polish, the hybrid's ``local`` and ``global``) writes
 
 * ``runs.parquet``, one row per FE run in request order: ``sample_id``, ``round`` (within the stage),
   ``jacobian``, ``cost`` (FE-run equivalents), ``seconds`` (the run's own time), ``pid`` (of the process that
@@ -28,7 +28,9 @@ __all__ = ["RUN_COLUMNS", "RESPONSE_COLUMNS", "FE_STAGE_ORDER", "fe_stages", "fe
 
 RUN_COLUMNS = ("sample_id", "round", "jacobian", "cost", "seconds", "pid", "status", "message", "overall_error")
 RESPONSE_COLUMNS = ("sample_id", "sensor", "frequency_hz", "real", "imag")
-#: FE stages in the order they run within an iteration (a cycle of the hybrid).
+#: FE stages in the order they run within an iteration (a cycle of the hybrid); a strategy's other FE stages (any
+#: finished stage whose record lists ``runs`` and ``responses``) follow in the order of their names. Folders of
+#: reruns (``<stage>.rerun-...``) are not part of the run.
 FE_STAGE_ORDER = ("fe", "local", "global", "polish")
 
 
@@ -56,8 +58,11 @@ def fe_stages(store: RunStore, upto: int | None = None) -> list[tuple[int, str]]
     for k in _iterations(store):
         if upto is not None and k > upto:
             break
-        for stage in FE_STAGE_ORDER:
-            if store.is_finished(k, stage) and "runs" in store.stage_files(k, stage):
+        names = {p.name.split("=", 1)[1] for p in (store.root / f"iteration={k}").glob("stage=*")}
+        names = [n for n in names if "." not in n]
+        for stage in sorted(names, key=lambda n: (FE_STAGE_ORDER.index(n) if n in FE_STAGE_ORDER
+                                                 else len(FE_STAGE_ORDER), n)):
+            if {"runs", "responses"} <= set(store.stage_files(k, stage)) and store.is_finished(k, stage):
                 out.append((k, stage))
     return out
 
@@ -128,9 +133,8 @@ def history(store, upto: int | None = None) -> list[dict]:
     runs = fe_runs(store, upto)
     names = parameter_columns(runs)
     out, offset = [], 0
-    order = {s: i for i, s in enumerate(FE_STAGE_ORDER)}
-    for (k, _, stage), g in runs.assign(rank=runs["stage"].map(order)).groupby(["iteration", "rank", "stage"],
-                                                                              sort=True):
+    first = runs.groupby(["iteration", "stage"])["sample_id"].transform("min")  # the stages of an iteration in turn
+    for (k, _, stage), g in runs.assign(rank=first).groupby(["iteration", "rank", "stage"], sort=True):
         for row in g.sort_values("sample_id").itertuples(index=False):
             d = row._asdict()
             out.append({"round": offset + int(d["round"]), "x": np.array([d[n] for n in names], float),

@@ -4,10 +4,10 @@ Layout (hive-style names)::
 
     runs/<run-id>/
         manifest.json                      config, seed, package versions, git commit
-        iteration=1/stage=samples/samples.parquet
-        iteration=1/stage=samples/_stage.json   written last: files and their SHA-256
+        iteration=1/stage=fe/runs.parquet
+        iteration=1/stage=fe/_stage.json        written last: files and their SHA-256
         iteration=1/stage=fe/sample=000007.parquet   one per FE run, as it finishes
-        iteration=1/stage=fe/fe.parquet
+        iteration=1/stage=train/hyperparameters.parquet
         ...
         summary.json
 

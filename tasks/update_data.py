@@ -45,6 +45,7 @@ import numpy as np
 
 from fe_core.inference.frf_data import FRFData
 from tasks.io.measured import MeasuredDataError, MeasuredFRF, dof_label, parse_dof
+from tasks.io.measured.frf import POWER
 from tasks.io.measured.problems import Problems
 from tasks.lines import select_lines
 
@@ -53,8 +54,6 @@ __all__ = ["UpdateData", "update_data", "RESIDUALS", "resolve_channels"]
 log = logging.getLogger(__name__)
 
 RESIDUALS = ("auto", "amplitude", "complex")
-#: The power of ``j w`` from a receptance to each FRF kind as measured (the noise floor is in those units).
-NATIVE_POWER = {"receptance": 0, "mobility": 1, "accelerance": 2}
 _AXES = "xyz"
 
 
@@ -152,7 +151,8 @@ class UpdateData(FRFData):
                 "complex": self.measured.complex_frf is not None,
                 "coherence": self.measured.coherence is not None, "notes": list(self.measured.notes),
                 "direction_warnings": [c["label"] for c in self.channel_info if c.get("double_flip")],
-                "channels": self.channel_info, "selection": sel}
+                "channels": self.channel_info, "selection": sel,
+                "noise": None if self.noise is None else self.noise.to_dict()}
 
     def describe(self) -> list[str]:
         """Log lines: conversions, channels, selection, residual."""
@@ -167,13 +167,19 @@ class UpdateData(FRFData):
         if twice:
             out.append(f"WARNING: {self.source}: the file's direction and the model file's test_direction are both "
                        f"negative for {', '.join(twice)}: the flips cancel (sign +1, data used as measured); an "
-                       "upside-down sensor is declared in one place only (see docs/measured-data.md)")
+                       "upside-down sensor is declared in one place only (see docs/guide/measured-data.md)")
         windows = ", ".join(f"{lo:.4g}-{hi:.4g} Hz" for lo, hi in s["windows"])
         empty = f" ({s['lines_dropped']} lines left empty)" if s["lines_dropped"] else ""
         out.append(f"lines: {s['mode']}{' (' + windows + ')' if windows else ''}: {s['lines_selected']} of "
                    f"{s['lines_in_file']} lines; coherence below {s['min_coherence']:g}: {s['coherence_dropped']} "
                    f"of {s['values_in_windows']} values dropped{empty}")
         out.append(f"residual: {self.residual}, k = {self.n_values} values")
+        if self.noise is not None:
+            avg = sorted({int(a) for a in np.atleast_1d(self.measured.averages)})
+            out.append(f"noise: {self.noise.describe()} ({', '.join(map(str, avg))} averages)")
+        else:
+            out.append("noise: no coherence with its number of averages: a relative term and a floor per channel "
+                       "estimated from the residual wherever it is tested (or --noise)")
         return out
 
 
@@ -315,8 +321,17 @@ def update_data(measured: MeasuredFRF, model, lines: str = "all", line_windows=N
         "values_kept": int(sel.mask.sum()), "band_hz": [float(f[0]), float(f[-1])],
         "line_mask": sel.lines.tolist(),
     }
-    powers = np.array([NATIVE_POWER.get(c["kind"], 0) for c in info], dtype=int)
-    return UpdateData(measured=measured, frequencies_hz=f, amplitude=measured.amplitude[sel.lines], complex_frf=cplx,
-                      native_power=powers,
-                      mask=sel.mask, responses=responses, references=references, residual=mode, selection=selection,
-                      channel_info=info)
+    # The noise floor is in the units each channel was measured in (the power of j w from its receptance).
+    powers = np.array([POWER.get(c["kind"], 0) for c in info], dtype=int)
+    data = UpdateData(measured=measured, frequencies_hz=f, amplitude=measured.amplitude[sel.lines], complex_frf=cplx,
+                      native_power=powers, mask=sel.mask, responses=responses, references=references, residual=mode,
+                      selection=selection, channel_info=info)
+    if measured.coherence is None or measured.averages is None:
+        return data
+    from fe_core.inference.noise import NoiseModel  # the noise as the measurement states it
+
+    records = any(note.startswith("raw records:") for note in measured.notes)
+    with np.errstate(invalid="ignore"):
+        noise = NoiseModel.from_coherence(measured.coherence[sel.lines], measured.averages, data.native_amplitude(),
+                                          "records" if records else "coherence")
+    return dataclasses.replace(data, noise=noise)

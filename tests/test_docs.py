@@ -1,4 +1,4 @@
-"""The documentation's commands and paths are real: README.md and docs/*.md.
+"""The documentation's commands and paths are real: README.md and docs/**/*.md (guide/ and results/).
 
 Every ``python -m <module> [subcommand]`` shown in them is run once with ``--help`` (deduplicated, all
 in one child process, so the imports are paid once), and every long option a shown command uses must be
@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 
 #: Top-level folders and files of the repository a path in the docs may start with.
 TOP = ("fe_core", "mrgp_core", "tasks", "flows", "benchmarks", "data", "docs", "tests", ".ci")
@@ -26,7 +26,8 @@ TOP_FILES = ("README.md", "pyproject.toml")
 GENERATED = ("runs/", "out/")
 
 COMMAND = re.compile(r"python3? -m ([A-Za-z_][\w.]*)((?:[ \t]+[^\s`|;&#\\]+|[ \t]*\\\n)*)")
-PATH = re.compile(r"(?<![\w./\-~$<])((?:%s)/[\w./\-=*]*|(?:%s))" % ("|".join(re.escape(t) for t in TOP),
+#: Not after ":": `git show <commit>:docs/x.md` names a path in the history, not in this tree.
+PATH = re.compile(r"(?<![\w./\-~$<:])((?:%s)/[\w./\-=*]*|(?:%s))" % ("|".join(re.escape(t) for t in TOP),
                                                                      "|".join(re.escape(t) for t in TOP_FILES)))
 LINK = re.compile(r"\]\(([^)\s#]+)(?:#[^)]*)?\)")
 #: Modules the docs may show that are not this project's (their options are not checked).
@@ -43,7 +44,7 @@ def commands(text: str) -> list[tuple[str, str | None, list[str]]]:
     for match in COMMAND.finditer(text):
         module, rest = match.group(1).rstrip("."), match.group(2).replace("\\\n", " ")
         words = rest.split()
-        sub = words[0] if words and re.fullmatch(r"[a-z][a-z_-]*", words[0]) and module == "flows.update" else None
+        sub = words[0] if words and re.fullmatch(r"[a-z][a-z_-]*", words[0]) else None   # rerun, make, stages
         options = [w.split("=", 1)[0] for w in words if re.fullmatch(r"--[a-z][\w-]*(=.*)?", w)]
         found.append((module, sub, options))
     return found
@@ -160,7 +161,7 @@ def _helps(keys: list[str]) -> dict[str, tuple[object, str]]:
 
 
 def all_commands() -> dict[str, set[str]]:
-    """{"module[ sub]": long options used with it} over README.md and docs/*.md."""
+    """{"module[ sub]": long options used with it} over README.md and docs/**/*.md."""
     used: dict[str, set[str]] = {}
     for doc in DOCS:
         for module, sub, options in commands(_text(doc)):
@@ -197,13 +198,78 @@ def test_command_extraction(text, expected):
 
 def test_a_wrong_path_or_module_is_caught(tmp_path):
     """The checks above can fail: a missing path is reported, an unknown module's --help does not exit 0."""
-    doc = ROOT / "docs" / "x.md"
+    doc = ROOT / "docs" / "guide" / "x.md"
     names = repo_paths(doc, "see `fe_core/no_such_file.py` and [this](no-such-page.md)")
-    assert names == ["fe_core/no_such_file.py", "docs/no-such-page.md"]
+    assert names == ["fe_core/no_such_file.py", "docs/guide/no-such-page.md"]
     assert not any(_exists(n) for n in names)
+    assert repo_paths(doc, "the last version: `git show 0cbca1f:docs/gone.md`") == []
     assert resolve("fe_core.solvers.frf.BlockKrylov") and not resolve("fe_core.solvers.frf.NoSuchThing")
     assert not resolve("fe_core.no_such_module")
     helps = _helps(["flows.no_such_module", "flows.report"])
     assert helps["flows.no_such_module"][0] not in (0, None)
     assert helps["flows.report"][0] == 0 and "--run-id" in helps["flows.report"][1]
     assert "--no-such-option" not in helps["flows.report"][1]          # an unknown option would be reported
+
+
+# -- the README's headline results are the ones docs/results/headline.md measured -----------------------------
+HEADLINE = ROOT / "docs" / "results" / "headline.md"
+NUMBER = re.compile(r"\d+(?:[.,]\d+)*(?:e-?\d+)?")
+#: How far behind HEAD the commit a headline page ran on may be (issue 39: rerun before a stop that changes
+#: behaviour).
+MAX_BEHIND = 60
+
+
+def headline_results(readme: str) -> list[str]:
+    """The result column (the second) of the table under ``## Headline results``."""
+    section = readme.partition("## Headline results")[2]
+    table = []
+    for line in section.splitlines():
+        if line.startswith("|"):
+            table.append(line)
+        elif table:
+            break
+    cells = [[c.strip() for c in re.split(r"(?<!\\)\|", line.strip().strip("|"))] for line in table[2:]]
+    return [row[1] for row in cells if len(row) >= 2]
+
+
+def missing_figures(readme: str, page: str) -> list[str]:
+    """Numbers of the README's headline result column that the page does not show (as whole numbers: 18 is
+    not found in 180)."""
+    shown = set(NUMBER.findall(page))
+    return [f"{number!r} of {cell!r}" for cell in headline_results(readme) for number in NUMBER.findall(cell)
+            if number not in shown]
+
+
+def test_every_headline_figure_is_on_the_headline_page():
+    results = headline_results(_text(ROOT / "README.md"))
+    assert len(results) >= 10, "the README's headline table was not found"
+    missing = missing_figures(_text(ROOT / "README.md"), _text(HEADLINE))
+    assert not missing, ("figures of the README's headline table that docs/results/headline.md does not show "
+                         "(rerun `python -m benchmarks.headline`):\n" + "\n".join(missing))
+
+
+def test_a_figure_missing_from_the_page_is_caught():
+    readme = "## Headline results\n\n| what | result | details |\n|---|---|---|\n| a | 18 FE runs, 0.0005 | x |\n"
+    assert missing_figures(readme, "18 FE runs and 0.0005") == []
+    assert missing_figures(readme, "19 FE runs, 0.0005") == ["'18' of '18 FE runs, 0.0005'"]
+    assert missing_figures(readme, "180 FE runs, 0.00051") == ["'18' of '18 FE runs, 0.0005'",
+                                                               "'0.0005' of '18 FE runs, 0.0005'"]
+
+
+def test_the_headline_page_is_recent():
+    """Every commit the page names ran at most MAX_BEHIND commits before HEAD (skipped without git)."""
+    import shutil
+
+    if shutil.which("git") is None or subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT,
+                                                     capture_output=True).returncode != 0:
+        pytest.skip("git (or the repository's history) is not available")
+    line = next(ln for ln in _text(HEADLINE).splitlines() if ln.startswith("Written by"))
+    commits = re.findall(r"`([0-9a-f]{7,40})`", line)
+    assert commits, "docs/results/headline.md names no commit it ran on"
+    for commit in commits:
+        count = subprocess.run(["git", "rev-list", "--count", f"{commit}..HEAD"], cwd=ROOT, capture_output=True,
+                               text=True)
+        assert count.returncode == 0, f"docs/results/headline.md ran on {commit}, which is not in this history"
+        behind = int(count.stdout)
+        assert behind <= MAX_BEHIND, (f"docs/results/headline.md ran on {commit}, {behind} commits behind HEAD "
+                                      f"(at most {MAX_BEHIND}): rerun `python -m benchmarks.headline`")

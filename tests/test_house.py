@@ -21,8 +21,9 @@ PACKAGES = ("fe_core", "mrgp_core", "strategies", "tasks", "flows")
 ALLOWED = {"fe_core": set(), "mrgp_core": set(), "strategies": {"fe_core", "mrgp_core"},
            "tasks": {"fe_core", "mrgp_core", "strategies"}, "flows": {"fe_core", "mrgp_core", "strategies", "tasks"}}
 MAX_LINES = 500
-#: The task modules of the strategies, which share helpers through tasks.common, fe_runs, record, problem.
-STRATEGY_TASKS = ("tasks.paper", "tasks.hybrid", "tasks.polish", "tasks.intervals")
+#: The stage modules (the one driver of every strategy, the intervals), which share helpers through tasks.common,
+#: fe_runs, record, problem, context.
+STRATEGY_TASKS = ("tasks.driver", "tasks.intervals")
 
 
 def _modules() -> dict[str, Path]:

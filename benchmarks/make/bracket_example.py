@@ -52,7 +52,7 @@ N_MODES = 5
 #: Measured frequencies per mode, relative to its natural frequency (the peak and both flanks).
 WINDOW = (0.95, 1.0, 1.05)
 #: (name, point [m], direction): the sensors, in the measured data's order. Chosen by
-#: ``python -m benchmarks.bracket_sensors`` (docs/bracket-sensors.md): of 24 candidates, the six that leave the
+#: ``python -m benchmarks.bracket_sensors`` (docs/results/bracket-sensors.md): of 24 candidates, the six that leave the
 #: smallest predicted parameter error from the discretisation residual and the noise, with both ribs' normals.
 #: (The first layout, u_x/u_y at the web's top corners, u_x mid-web, u_y on the left rib, the right rib's normal
 #: and u_z on the foot, left web_lower and the ribs on a weak combination: predicted bias -0.10/+0.09/+0.07.)

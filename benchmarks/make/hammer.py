@@ -92,21 +92,29 @@ def simulate(accelerance: np.ndarray, f_hz: np.ndarray, rng: np.random.Generator
     return sxf / sff[:, None], np.abs(sxf) ** 2 / (sff[:, None] * sxx)
 
 
-def write_uff(path: Path, f_hz: np.ndarray, H1: np.ndarray, coherence: np.ndarray) -> None:
+def write_uff(path: Path, f_hz: np.ndarray, H1: np.ndarray, coherence: np.ndarray, responses=None,
+              references=None) -> None:
+    """Channel j: response test node ``responses[j]`` (default j + 1), reference ``references[j]`` (default the
+    hammer's node), both +Z."""
     import pyuff
+
+    n = H1.shape[1]
+    responses = list(range(1, n + 1)) if responses is None else list(responses)
+    references = [HAMMER_NODE] * n if references is None else list(references)
 
     sets = [pyuff.prepare_164(units_code=1, units_description="SI", temp_mode=1, length=1.0, force=1.0, temp=1.0,
                               temp_offset=273.15)]
     for j in range(H1.shape[1]):
-        record6 = dict(load_case_id=0, rsp_node=j + 1, rsp_dir=3, ref_node=HAMMER_NODE, ref_dir=3)
+        rsp, ref = responses[j], references[j]
+        record6 = dict(load_case_id=0, rsp_node=rsp, rsp_dir=3, ref_node=ref, ref_dir=3)
         sets.append(pyuff.prepare_58(
-            binary=0, id1=f"H1 accelerance {j + 1}:+Z/{HAMMER_NODE}:+Z", id2=f"impact test, {N_AVERAGES} averages",
+            binary=0, id1=f"H1 accelerance {rsp}:+Z/{ref}:+Z", id2=f"impact test, {N_AVERAGES} averages",
             id3="simulated by benchmarks.make.hammer", id4="NONE", id5="NONE", func_type=4, **record6,
             abscissa_spacing=1, abscissa_spec_data_type=18, abscissa_axis_units_lab="Hz",
             ordinate_spec_data_type=12, ordinate_axis_units_lab="m/s^2", orddenom_spec_data_type=13,
             orddenom_axis_units_lab="N", data=H1[:, j].copy(), x=f_hz.copy()))
         sets.append(pyuff.prepare_58(
-            binary=0, id1=f"coherence {j + 1}:+Z/{HAMMER_NODE}:+Z", id2=f"impact test, {N_AVERAGES} averages",
+            binary=0, id1=f"coherence {rsp}:+Z/{ref}:+Z", id2=f"impact test, {N_AVERAGES} averages",
             id3="simulated by benchmarks.make.hammer", id4="NONE", id5="NONE", func_type=6, **record6,
             abscissa_spacing=1, abscissa_spec_data_type=18, abscissa_axis_units_lab="Hz",
             ordinate_spec_data_type=0, orddenom_spec_data_type=0, data=coherence[:, j].copy(), x=f_hz.copy()))

@@ -43,7 +43,7 @@ def model_toml() -> str:
     text = head.read_text().split("[[sensors]]")[0]
     text = text.replace('mesh = "three_plate.inp"', 'mesh = "../../benchmark/three_plate.inp"')
     text = text.replace("# The three-plate benchmark (shared/benchmark/SPEC.md) as a model file.",
-                        "# The three-plate benchmark with 18 test nodes for modal data (docs/modal-data.md).")
+                        "# The three-plate benchmark with 18 test nodes for modal data (docs/guide/modal-data.md).")
     text = text.replace("# Written by python -m benchmarks.make.benchmark_model; the name three_plate is a shortcut to it.",
                         "# Written by python -m benchmarks.make.modal_example.")
     text = "\n".join(line for line in text.splitlines() if not line.startswith("excitation ="))+ "\n"

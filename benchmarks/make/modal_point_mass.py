@@ -4,7 +4,7 @@ The benchmark's 6 lowest modes at the 18 test nodes of the modal example, made b
 (:func:`fe_core.benchmark.three_plate`) at the actual alpha WITH a point mass of 0.15 kg (2.6 % of the
 structure, on u_x, u_y, u_z of the top-surface node at x = 482.25 mm, y = 20 mm), 0.2 % frequency and 2 %
 shape noise (seed 5). The model file ``model.toml`` has no such mass: the modal update's closure should name it
-(docs/modal-data.md).
+(docs/guide/modal-data.md).
 
     python -m benchmarks.make.modal_point_mass
 """

@@ -42,7 +42,7 @@ __all__ = ["Screen", "Evidence", "screen_point", "screen_points", "weigh", "weig
 #: The closure takes over when the best effect leaves at most this share of the best basin's sum of squares.
 #: Measured: the cantilever with an undeclared 0.6 kg point mass, 2.0 % (the mass at its true node, screened at
 #: the first global round's best basin); the suite's truth 9 without any effect, a patch 33.4 % (a wrong basin
-#: that a linearised softening mimics); a tenth leaves a factor of three either side (docs/closure-far-off.md).
+#: that a linearised softening mimics); a tenth leaves a factor of three either side (docs/guide/closure-far-off.md).
 FAR_BETTER = 0.1
 
 

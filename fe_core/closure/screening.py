@@ -195,7 +195,7 @@ def second_wave(rest: Sequence[Candidate], first_rss: Iterable[float], base_rss:
     location again at the fitted size and fit the best (:func:`check`). Only where no check got that far are
     the further candidates worth their fits (the own cases' frame with a -88 % patch: its fifth candidate is
     the true place); where one did, a kind's further candidates ended at its first's place
-    (docs/performance.md)."""
+    (docs/results/performance.md)."""
     made = any(rss <= (1.0 - contender) * base_rss for rss in first_rss)
     return [] if made else list(rest)
 

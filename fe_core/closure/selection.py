@@ -377,7 +377,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
     always = [k for k in always if k in by_kind]
     # The noise the rest is tested against: the configured level, else estimated anew from each residual (a level
     # estimated from the first, structured residual is an upper bound and would call too much noise).
-    current, sigma = start, analysis.sigma if analysis.sigma_source == "configured" else None
+    current, sigma = start, analysis.next_noise
     steps = list(steps)
     rounds = [list(r) for r in rounds]
     implausible: list[Candidate] = []

@@ -52,6 +52,10 @@ class FRFData:
     native_power : ndarray of int, shape (n,), or None
         Each channel as measured: receptance ``(j w)^0``, mobility 1, accelerance 2 (None: receptance). The
         noise of a sensor has its floor in these units (:meth:`native_amplitude`).
+    noise : NoiseModel or None
+        The noise per line and channel as the measurement states it (coherence and averages, raw records:
+        :class:`fe_core.inference.noise.NoiseModel`); None: estimated from the residual where a test needs it
+        (:meth:`noise_spec`).
     """
 
     frequencies_hz: np.ndarray
@@ -60,6 +64,7 @@ class FRFData:
     mask: np.ndarray
     residual: str = "amplitude"
     native_power: np.ndarray | None = None
+    noise: object = None
 
     @classmethod
     def grid(cls, frequencies_hz, amplitude, complex_frf=None, residual: str | None = None) -> "FRFData":
@@ -197,6 +202,20 @@ class FRFData:
             return u
         w = 2.0 * np.pi * np.asarray(self.frequencies_hz, float)[lines]
         return u * w[:, None] ** np.asarray(self.native_power, float)[None, :]
+
+    def noise_spec(self, configured: float | None = None, lines=None):
+        """What the tests of a residual on ``lines`` (default: the complete lines) take as its noise (``noise=`` of
+        :func:`fe_core.inference.residual.analyse_residual`): a ``configured`` relative level as it is; else the
+        noise the measurement states (:attr:`noise`); else the model of a relative term and a floor per channel,
+        estimated from each residual (:class:`fe_core.inference.noise.Estimated`)."""
+        from .noise import Estimated
+
+        lines = self.complete_lines if lines is None else lines
+        if configured is not None:
+            return float(configured)
+        if self.noise is not None:
+            return self.noise.lines(lines)
+        return Estimated(self.native_amplitude(lines))
 
     def complete(self) -> tuple[np.ndarray, np.ndarray]:
         """(frequencies (p',), amplitudes (p', n)) of the lines where every channel is kept: the full grid the

@@ -166,6 +166,11 @@ class RefinedIntervals:
         Exact Jacobians (with their FRF) the intervals cost.
     jacobian : ndarray, shape (p * n, m)
         ``d residual / d alpha`` at the estimate.
+    weights : ndarray, shape (p * n,), or None
+        With a noise per line and channel (``noise_model``): ``residual`` and ``jacobian`` are divided by it
+        (whitened, unit noise); None: one relative level.
+    noise_model : NoiseModel or None
+        The noise per line and channel the intervals used (measured, or estimated at the start).
     """
 
     intervals: Intervals
@@ -176,6 +181,8 @@ class RefinedIntervals:
     fe_runs: int
     jacobians: int
     jacobian: np.ndarray | None = None
+    weights: np.ndarray | None = None
+    noise_model: object = None
 
 
 def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, upper, noise: float | None = None,
@@ -200,8 +207,11 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     ----------
     model, freqs_hz, measured_amplitude, alpha0, lower, upper
         As in :func:`fit_log_amplitudes`.
-    noise : float, optional
-        Relative amplitude noise (standard deviation); estimated when None.
+    noise : float, NoiseModel or Estimated, optional
+        Relative amplitude noise (standard deviation); or the noise per line and channel of the (p, n) values
+        (:class:`fe_core.inference.noise.NoiseModel`), or :class:`fe_core.inference.noise.Estimated` (that model
+        estimated from the residual at the start): the residual and its Jacobian are then divided by it (weighted
+        least squares, unit noise); one relative level estimated from the residual when None.
     level, width_threshold : float
         As in :func:`laplace_intervals`.
     max_jacobians : int
@@ -227,8 +237,42 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
         J, Z = log_amplitude_jacobian(model, alpha, freqs, return_frf=True, channels=channels)
         return np.log(np.abs(Z)).ravel() - log_u, J
 
-    return _gauss_newton_intervals(at, alpha0, lo, hi, model.parameter_names, noise, level, width_threshold,
-                                   max_jacobians, step_tolerance)
+    at, noise, weights, noise_model = _weighted(at, alpha0, lo, hi, freqs, noise)
+    refined = _gauss_newton_intervals(at, alpha0, lo, hi, model.parameter_names, noise, level, width_threshold,
+                                      max_jacobians, step_tolerance)
+    return replace(refined, weights=weights, noise_model=noise_model)
+
+
+def _weighted(at, start, lo, hi, freqs, noise):
+    """``(at, noise, weights, model)`` for the Gauss-Newton steps: with a noise per line and channel, ``at``
+    divides the residual and the Jacobian by it and the noise is 1 (known); an :class:`Estimated` model is fitted
+    to the residual at the start (``at`` called once more there)."""
+    from .noise import MIN_DIFFERENCES, Estimated, NoiseModel, calibrate, differences_per_channel, estimate_noise_model
+
+    if isinstance(noise, Estimated) and differences_per_channel(freqs) < MIN_DIFFERENCES:
+        noise = None  # a few windows of lines: one level (as the residual's test, :func:`analyse_residual`)
+    if not isinstance(noise, (NoiseModel, Estimated)):
+        return at, noise, None, None
+    first = {}
+    measured = isinstance(noise, NoiseModel) and noise.source in ("coherence", "records")
+    if isinstance(noise, Estimated) or measured:
+        x0 = np.clip(np.asarray(start, float), lo, hi)
+        first[x0.tobytes()] = at(x0)  # the start's Jacobian serves the first step too
+        r0 = first[x0.tobytes()][0]
+        if measured:  # the measured shape, its level per channel checked against the residual
+            noise = calibrate(noise, r0.reshape(noise.sigma.shape), freqs)
+        else:
+            amplitude = np.asarray(noise.amplitude, float)
+            noise = estimate_noise_model(r0.reshape(amplitude.shape), amplitude, freqs)
+        log.info("intervals: the noise per line and channel %s", noise.describe())
+    weights = np.asarray(noise.sigma, float).ravel()
+
+    def weighted(alpha):
+        alpha = np.asarray(alpha, float)
+        r, J = first.pop(alpha.tobytes()) if alpha.tobytes() in first else at(alpha)
+        return r / weights, J / weights[:, None]
+
+    return weighted, 1.0, weights, noise
 
 
 #: A Gauss-Newton step (in the parameters) below which the point counts as the optimum: the FRF's own accuracy.

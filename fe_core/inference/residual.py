@@ -24,16 +24,18 @@ estimated with :func:`estimate_noise` from second differences along
 frequency within evenly stepped bands, which remove a residual that is smooth
 in frequency, clipped at 3 standard deviations, which drops the few large
 differences a misfit leaves near resonances (an estimate that structure still
-inflates somewhat, so the test then errs towards "noise"; docs/noise-estimate.md).
+inflates somewhat, so the test then errs towards "noise"; docs/guide/noise-estimate.md).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 
 import numpy as np
 from scipy import stats
+
+from .levels import CLIP, CLIP_FACTOR, _clipped_level, estimate_noise, frequency_bands, second_differences
 
 __all__ = [
     "STRUCTURED_ESTIMATE",
@@ -80,101 +82,6 @@ def noise_floor_error(sigma: float) -> float:
     return float(sigma * np.sqrt(2.0 / np.pi))
 
 
-def frequency_bands(freqs_hz, step_factor: float = 1.5) -> list[np.ndarray]:
-    """Indices of contiguous, evenly stepped runs of increasing frequencies (a partition of the lines).
-
-    A band goes on while each step is within ``step_factor`` of the step before it; where the step changes (a
-    gap, or windows of different steps side by side) a new band starts at the next line. A line alone between a
-    gap and an evenly stepped run is a band of its own. So every evenly stepped run of lines is one band whatever
-    the other runs' steps (the benchmark's 106-116 Hz and 285-295 Hz give two; issue 28's windows of 9 lines
-    round each mode, each at its own step, give one each, where a cut at 1.5 x the smallest step of all lines
-    kept the lowest window only and split the others into single lines).
-    """
-    f = np.asarray(freqs_hz, float)
-    if f.ndim != 1 or f.size == 0:
-        raise ValueError("frequencies must be a non-empty 1-D array")
-    order = np.argsort(f, kind="stable")
-    steps = np.diff(f[order])
-
-    def even(a: float, b: float) -> bool:
-        return a > 0 and b > 0 and max(a, b) <= step_factor * min(a, b)
-
-    bands, i, n = [], 0, f.size
-    while i < n:
-        j = min(i + 2, n)  # lines i..j-1; a band's first step needs no neighbour
-        while j < n and even(steps[j - 1], steps[j - 2]):
-            j += 1
-        if j - i == 2 and j + 1 < n and even(steps[j], steps[j - 1]) and not even(steps[j - 1], steps[j - 2]):
-            j = i + 1  # a line alone after a gap: the next line starts an evenly stepped run without it
-        bands.append(order[i:j])
-        i = j
-    return bands
-
-
-#: Second differences beyond this many standard deviations are not noise (:func:`estimate_noise`).
-CLIP = 3.0
-#: ``E[x^2 | |x| <= CLIP]`` for a standard normal x: the clipped mean square's factor for white noise.
-CLIP_FACTOR = float(1.0 - 2.0 * CLIP * stats.norm.pdf(CLIP) / (2.0 * stats.norm.cdf(CLIP) - 1.0))
-
-
-def second_differences(residual: np.ndarray, freqs_hz) -> np.ndarray:
-    """``r[i-1] - 2 r[i] + r[i+1]`` along frequency within every evenly stepped band of three lines or more
-    (:func:`frequency_bands`), every sensor, flattened; white noise of deviation sigma gives ``6 sigma^2`` each."""
-    r = np.asarray(residual, float)
-    d2 = [np.diff(r[idx], n=2, axis=0).ravel() for idx in frequency_bands(freqs_hz) if idx.size >= 3]
-    return np.concatenate(d2) if d2 else np.empty(0)
-
-
-def estimate_noise(residual: np.ndarray, freqs_hz) -> float:
-    """Relative noise level from second differences of the residual along frequency, clipped at 3 sigma.
-
-    For white noise of standard deviation sigma, ``d = r[i-1] - 2 r[i] + r[i+1]`` is normal with variance
-    ``6 sigma^2``; a misfit that is smooth in frequency adds little. A misfit of a model near resonances is not
-    smooth on lines stepped 5 % of a mode apart: it adds large second differences at a few lines. So the mean
-    square is taken over the differences within ``CLIP`` = 3 of the level itself, iterated from the lower
-    quartile's level (``q25(|d|) / (0.3186 sqrt 6)``) up to the fixed point ``sigma^2 = mean(d^2 : |d| <= 3 sqrt(6)
-    sigma) / (6 CLIP_FACTOR)``; ``CLIP_FACTOR`` = 0.9733 is the clipped normal's second moment, so the level is unbiased for
-    white noise (it drops 0.27 % of its differences; measured: mean of 3,000 estimates within 0.5 % of sigma on the
-    own cases' lines, spread 8-10 % where the plain mean square's is 8-9 %). Differences of a structured residual
-    that stand out are dropped: on issue 28's frame with a damaged patch, after the alpha-only fit (rms 3.8 %,
-    noise 0.5 %), 0.76 % where the plain mean square gives 3.1 % (docs/noise-estimate.md).
-
-    Uses every sensor and every band with at least three frequencies (:func:`frequency_bands`).
-
-    Parameters
-    ----------
-    residual : ndarray, shape (p, n)
-        Log (or relative) residuals, frequencies in the order of ``freqs_hz``.
-    freqs_hz : ndarray, shape (p,)
-
-    Returns
-    -------
-    float
-        sigma; NaN if no band has three frequencies.
-    """
-    d = second_differences(residual, freqs_hz)
-    return float(_clipped_level(d[None, :])[0]) if d.size else float("nan")
-
-
-def _clipped_level(d: np.ndarray) -> np.ndarray:
-    """:func:`estimate_noise`'s level from second differences ``d``, shape (draws, m): one level per row."""
-    d = np.abs(d) / np.sqrt(6.0)
-    # From below (the lower quartile's level): the iteration rises to the smallest fixed point, the noise's,
-    # not to one a misfit at many lines would hold up (from the median it did where 3 of 7 differences were a peak).
-    sigma = np.quantile(d, 0.25, axis=1) / stats.norm.ppf(0.625)
-    rms = np.sqrt(np.mean(d**2, axis=1))
-    sigma = np.where(sigma > 0, sigma, rms)  # quartile 0: most lines exact (noise-free data)
-    for _ in range(200):
-        kept = d <= CLIP * sigma[:, None]
-        n = kept.sum(axis=1)
-        new = np.sqrt(np.where(kept, d**2, 0.0).sum(axis=1) / np.maximum(n, 1) / CLIP_FACTOR)
-        new = np.where(n > 0, new, sigma)
-        if np.all(np.abs(new - sigma) <= 1e-9 * sigma):
-            return new
-        sigma = new
-    return sigma
-
-
 #: White-noise draws for the null distribution of the test with an estimated level (:func:`estimated_noise_test`);
 #: fewer (down to ``NULL_DRAWS_MIN``) where a residual has more than ``NULL_VALUES`` / ``NULL_DRAWS`` values.
 NULL_DRAWS, NULL_DRAWS_MIN, NULL_VALUES = 4000, 400, 40_000_000
@@ -213,7 +120,7 @@ def estimated_noise_test(residual: np.ndarray, freqs_hz, n_fitted: int) -> tuple
     `partly explained`. ``p`` is the share of ``NULL_DRAWS`` = 4,000 white-noise residuals of the same layout
     (lines, bands, sensors; fixed seed; cached per layout), with the level estimated the same way, whose statistic
     is at least ``T`` (``n_fitted`` values' squares left out of each draw's sum, as a fit takes them): 1-2 % of
-    pure-noise residuals are then called structure at 1 % (docs/noise-estimate.md). The smallest p is 1 / 4001.
+    pure-noise residuals are then called structure at 1 % (docs/guide/noise-estimate.md). The smallest p is 1 / 4001.
     """
     r = np.asarray(residual, float)
     sigma = estimate_noise(r, freqs_hz)
@@ -296,16 +203,35 @@ class ResidualAnalysis:
     structured: bool
     overall_error: float
     noise_floor: float
+    noise_model: dict | None = None
+    model: object = field(default=None, compare=False, repr=False)
+    spec: object = field(default=None, compare=False, repr=False)
 
     def to_dict(self) -> dict:
-        return {**asdict(self), "noise_known": self.noise_known}
+        out = {k: v for k, v in asdict(self).items() if k not in ("model", "spec")}
+        return {**out, "noise_known": self.noise_known}
 
     @property
     def noise_known(self) -> bool:
-        """Whether ``sigma`` is the measurement's noise: configured, or estimated from a residual the test calls
-        noise. A level estimated from a residual that is structure is an upper bound only (the structure's
-        curvature along frequency adds to it), labelled so and never the floor for calling the rest noise."""
-        return self.sigma_source in ("configured", "estimated")
+        """Whether ``sigma`` is the measurement's noise: configured, measured (coherence, records), or estimated
+        from a residual the test calls noise. A level estimated from a residual that is structure is an upper bound
+        only (the structure's curvature along frequency adds to it), labelled so and never the floor for calling the
+        rest noise."""
+        return self.sigma_source in ("configured", "estimated", "coherence", "records")
+
+    @property
+    def next_noise(self):
+        """What a later test of these data takes as their noise (``noise=`` of :func:`analyse_residual`): the
+        configured level or the measured model as they are; else an estimate made anew from that residual (the
+        model of a relative term and a floor when this one was, :class:`fe_core.inference.noise.Estimated`): a
+        level estimated from a structured residual is an upper bound and would call too much noise."""
+        if self.sigma_source in ("coherence", "records", "configured") and self.model is not None:
+            return self.model
+        if self.sigma_source == "configured":
+            return self.sigma
+        from .noise import Estimated
+
+        return self.spec if isinstance(self.spec, Estimated) else None
 
     def summary(self) -> str:
         verdict = "structure" if self.structured else "noise"
@@ -313,9 +239,8 @@ class ResidualAnalysis:
                 f"{self.dof} dof, p = {self.p_chi2:.3g}; runs z = {self.runs_z:.2f} (p = {self.p_runs:.3g}): {verdict}")
 
 
-def analyse_residual(residual: np.ndarray, freqs_hz, n_fitted: int, noise: float | None = None,
-                     significance: float = 0.01, relative: np.ndarray | None = None,
-                     max_noise: float = MAX_NOISE) -> ResidualAnalysis:
+def analyse_residual(residual: np.ndarray, freqs_hz, n_fitted: int, noise=None, significance: float = 0.01,
+                     relative: np.ndarray | None = None, max_noise: float = MAX_NOISE) -> ResidualAnalysis:
     """Noise or structure?
 
     Parameters
@@ -325,34 +250,56 @@ def analyse_residual(residual: np.ndarray, freqs_hz, n_fitted: int, noise: float
     freqs_hz : ndarray, shape (p,)
     n_fitted : int
         Parameters fitted to these data.
-    noise : float, optional
-        Relative noise level (standard deviation, e.g. 0.005); estimated from
-        the residual when None.
+    noise : float, NoiseModel or Estimated, optional
+        Relative noise level (standard deviation, e.g. 0.005), or the noise per line and channel
+        (:class:`fe_core.inference.noise.NoiseModel`, e.g. from the measured coherence), or
+        :class:`fe_core.inference.noise.Estimated` (the model of a relative term and a floor per channel estimated
+        from this residual, tested against white noise of that model); one relative level estimated from the
+        residual when None (:func:`estimate_noise`).
     significance : float
         Chi-square level below which the residual is called structure.
     relative : ndarray, shape (p, n), optional
         Relative residuals for the overall error; from ``residual`` if None.
     max_noise : float
-        An estimated level above this is not believed: the residual is structure, whatever the chi-square says
-        (the level, too high, would call any misfit noise).
+        An estimated relative level above this is not believed: the residual is structure, whatever the
+        chi-square says (the level, too high, would call any misfit noise).
     """
+    from .noise import (MIN_DIFFERENCES, Estimated, NoiseModel, calibrate, differences_per_channel,
+                        estimate_noise_model, noise_model_test)
+
     r = np.asarray(residual, float)
     if r.ndim != 2:
         raise ValueError(f"residual must be (frequencies, sensors), got shape {r.shape}")
     estimated = estimate_noise(r, freqs_hz)
-    if noise is None:
-        if not np.isfinite(estimated) or estimated <= 0:
-            raise ValueError("the noise level cannot be estimated (no band of three frequencies); configure it")
-        sigma, source = estimated, "estimated"
+    model, amplitude = None, None
+    if isinstance(noise, NoiseModel):
+        # a measured model's level is checked against the residual; a configured one is taken as it is
+        model = calibrate(noise, r, freqs_hz) if noise.source in ("coherence", "records") else noise
+    elif isinstance(noise, Estimated):
+        amplitude = np.asarray(noise.amplitude, float)
+        if amplitude.shape != r.shape:
+            raise ValueError(f"the noise model's amplitudes have shape {amplitude.shape}, the residual {r.shape}")
+        if differences_per_channel(freqs_hz) >= MIN_DIFFERENCES:
+            model = estimate_noise_model(r, amplitude, freqs_hz)
+        else:  # a few windows of lines: one level for every value (a model per channel would fit a misfit)
+            noise = None
+    if model is not None:
+        T, dof, p = noise_model_test(r, model, n_fitted, amplitude, freqs_hz)
+        sigma, source = float(np.median(model.sigma)), model.source
+        relative_level = float(np.max(model.relative)) if model.relative is not None else sigma
+        structured = bool(p < significance) or (source == "estimated" and relative_level > max_noise)
     else:
-        sigma, source = float(noise), "configured"
-    if source == "estimated":  # the level's own spread counted (:func:`estimated_noise_test`)
-        _, T, dof, p = estimated_noise_test(r, freqs_hz, n_fitted)
-    else:
-        T, dof, p = chi_square_test(r, sigma, n_fitted)
+        if noise is None:
+            if not np.isfinite(estimated) or estimated <= 0:
+                raise ValueError("the noise level cannot be estimated (no band of three frequencies); configure it")
+            sigma, source = estimated, "estimated"
+            _, T, dof, p = estimated_noise_test(r, freqs_hz, n_fitted)  # the level's own spread counted
+        else:
+            sigma, source = float(noise), "configured"
+            T, dof, p = chi_square_test(r, sigma, n_fitted)
+        structured = bool(p < significance) or (source == "estimated" and sigma > max_noise)
     runs, z, p_runs = runs_test(r, freqs_hz)
     rel = np.expm1(r) if relative is None else np.asarray(relative, float)
-    structured = bool(p < significance) or (source == "estimated" and sigma > max_noise)
     if source == "estimated" and structured:
         source = STRUCTURED_ESTIMATE
     return ResidualAnalysis(
@@ -360,4 +307,5 @@ def analyse_residual(residual: np.ndarray, freqs_hz, n_fitted: int, noise: float
         sigma=sigma, sigma_source=source, sigma_estimated=estimated, chi2=T, dof=dof, p_chi2=p,
         runs=runs, runs_z=z, p_runs=p_runs, significance=float(significance), structured=structured,
         overall_error=overall_error(rel), noise_floor=noise_floor_error(sigma),
+        noise_model=None if model is None else model.to_dict(), model=model, spec=noise,
     )

@@ -29,7 +29,7 @@ Two solvers with one signature:
     Cholesky when the bandwidth is small (the structured meshes here number
     nodes x-slowest, giving a band of about 100 for 3510 DOFs), else a
     fill-reducing sparse Cholesky by MKL PARDISO (unstructured tet meshes,
-    :func:`spd_solver`; chosen by the measurements in ``docs/solvers.md``). A
+    :func:`spd_solver`; chosen by the measurements in ``docs/results/solvers.md``). A
     K that is not positive-definite (no supports), or an explicit shift, gets a
     SuperLU factorisation of the indefinite ``K - sigma M`` at the centre of
     the band.
@@ -46,6 +46,8 @@ import scipy.linalg as sla
 from scipy.linalg import lapack
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+from .block_krylov import COLUMN_MAJOR_ROWS, BlockKrylov, _as_load_matrix, _symmetric
 
 __all__ = [
     "direct_frf",
@@ -64,11 +66,6 @@ log = logging.getLogger(__name__)
 def hz_to_rad(freqs_hz) -> np.ndarray:
     """Angular frequencies ``2 pi f``, rad/s."""
     return 2.0 * np.pi * np.asarray(freqs_hz, dtype=float)
-
-
-def _as_load_matrix(F) -> np.ndarray:
-    F = np.asarray(F, dtype=float)
-    return F[:, None] if F.ndim == 1 else F
 
 
 def direct_frf(
@@ -140,6 +137,8 @@ def krylov_frf(
     max_dimension: int = 240,
     check_every: int = 8,
     return_info: bool = False,
+    seed=None,
+    keep: dict | None = None,
 ):
     """Receptance for Rayleigh damping ``C = a M + b K`` by a converged Krylov projection.
 
@@ -170,6 +169,9 @@ def krylov_frf(
     check_every : int
         Number of new basis vectors between convergence checks.
     return_info : bool
+    seed, keep
+        A space to start from, and a dict that receives the converged one (``basis``, ``seeded``), as in
+        :func:`fe_core.solvers.frf_derivatives.krylov_frf_derivatives`.
 
     Returns
     -------
@@ -178,7 +180,7 @@ def krylov_frf(
         Only if ``return_info``.
     """
     space = krylov_space(K, M, a, b, F, omegas, out_dofs, rtol=rtol, sigma=sigma, max_dimension=max_dimension,
-                         check_every=check_every)
+                         check_every=check_every, seed=seed, keep=keep)
     info = space.info
     if info.converged:
         return (space.responses, info) if return_info else space.responses
@@ -231,35 +233,48 @@ def krylov_space(
     sigma: float | None = None,
     max_dimension: int = 240,
     check_every: int = 8,
+    seed=None,
+    keep: dict | None = None,
 ) -> KrylovSpace:
     """The converged projection space of :func:`krylov_frf` (same arguments), for reuse.
 
     Grown by :class:`BlockKrylov` until the responses at ``out_dofs`` to every
     column of F stop changing (``rtol``, or the round-off floor
-    ``STAGNATION_RTOL``), checked every ``check_every`` new vectors.
+    ``STAGNATION_RTOL``), checked every ``check_every`` new vectors. ``seed``: columns the space starts
+    with (:class:`BlockKrylov`); the first check then compares with the projection on the seed alone.
     """
     F = _as_load_matrix(F)
     omegas = np.asarray(omegas, dtype=float)
     n, n_loads = F.shape
-    builder = BlockKrylov(K, M, F, sigma, float(omegas.min() * omegas.max()), max_dimension)
+    builder = BlockKrylov(K, M, F, sigma, float(omegas.min() * omegas.max()), max_dimension, seed=seed,
+                          factor=_shifted_solver)
     lam = (omegas**2 - 1j * omegas * a) / (1.0 + 1j * omegas * b)
     scale = 1.0 / (1.0 + 1j * omegas * b)
+
+    def responses_of(b_) -> np.ndarray:
+        d, V = b_.dim, b_.basis[:, : b_.dim]
+        return _project(b_.reduced[0, :d, :d], b_.reduced[1, :d, :d], V[out_dofs], V.T @ F, lam, scale)
+
     previous = None
     current = None
     change = np.inf
     next_check = check_every
+    if builder.seeded:  # the first block is checked against the seed alone
+        previous = current = responses_of(builder)
+        next_check = builder.dim + 1
 
     def space(info: KrylovInfo) -> KrylovSpace:
         d = builder.dim
         Kr, Mr = builder.reduced[0, :d, :d], builder.reduced[1, :d, :d]
+        if keep is not None and info.converged:
+            keep["basis"], keep["seeded"] = builder.space_basis(), builder.seeded
         return KrylovSpace(builder.basis[:, :d], _symmetric(Kr), _symmetric(Mr), current, info)
 
     def responses() -> np.ndarray:
-        d, V = builder.dim, builder.basis[:, : builder.dim]
-        return _project(builder.reduced[0, :d, :d], builder.reduced[1, :d, :d], V[out_dofs], V.T @ F, lam, scale)
+        return responses_of(builder)
 
     while builder.grow():
-        if builder.dim >= next_check:
+        if builder.dim >= next_check or builder.seeded:  # a seeded space: after every block
             next_check = builder.dim + check_every
             current = responses()
             if previous is not None:
@@ -274,102 +289,6 @@ def krylov_space(
         current = responses()
         return space(KrylovInfo(builder.dim, 0.0, True, builder.sigma))
     return space(KrylovInfo(builder.dim, change, False, builder.sigma))
-
-
-class BlockKrylov:
-    """The block Krylov space of ``(K - sigma M)^-1 M`` from ``(K - sigma M)^-1 start``, grown a block at a time.
-
-    The one builder of projection spaces in the code base: :func:`krylov_space`
-    (and so :func:`krylov_frf` and :class:`fe_core.solvers.adjoint.ReducedResponse`) and
-    :func:`fe_core.solvers.frf_derivatives.krylov_frf_derivatives` grow their spaces
-    with it and differ only in what they test for convergence between blocks.
-
-    Each block is orthogonalised twice against the whole basis (full
-    re-orthogonalisation keeps the projection exact to round-off) and reduced by
-    a column-pivoted QR, whose leading columns span the block even when it is
-    rank-deficient (the benchmark's load is the sum of its sensor loads). The
-    reduced matrices ``V^T A V`` of K, M and the ``extra`` matrices grow with the
-    space (each new block is multiplied by every matrix once), so a convergence
-    check costs a small eigenproblem, not a projection of the whole space.
-
-    Parameters
-    ----------
-    K, M : sparse, shape (n, n)
-        Symmetric stiffness (N/m) and mass (kg).
-    start : ndarray, shape (n, k)
-        The starting loads.
-    sigma : float or None
-        Shift of the factorised pencil (see :func:`krylov_frf`); ``centre`` is the shift used when K
-        is not positive-definite and ``sigma`` is None.
-    max_dimension : int
-        Upper bound on the space's size.
-    extra : sequence of sparse (n, n)
-        Further matrices whose reduced forms are kept (``reduced[2:]``, in order).
-
-    Attributes
-    ----------
-    basis : ndarray, shape (n, cap)
-        Orthonormal columns; the first ``dim`` are the space.
-    reduced : ndarray, shape (2 + len(extra), cap, cap)
-        ``basis^T A basis`` for K, M and the extra matrices (the leading ``dim x dim`` block).
-    dim, width, solves, sigma
-        The space's size, the first block's width, the right-hand sides solved and the shift used.
-    """
-
-    def __init__(self, K, M, start, sigma: float | None, centre: float, max_dimension: int, extra=()):
-        K = sp.csr_matrix(K, dtype=float)
-        M = sp.csr_matrix(M, dtype=float)
-        self.solve, self.sigma = _shifted_solver(K, M, sigma, centre)
-        n = K.shape[0]
-        self.cap = min(max_dimension, n)
-        self.basis = np.empty((n, self.cap))
-        self.mats = [K, M, *extra]
-        self.reduced = np.zeros((len(self.mats), self.cap, self.cap))
-        self.dim = 0
-        self.width = None
-        start = _as_load_matrix(start)
-        self.solves = start.shape[1]
-        self._block = self.solve(start)
-        self._next = None  # M q of the last block: the next block is its solve, done when asked for
-
-    def grow(self) -> bool:
-        """Add the next block; False (and no change) when the space cannot grow: the new block
-        lies in the space, or ``max_dimension`` is reached."""
-        if self._next is not None:
-            self._block = self.solve(self._next)
-            self.solves += self._next.shape[1]
-            self._next = None
-        block, dim, basis = self._block, self.dim, self.basis
-        if block is None:
-            return False
-        for _ in range(2):
-            block -= basis[:, :dim] @ (basis[:, :dim].T @ block)
-        q, r, _ = sla.qr(block, mode="economic", pivoting=True)
-        d = np.abs(np.diag(r))
-        rank = int(np.sum(d > 1e-13 * max(1.0, d.max(initial=0.0))))
-        room = self.cap - dim
-        if rank == 0 or room == 0:
-            self._block = None
-            return False
-        q = q[:, : min(rank, room)]
-        k = q.shape[1]
-        if self.width is None:
-            self.width = k
-        basis[:, dim : dim + k] = q
-        products = [A @ q for A in self.mats]
-        cols = basis[:, : dim + k].T @ np.hstack(products)  # the new rows and columns of every V^T A V
-        for t in range(len(self.mats)):
-            col = cols[:, t * k : (t + 1) * k]
-            self.reduced[t, : dim + k, dim : dim + k] = col
-            self.reduced[t, dim : dim + k, :dim] = col[:dim].T
-        self.dim = dim + k
-        self._block = None
-        self._next = products[1]
-        return True
-
-
-def _symmetric(A: np.ndarray) -> np.ndarray:
-    return 0.5 * (A + A.T)
 
 
 #: A change this small that stops decreasing is accepted as the round-off floor. PARDISO's
@@ -420,7 +339,7 @@ def spd_solver(A: sp.spmatrix):
     PARDISO orders with nested dissection (METIS) and factors supernodally: on the
     33,681-DOF tet10 bracket it factors K 2.3-5 times faster than SuperLU and 5-8
     times faster than a banded Cholesky after reverse Cuthill-McKee, holding a third
-    of SuperLU's memory (``docs/solvers.md``).
+    of SuperLU's memory (``docs/results/solvers.md``).
     The factor lives in MKL's memory and is released when the returned function is
     garbage-collected.
 

@@ -49,7 +49,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .frf import STAGNATION_RTOL, BlockKrylov, _as_load_matrix, _relative_change, _symmetric
+from .frf import STAGNATION_RTOL, BlockKrylov, _as_load_matrix, _relative_change, _shifted_solver, _symmetric
 
 __all__ = ["Direction", "krylov_frf_derivatives", "direct_frf_derivatives", "DerivativeInfo"]
 
@@ -143,6 +143,8 @@ def krylov_frf_derivatives(
     max_dimension: int = 480,
     check_every: int | None = None,
     return_info: bool = False,
+    seed=None,
+    keep: dict | None = None,
 ):
     """Receptance ``L^T D^-1 F`` and its derivatives along ``directions``, on a converged Krylov space.
 
@@ -176,6 +178,11 @@ def krylov_frf_derivatives(
         New basis vectors between convergence checks; by default the width
         of the starting block (one block step), at least 8.
     return_info : bool
+    seed : ndarray, shape (n, s), optional
+        Columns the space starts with (:class:`fe_core.solvers.frf.BlockKrylov`): a nearby FE run's converged
+        space (:mod:`fe_core.solvers.recycle`); the first check compares with the projection on it alone.
+    keep : dict, optional
+        Receives ``basis`` (the converged space, n x dim) and ``seeded`` (the seed's columns in it).
 
     Returns
     -------
@@ -202,7 +209,7 @@ def krylov_frf_derivatives(
     n_k = len(k_index)
     m_index = {i: 2 + n_k + j for j, i in enumerate(i for i in range(m) if dM[i] is not None)}
     builder = BlockKrylov(K, M, np.hstack([F, Ld]), sigma, float(omegas.min() * omegas.max()), max_dimension,
-                          extra=extra)
+                          extra=extra, seed=seed, factor=_shifted_solver)
     sigma = builder.sigma
     previous = None
     change = dchange = np.inf
@@ -214,11 +221,18 @@ def krylov_frf_derivatives(
         return _reduced_response(builder.basis[:, :d], builder.reduced[:, :d, :d], F, Ld, L_sparse, k_index,
                                  m_index, da, db, m, omegas, a, b, lam, scale)
 
+    def kept(result):
+        if keep is not None:
+            keep["basis"], keep["seeded"] = builder.space_basis(), builder.seeded
+        return result
+
+    if builder.seeded:  # the first block is checked against the seed alone
+        previous = response()
     while builder.grow():
         if every is None:
             every = check_every or max(8, builder.width)
-            next_check = every
-        if builder.dim >= next_check:
+            next_check = builder.dim if builder.seeded else every
+        if builder.dim >= next_check or builder.seeded:  # a seeded space: after every block
             next_check = builder.dim + every
             current = response()
             if previous is not None:
@@ -230,14 +244,14 @@ def krylov_frf_derivatives(
                 floor = max(change, dchange) <= STAGNATION_RTOL and max(change, dchange) >= 0.5 * max(last)
                 if settled or floor:
                     info = DerivativeInfo(builder.dim, change, dchange, True, sigma, builder.solves)
-                    return (*current, info) if return_info else current
+                    return kept((*current, info) if return_info else current)
             previous = current
 
     dim, solves = builder.dim, builder.solves
     if dim >= n:  # the space is everything: the reduced model is the model
         current = response()
         info = DerivativeInfo(dim, 0.0, 0.0, True, sigma, solves)
-        return (*current, info) if return_info else current
+        return kept((*current, info) if return_info else current)
     log.warning("Krylov FRF derivatives did not converge to rtol=%g within %d vectors (last changes %.2e, %.2e); "
                 "falling back to the direct solver", rtol, dim, change, dchange)
     Z, dZ = direct_frf_derivatives(K, M, a, b, F, Ld, directions, omegas)

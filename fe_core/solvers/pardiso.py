@@ -22,6 +22,7 @@ SuperLU). ``ENABLED = False`` (or ``MRGP_PARDISO_REUSE=0``) restores the plain p
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import hashlib
 import logging
@@ -50,7 +51,19 @@ _POOL: dict[tuple, list["_Handle"]] = {}
 #: Guards the pools (a finaliser may run in any thread); each thread has its own handles.
 _LOCK = threading.RLock()
 #: Counts since start (or :func:`clear`): analyses, factorisations, reuses, Woodbury solvers.
-stats = {"analyses": 0, "factorisations": 0, "reused": 0, "woodbury": 0}
+stats = {"analyses": 0, "factorisations": 0, "reused": 0, "woodbury": 0, "nearby": 0, "nearby_refactored": 0,
+         "pcg_solves": 0}
+#: Whether a matrix of a held factor's pattern may be solved by conjugate gradients preconditioned with that
+#: factor (:mod:`fe_core.solvers.nearby`); off: a numerical factorisation (``MRGP_PARDISO_NEARBY=0``).
+NEARBY = os.environ.get("MRGP_PARDISO_NEARBY", "1") != "0"
+#: Factors with fewer entries are refactored: small models keep the plain path exactly (their
+#: factorisation is cheap, and their results stay bit for bit what they were).
+NEARBY_MIN_NNZ = 20_000_000
+#: CG is tried only when it may spend this many solves per right-hand side: fewer never reach the tolerance
+#: (a change of the factors by 1e-6 takes 3, fe_core.solvers.nearby).
+MIN_PCG_SOLVES = 3
+#: An idle handle's factor larger than this is freed when :func:`release_idle` is called (its analysis kept).
+RELEASE_BYTES = 256 * 2**20
 
 
 def _mkl_path() -> str | None:
@@ -75,7 +88,7 @@ def _digest(*arrays) -> str:
 class _Handle:
     """One PARDISO instance: analysed for a pattern, holding the factor of ``data`` (or none)."""
 
-    def __init__(self, upper: sp.csr_matrix, key: tuple, pattern_digest: str):
+    def __init__(self, upper: sp.csr_matrix, key: tuple, pattern_digest: str, threads: int = 1):
         from pypardiso import PyPardisoSolver
 
         if "PYPARDISO_MKL_RT" not in os.environ:
@@ -89,12 +102,54 @@ class _Handle:
         self.digest = None
         self.analysed = False
         self.pins = 0  # live solvers reading this pooled factor
+        self.nnz_factor = 0  # entries of the Cholesky factor L (PARDISO's iparm(18))
+        self.factor_mflop = 0.0  # its factorisation's work, 1e6 floating point operations (iparm(19))
+        self.rhs_served = 0  # right-hand sides solved with the current pins (the last lifetime's workload)
+        self.last_lifetime_rhs = 0
+        self.solver.set_iparm(19, -1)  # report the factorisation's operations (phase 1)
+        # Every phase runs on the threads the analysis ran on: PARDISO crashes in a numerical factorisation
+        # on fewer threads than its analysis had (MKL 2026.2, measured); the pool keys handles by it.
+        self.threads = int(threads)
+        self._ia = (upper.indptr + 1).astype(np.int32)  # 1-based, converted once (pypardiso does it per call)
+        self._ja = (upper.indices + 1).astype(np.int32)
 
     def call(self, phase: int, data: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-        A = self.pattern
-        A.data = data  # same pattern: only the values change
-        self.solver.set_phase(phase)
-        return self.solver._call_pardiso(A, np.asfortranarray(rhs))
+        import ctypes
+
+        from pypardiso.pardiso_wrapper import PyPardisoError
+
+        s = self.solver
+        b = np.asfortranarray(rhs, dtype=float)
+        x = np.zeros_like(b)
+        error = ctypes.c_int32(0)
+        i32, f64 = ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_double)
+        data = np.ascontiguousarray(data, dtype=float)
+        lib = _mkl()
+        previous = lib.MKL_Set_Num_Threads_Local(self.threads) if lib is not None else None
+        try:
+            self._pardiso(s, phase, data, b, x, error, i32, f64)
+        finally:
+            if previous is not None:
+                lib.MKL_Set_Num_Threads_Local(previous)
+        if error.value != 0:
+            raise PyPardisoError(error.value)
+        return np.ascontiguousarray(x)
+
+    def _pardiso(self, s, phase, data, b, x, error, i32, f64):
+        import ctypes
+
+        s._mkl_pardiso(s.pt.ctypes.data_as(ctypes.POINTER(s._pt_type[0])), ctypes.byref(ctypes.c_int32(1)),
+                       ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(s.mtype)),
+                       ctypes.byref(ctypes.c_int32(phase)), ctypes.byref(ctypes.c_int32(self.pattern.shape[0])),
+                       data.ctypes.data_as(f64), self._ia.ctypes.data_as(i32), self._ja.ctypes.data_as(i32),
+                       s.perm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(1 if b.ndim == 1 else b.shape[1])),
+                       s.iparm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(s.msglvl)),
+                       b.ctypes.data_as(f64), x.ctypes.data_as(f64), ctypes.byref(error))
+
+    @property
+    def factor_bytes(self) -> int:
+        """Memory of the factor L held (0 without one)."""
+        return 8 * self.nnz_factor if self.data is not None else 0
 
     def factor(self, data: np.ndarray, digest: str) -> bool:
         from pypardiso.pardiso_wrapper import PyPardisoError
@@ -105,6 +160,8 @@ class _Handle:
                 self.call(11, data, np.zeros((n, 1)))
                 self.analysed = True
                 stats["analyses"] += 1
+                self.nnz_factor = int(self.solver.get_iparm(18))
+                self.factor_mflop = float(max(self.solver.get_iparm(19), 0))
             self.call(22, data, np.zeros((n, 1)))
         except PyPardisoError as error:  # -4: zero or negative pivot: not positive-definite
             log.debug("PARDISO Cholesky failed: %s", error)
@@ -120,11 +177,85 @@ class _Handle:
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         rhs = np.asarray(rhs, dtype=float)
-        x = self.call(33, self.data, rhs.reshape(rhs.shape[0], -1))
+        b = rhs.reshape(rhs.shape[0], -1)
+        self.rhs_served += b.shape[1]
+        x = self.call(33, self.data, b)
         return x.reshape(rhs.shape)
+
+    def release_factor(self):
+        """Free the factor, keep the analysis (PARDISO phase 0): a new matrix of the pattern needs only its
+        numerical factorisation."""
+        if self.data is not None:
+            n = self.pattern.shape[0]
+            self.call(0, self.data, np.zeros((n, 1)))
+            self.data = self.digest = None
 
     def free(self):
         self.solver.free_memory(everything=True)
+
+
+_MKL = None
+
+
+def _mkl():
+    """The MKL runtime pypardiso calls (loaded once), or None."""
+    global _MKL
+    if _MKL is None:
+        import ctypes
+
+        path = os.environ.get("PYPARDISO_MKL_RT") or _mkl_path()
+        try:
+            _MKL = ctypes.CDLL(path) if path else False
+        except OSError:
+            _MKL = False
+    return _MKL or None
+
+
+@contextlib.contextmanager
+def threads(n: int | None):
+    """Run this thread's PARDISO (MKL) calls inside the block on ``n`` threads (None or < 2: unchanged).
+
+    ``MKL_Set_Num_Threads_Local`` (the C name; the lower-case symbol is the Fortran one): the setting is this thread's, restored on exit; other threads and the
+    process's BLAS are not touched (the flows start every process with one MKL thread).
+    """
+    lib = _mkl() if n is not None and n >= 2 else None
+    if lib is None:
+        yield
+        return
+    previous = lib.MKL_Set_Num_Threads_Local(int(n))
+    try:
+        yield
+    finally:
+        lib.MKL_Set_Num_Threads_Local(int(previous))
+
+
+def mkl_threads() -> int:
+    """MKL's threads for this thread's calls now (1 without MKL)."""
+    lib = _mkl()
+    return int(lib.MKL_Get_Max_Threads()) if lib is not None else 1
+
+
+def release_idle(min_bytes: int | None = None) -> int:
+    """Free the factors of idle handles larger than ``min_bytes`` (default :data:`RELEASE_BYTES`), keeping their
+    analyses; returns the bytes freed. An FE worker calls it after each FE run of a large model, so a process
+    waiting for work holds no factor."""
+    limit = RELEASE_BYTES if min_bytes is None else min_bytes
+    freed = 0
+    with _LOCK:
+        for pool in _POOL.values():
+            for h in pool:
+                if not h.pins and h.data is not None and h.factor_bytes > limit:
+                    freed += h.factor_bytes
+                    h.release_factor()
+    return freed
+
+
+def _release_other_pools(key: tuple) -> None:
+    for other, pool in _POOL.items():
+        if other != key:
+            for h in pool:
+                if not h.pins and h.data is not None and h.factor_bytes > RELEASE_BYTES:
+                    h.release_factor()
 
 
 def _trim(pool: list):
@@ -157,6 +288,8 @@ def _changed_rows(upper: sp.csr_matrix, base: np.ndarray, data: np.ndarray):
     where = np.flatnonzero(data != base)
     if where.size == 0:
         return np.zeros(0, np.int64), np.zeros((0, 0))
+    if where.size > MAX_LOW_RANK * (MAX_LOW_RANK + 1) // 2:  # more entries than an upper triangle of that many
+        return None
     rows = np.searchsorted(upper.indptr, where, side="right") - 1
     cols = upper.indices[where]
     R = np.unique(np.concatenate([rows, cols]))
@@ -202,14 +335,14 @@ def cholesky(A: sp.spmatrix):
     """
     upper = sp.triu(A, format="csr").astype(float)
     upper.sort_indices()
-    key = (threading.get_ident(), upper.shape[0])
+    key = (threading.get_ident(), upper.shape[0], mkl_threads())
     pattern = _digest(upper.indptr, upper.indices)
     digest = _digest(upper.data)
     with _LOCK:
-        return _cholesky(upper, key, pattern, digest)
+        return _cholesky(upper, key, pattern, digest, A)
 
 
-def _cholesky(upper, key, pattern, digest):
+def _cholesky(upper, key, pattern, digest, A=None):
     pool = _POOL.setdefault(key, [])
     held = [h for h in pool if h.data is not None]
     # 1. The same matrix: the factor serves as it is.
@@ -226,13 +359,27 @@ def _cholesky(upper, key, pattern, digest):
         if change is not None:
             stats["woodbury"] += 1
             return _pinned(pool, h, _woodbury(h, *change))
-    # 3. A numerical factorisation, on the oldest idle handle analysed for this pattern if there is one.
+    # 3. Another matrix of the pattern (K at other segment factors): conjugate gradients preconditioned by a
+    #    large held factor while they cost less than a new factorisation (fe_core.solvers.nearby).
+    if NEARBY and A is not None:
+        from .nearby import NearbySolver, pcg_budget
+
+        for h in reversed(held):  # the newest factor first
+            if h.pattern_digest == pattern and h.nnz_factor >= NEARBY_MIN_NNZ and h.pins == 0:
+                budget = pcg_budget(h.factor_mflop, h.nnz_factor, h.last_lifetime_rhs)
+                if budget >= MIN_PCG_SOLVES:
+                    stats["nearby"] += 1
+                    return _pinned(pool, h, NearbySolver(h, sp.csr_matrix(A, dtype=float), upper.data, digest,
+                                                         budget, stats))
+                break
+    # 4. A numerical factorisation, on the oldest idle handle analysed for this pattern if there is one.
     idle = [h for h in pool if not h.pins and h.pattern_digest == pattern]
     if idle:
         h = idle[0]
         pool.remove(h)
-    else:
-        h = _Handle(upper.copy(), key, pattern)
+    else:  # a new factor: large idle ones of other threads or thread counts make room first
+        _release_other_pools(key)
+        h = _Handle(upper.copy(), key, pattern, key[2])
     pool.append(h)
     if not h.factor(upper.data, digest):
         return None
@@ -261,6 +408,8 @@ def _changed_rows_sparse(upper: sp.csr_matrix, base: sp.csr_matrix):
 def _pinned(pool: list, handle: _Handle, fn):
     """A solver reading ``handle``'s factor, which is not refactored while the solver lives; when the
     last such solver goes, the handle idles in the pool (the oldest idle beyond ``POOL_SIZE`` freed)."""
+    if handle.pins == 0:
+        handle.rhs_served = 0
     handle.pins += 1
     pool.remove(handle)
     pool.append(handle)  # the newest last
@@ -271,6 +420,8 @@ def _pinned(pool: list, handle: _Handle, fn):
     def unpin():
         with _LOCK:
             handle.pins -= 1
+            if not handle.pins:  # the workload of this lifetime: what the next one is expected to need
+                handle.last_lifetime_rhs = handle.rhs_served
             if _POOL.get(handle.key) is not pool and not handle.pins and handle in pool:  # cleared meanwhile
                 pool.remove(handle)
                 handle.free()

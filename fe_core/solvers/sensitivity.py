@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import recycle
 from .frf import hz_to_rad
 from .frf_derivatives import Direction, direct_frf_derivatives, krylov_frf_derivatives
 from ..model import ParametricModel
@@ -106,21 +107,16 @@ def segment_directions(model: ParametricModel) -> list:
     """The derivative directions of the parameter vector, as :class:`fe_core.solvers.frf_derivatives.Direction` (cached).
 
     ``dK / dalpha_i = K_i`` for every segment, then ``dM / dgamma_j = M_j`` for every
-    segment whose mass is updated (:attr:`ParametricModel.mass_parameters`). The
-    segment matrices share the union pattern of the model (zeros outside the
-    segment); the explicit zeros are dropped so a product costs the segment's own entries.
+    segment whose mass is updated (:attr:`ParametricModel.mass_parameters`), each on
+    its own entries (:meth:`fe_core.assembly.SegmentedMatrix.own`), so a product costs the segment's entries.
     """
     cached = model.__dict__.get("_segment_directions")
     if cached is None:
         cached = []
         for i in range(model.n_segments):
-            Ki = model.stiffness_segments.segment(i).copy()  # copy: segment() shares the pattern's index arrays
-            Ki.eliminate_zeros()
-            cached.append(Direction(stiffness=Ki))
+            cached.append(Direction(stiffness=model.stiffness_segments.own(i)))
         for j in model.mass_parameters:
-            Mj = model.mass_segments.segment(int(j)).copy()
-            Mj.eliminate_zeros()
-            cached.append(Direction(mass=Mj))
+            cached.append(Direction(mass=model.mass_segments.own(int(j))))
         model.__dict__["_segment_directions"] = cached
     return cached
 
@@ -185,8 +181,12 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
         loads, responses, column = model.channel_loads(*channels)
     args = (K, M, a, b, loads, model.outputs, segment_directions(model), hz_to_rad(freqs))
     info = None
-    if method == "krylov":
-        Z, dZ, info = krylov_frf_derivatives(*args, return_info=True)
+    if method == "krylov":  # a large model's space starts from its last FE run's (fe_core.solvers.recycle)
+        keep = {} if recycle.active(model) else None
+        point = np.concatenate([np.ravel(alpha), np.ravel(gamma if gamma is not None else [])])
+        Z, dZ, info = krylov_frf_derivatives(*args, return_info=True, seed=recycle.take(model, point), keep=keep)
+        if keep is not None:
+            recycle.store(model, keep, point)
     else:
         Z, dZ = direct_frf_derivatives(*args)
     Z, dZ = Z[:, responses, column], dZ[:, responses, column, :]

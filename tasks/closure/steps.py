@@ -44,6 +44,7 @@ __all__ = [
     "emulated_check",
     "decide_task",
     "measured",
+    "noise_of",
 ]
 
 
@@ -89,6 +90,13 @@ def _cached_library(model, effects) -> dict:
     return cache[key]
 
 
+def noise_of(problem, settings: dict):
+    """The noise the closure's tests take (:meth:`fe_core.inference.frf_data.FRFData.noise_spec` on the complete
+    lines): ``--noise`` as configured, else the noise the measurement states, else the model of a relative term and
+    a floor per channel estimated from each residual."""
+    return problem.data.noise_spec(settings["noise"])
+
+
 def measured(problem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(frequencies (p,), channel numbers (n,), amplitudes (p, n)) the closure fits: the run's measured data
     (``problem.data``, :class:`fe_core.inference.frf_data.FRFData`) on the lines where every channel is kept."""
@@ -106,7 +114,7 @@ def baseline_task(root: str, problem, settings: dict) -> dict:
     freqs, sensors, u = measured(problem)
     if not _done(store, "baseline"):
         model = problem.model
-        fit, analysis = fits.baseline(model, freqs, u, settings["alpha_start"], settings["noise"],
+        fit, analysis = fits.baseline(model, freqs, u, settings["alpha_start"], noise_of(problem, settings),
                                       settings["significance"], settings["restarts"], settings["seed"],
                                       tuple(settings["alpha_bounds"]))
         store.write_table("baseline", "baseline", _param_table(fit, {}))
@@ -273,7 +281,8 @@ def decide_task(root: str, problem, settings: dict, run_info: dict) -> dict:
     freqs, sensors, u = measured(problem)
     library = _library(model, settings)
     base = _baseline_fit(store, model, freqs, u)
-    before = analyse_residual(base.residual, freqs, base.n_parameters, settings["noise"], settings["significance"],
+    noise = noise_of(problem, settings)
+    before = analyse_residual(base.residual, freqs, base.n_parameters, noise, settings["significance"],
                               base.relative(u))
     screened = {(c.effect, c.location): c for c in _screened(store)}
     checked = []
@@ -294,7 +303,7 @@ def decide_task(root: str, problem, settings: dict, run_info: dict) -> dict:
     final = chosen.fit if chosen is not None else base
     # Tested against the configured noise, else the level estimated from this residual itself (never the first
     # residual's estimate when that residual was structure: an upper bound, not the noise).
-    after = analyse_residual(final.residual, freqs, final.n_parameters, settings["noise"], settings["significance"],
+    after = analyse_residual(final.residual, freqs, final.n_parameters, noise, settings["significance"],
                              final.relative(u))
     ranked = decisions.rank(decisions.merge(checked, list(screened.values())))
     steps, implausible = ([chosen] if chosen is not None else []), [c for c in checked if c.implausible]

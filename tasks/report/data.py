@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from tasks import record
+from tasks.io.summary import upgrade
 from tasks.runstore import CorruptFileError, RunStore
 
 __all__ = [
@@ -38,7 +39,7 @@ __all__ = [
 STAGE_RECORD = "_stage.json"
 #: Stages this report draws (``polish``: its points, when the folder holds them).
 KNOWN_STAGES = ("samples", "fe", "errors", "distribution", "train", "predict", "select", "polish", "local", "global",
-                "check", "intervals")
+                "emulator", "check", "evidence", "weigh", "intervals")
 _ITER = re.compile(r"^iteration=(\d+)$")
 _STAGE = re.compile(r"^stage=(.+)$")
 _REPEAT = re.compile(r"^repeat=(\d+)$")
@@ -52,6 +53,12 @@ def param_columns(df: pd.DataFrame) -> list[str]:
     """``alpha_1 .. alpha_m`` columns of a table, in numeric order, then ``gamma_j`` (updated mass factors)."""
     cols = [c for c in df.columns if re.fullmatch(r"(alpha|gamma)_\d+", str(c))]
     return sorted(cols, key=lambda c: (c.startswith("gamma"), int(c.split("_")[1])))
+
+
+def _read_summary(root: Path) -> dict | None:
+    """The run's ``summary.json`` in the current shape (an older record's upgraded), or None before it is written."""
+    summary = _read_json(root / "summary.json")
+    return None if summary is None else upgrade(summary)
 
 
 def _read_json(path: Path) -> dict | None:
@@ -96,6 +103,7 @@ def stage_inventory(root: Path) -> pd.DataFrame:
         ``iteration, stage, finished, known, seconds, info`` (``info`` as JSON text).
     """
     rows = []
+    known = set(KNOWN_STAGES) | set((_read_json(root / "manifest.json") or {}).get("stages", []))  # the strategy's
     for k in _iterations(root):
         for p in sorted((root / f"iteration={k}").iterdir()):
             m = _STAGE.match(p.name)
@@ -108,7 +116,7 @@ def stage_inventory(root: Path) -> pd.DataFrame:
                 "iteration": k,
                 "stage": name,
                 "finished": record is not None,
-                "known": name in KNOWN_STAGES,
+                "known": name in known,
                 "seconds": float(info["seconds"]) if isinstance(info.get("seconds"), (int, float)) else np.nan,
                 "info": json.dumps(info, default=str),
             })
@@ -220,7 +228,7 @@ def load_run(root: Path | str) -> RunData:
     manifest = _read_json(root / "manifest.json")
     if manifest is None:
         raise ReportError(f"{root}: no manifest.json; is this a run folder of flows.update?")
-    summary = _read_json(root / "summary.json")
+    summary = _read_summary(root)
     try:
         runs = record.fe_runs(RunStore(root))
     except CorruptFileError as exc:
@@ -384,4 +392,4 @@ def load_repeats(root: Path | str) -> RepeatsData:
             errors.append(str(exc))
     if not runs:
         raise ReportError(f"{root}: no readable repeat=<i> run folder" + (f" ({errors[0]})" if errors else ""))
-    return RepeatsData(root=root, summary=_read_json(root / "summary.json"), runs=runs, errors=errors)
+    return RepeatsData(root=root, summary=_read_summary(root), runs=runs, errors=errors)

@@ -61,7 +61,7 @@ def run_intro(data: RunData) -> list[str]:
     if lowest:
         lines.append(f"Reported parameters: {data.summary.get('parameters_source')}; the FE run with the lowest "
                      f"overall error (sample {lowest.get('sample_id')}, {lowest['overall_error']:.3%}) is kept in "
-                     "summary.json's lowest_error (docs/estimators.md: the optimum is the better estimate on noisy "
+                     "summary.json's lowest_error (measured at efdea20, git show 0cbca1f:docs/estimators.md: the optimum is the better estimate on noisy "
                      "data).")
     if data.summary:
         lines.append(f"Stop reason: {data.summary.get('stop_reason', '?')}; "
@@ -197,8 +197,8 @@ def intervals_section(data: RunData, out: Path) -> Section | None:
 
     est = arr(d["estimate"][n] for n in names)
     std = arr(d["std"][n] for n in names)
-    low = arr(s["intervals"][n][0] if s["intervals"][n][0] is not None else -np.inf for n in names)
-    high = arr(s["intervals"][n][1] if s["intervals"][n][1] is not None else np.inf for n in names)
+    low = arr(s["intervals"][n]["lower95"] if s["intervals"][n]["lower95"] is not None else -np.inf for n in names)
+    high = arr(s["intervals"][n]["upper95"] for n in names)
     corr = np.array([[np.nan if v is None else v for v in row] for row in d["correlation"]], float)
     truth = data.true_parameters
     samples = weights = laplace_std = None
@@ -230,7 +230,7 @@ def intervals_section(data: RunData, out: Path) -> Section | None:
            "optimum (bars: the weighted samples; dashed: the Laplace approximation it replaced)")
     paragraphs = [f"{how}, noise {100 * s['noise_sigma']:.3g} % ({d['noise_source']}; {d['distribution']} quantile "
                   f"{d['quantile']:.3f}); cost {spent}. The coverage of these intervals is checked in "
-                  "docs/coverage.md and docs/posterior.md.", *([f"Why: {d['method_reason']}"] if "method_reason" in d
+                  "docs/results/coverage-n500.md and docs/results/posterior.md.", *([f"Why: {d['method_reason']}"] if "method_reason" in d
                                                                else []), *d["flags"]]
     if conditional:  # the model does not explain the data: not 95 % intervals (flows.summary.interval_status)
         paragraphs.insert(0, f"These intervals are {s['conditional_on']}. They would be 95 % intervals if the model "

@@ -47,7 +47,7 @@ def test_thicknesses_from_finite_differences_within_0_02_at_the_least_squares_op
     at_truth = np.log(np.abs(Z)).ravel() - np.log(measured).ravel()
     assert result.residual @ result.residual < at_truth @ at_truth
     # Not asserted: coverage. In this noise draw alpha_4's optimum is 3.0 standard deviations (Laplace, noise
-    # 1 %) from the truth, so its 95 % interval misses it by 0.0004 (docs/solver-decks.md).
+    # 1 %) from the truth, so its 95 % interval misses it by 0.0004 (docs/guide/solver-decks.md).
     iv = laplace_intervals(result.residual, result.jacobian, result.theta, noise=0.01)
     assert np.all(iv.high - iv.low < 0.005)
     # one parallel round of m + 1 runs per Jacobian, one run per trial step

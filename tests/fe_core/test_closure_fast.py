@@ -33,7 +33,7 @@ def test_the_reduced_model_is_the_full_one_at_its_basis_point(beam):
     """With the full Krylov space of a point in the basis, the reduced receptance and its exact derivatives
     (alpha and the effect) are the full ones there. Both are Galerkin projections on the same space through
     different orthonormal bases: they differ by the reduced eigenproblems' round-off (2e-9 here), within the
-    1e-8 the FRF solvers are held to against the direct solve (docs/performance.md)."""
+    1e-8 the FRF solvers are held to against the direct solve (docs/results/performance.md)."""
     model, freqs, u, truth = beam
     mass = PointMass(model)
     alpha = np.asarray(truth["alpha"]) + 0.02

@@ -137,3 +137,61 @@ def test_adjoint_screen_equals_central_differences(block):
                   for s in (h, -h))
         fd = (np.log(np.abs(zp)) - np.log(np.abs(zm))) / (2 * h)
         assert np.max(np.abs(screened[k] - fd)) < 1e-6 * max(1.0, np.max(np.abs(fd)))
+
+
+def test_nearby_matrix_solved_by_cg_on_the_held_factor(block, monkeypatch):
+    """K at nearby segment factors: CG preconditioned by the held factor (no factorisation) while within the
+    budget, else refactored in place; either way the solution of a fresh LU to round-off."""
+    from fe_core.solvers import nearby
+
+    Ks, M, F, out = block
+    monkeypatch.setattr(pardiso, "NEARBY_MIN_NNZ", 0)
+    monkeypatch.setattr(nearby, "pcg_budget", lambda *a: 6)
+    pardiso.clear()
+    rhs = np.random.default_rng(1).standard_normal((Ks[0].shape[0], 4))
+    base = pardiso.cholesky(stiffness(Ks, [0.1, -0.2]))
+    del base  # idle, holding its factor
+    K1 = stiffness(Ks, [0.1 + 1e-3, -0.2 - 2e-3])
+    s1 = pardiso.cholesky(K1)
+    x1 = s1(rhs)
+    assert pardiso.stats["nearby"] == 1 and pardiso.stats["factorisations"] == 1
+    assert pardiso.stats["nearby_refactored"] == 0 and pardiso.stats["pcg_solves"] <= 6 * rhs.shape[1]
+    assert close(x1, lu_solve(K1, rhs)) < RTOL
+    del s1
+    # Far away: 6 solves do not reach the tolerance; the factor is renewed and the solve is direct.
+    K2 = stiffness(Ks, [0.9, -0.6])
+    s2 = pardiso.cholesky(K2)
+    x2 = s2(rhs)
+    assert pardiso.stats["nearby"] == 2 and pardiso.stats["nearby_refactored"] == 1
+    assert pardiso.stats["factorisations"] == 2 and pardiso.stats["analyses"] == 1
+    assert close(x2, lu_solve(K2, rhs)) < RTOL
+    assert close(s2(rhs[:, 0]), lu_solve(K2, rhs[:, 0])) < RTOL  # later calls on the new factor
+
+
+def test_budget_from_the_operation_counts():
+    """CG pays only while its extra solves cost less than a factorisation: (k - 1) rhs solve <= factor."""
+    from fe_core.solvers.nearby import FACTOR_RATE, MAX_PCG_SOLVES, SOLVE_RATE, pcg_budget
+
+    nnz_l, rhs = 10**8, 60
+    solve = 4 * nnz_l / SOLVE_RATE  # seconds per right-hand side
+    for extra in (0, 1, 2, 5):  # a factorisation worth exactly `extra` more solves of every right-hand side
+        mflop = (extra * rhs * solve + 1e-3) * FACTOR_RATE / 1e6
+        assert pcg_budget(mflop, nnz_l, rhs) == min(MAX_PCG_SOLVES, 1 + extra)
+    assert pcg_budget(0.0, nnz_l, rhs) == 0
+    assert pcg_budget(1e9, nnz_l, rhs) == MAX_PCG_SOLVES
+
+
+def test_factor_on_fewer_threads_than_its_analysis_does_not_crash(block):
+    """PARDISO (MKL 2026.2) crashes in a numerical factorisation on fewer threads than its analysis ran on:
+    the pool keeps a handle per thread count, and each handle runs every phase on its own."""
+    Ks, M, F, out = block
+    pardiso.clear()
+    rhs = np.ones(Ks[0].shape[0])
+    with pardiso.threads(2):
+        s = pardiso.cholesky(stiffness(Ks, [0.0, 0.0]))
+    del s
+    K = stiffness(Ks, [0.3, 0.2])
+    s = pardiso.cholesky(K)  # outside: the flows' one thread
+    assert close(s(rhs), lu_solve(K, rhs)) < RTOL
+    with pardiso.threads(2):
+        assert close(s(rhs), lu_solve(K, rhs)) < RTOL  # a solve inside another setting: the handle's own

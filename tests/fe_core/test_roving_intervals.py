@@ -7,7 +7,7 @@ solver's round-off (checked below). The same amplitudes fitted through the stack
 (``channels=``) and through the one-reference model (a hammer at s3, the path the intervals used before)
 must give the same estimate and intervals, to the Krylov solvers' 1e-9 agreement propagated through a
 Gauss-Newton solve (1e-6 of the interval width). The coverage over 20 noisy data sets is
-``python -m benchmarks.roving_coverage`` (docs/measured-data.md).
+``python -m benchmarks.roving_coverage`` (docs/guide/measured-data.md).
 """
 
 from __future__ import annotations

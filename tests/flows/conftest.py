@@ -72,7 +72,7 @@ def two_iterations(prefect_harness):
         summary = update.update_flow(config)
         store = RunStore(config.resolve(config.runs_dir) / config.run_id)
         assert summary["iterations"] == 2 and summary["fe_evaluations"] == 12
-        first = store.read_table(1, "samples")
+        first = store.read_table(1, "fe", "runs")
         cols = parameter_columns(first)
         assert np.allclose(first[cols].to_numpy()[0], 0.0)  # the nominal model is one of the first samples
         return store, cols
@@ -106,3 +106,35 @@ def in_memory_fe():
         return evaluate
 
     return evaluator
+
+
+@pytest.fixture(scope="session")
+def check_summary():
+    """``check_summary(summary)``: assert that a run's summary (a dict, or a run folder) has the one shape of
+    ``tasks/io/summary.schema.json`` (JSON Schema draft 2020-12, validated by jsonschema), and what a schema
+    cannot say: ``intervals`` and ``covariance`` cover exactly the parameters, in their order."""
+    import json
+    from pathlib import Path
+
+    import jsonschema
+
+    from tasks.io.summary import SCHEMA_PATH
+
+    schema = json.loads(SCHEMA_PATH.read_text())
+    jsonschema.Draft202012Validator.check_schema(schema)
+    validator = jsonschema.Draft202012Validator(schema)
+
+    def check(summary):
+        if isinstance(summary, (str, Path)):
+            summary = json.loads((Path(summary) / "summary.json").read_text())
+        errors = sorted(validator.iter_errors(summary), key=lambda e: list(e.absolute_path))
+        assert not errors, "\n".join(f"{'/'.join(map(str, e.absolute_path)) or '<top>'}: {e.message}"
+                                     for e in errors)
+        for s in [summary] + summary.get("runs", []):
+            names = list(s["parameters"])
+            if "intervals" in s:
+                assert list(s["intervals"]) == names, (list(s["intervals"]), names)
+                assert [len(row) for row in s["covariance"]] == [len(names)] * len(names)
+        return summary
+
+    return check

@@ -235,3 +235,19 @@ def test_the_degenerate_case_really_has_zero_volume():
     _flatten_cell(mesh)
     corners = mesh.points[mesh.cells[0].data[7]]
     assert np.ptp(corners[:, 2]) == 0.0
+
+
+def test_a_large_models_band_check_refuses_a_mesh_in_mm_too(tmp_path, capsys, monkeypatch):
+    """A large model's band check takes its frequencies to ARPACK's tol = BAND_TOL (preflight.check_band);
+    forced here on the benchmark's mesh in mm (the threshold lowered), it still refuses the units mix-up."""
+    import tasks.fe_runs
+
+    monkeypatch.setattr(tasks.fe_runs, "LARGE_DOFS", 0)
+    model_dir = tmp_path / "model"
+    model_dir.mkdir()
+    model = _mesh_case(model_dir, _millimetres, _points_in_mm(BENCH_TOML))
+    runs = tmp_path / "runs"
+    code = update.main(["--model", str(model), "--measured", BENCH_M, "--runs-dir", str(runs), "--run-id", "new"])
+    err = capsys.readouterr().err
+    assert code == 2 and "far outside the measured band 106-295 Hz" in err and "mm-t-s" in err, err
+    assert not (runs / "new").exists()

@@ -22,7 +22,7 @@ from flows.config import UpdateConfig
 
 pytestmark = pytest.mark.skipif(shutil.which("ccx") is None, reason="ccx not installed (apt-get install calculix-ccx)")
 TRUTH = np.array([0.06, -0.05])
-TIMING_KEYS = {"wall_seconds", "run_folder"}
+TIMING_KEYS = {"wall_seconds", "run_folder", "run_id"}  # the time and the name of the run
 
 TOML = """units = "SI"
 solver = "calculix"
@@ -86,9 +86,10 @@ def _summary(root: Path) -> dict:
 
 @pytest.mark.slow
 def test_a_black_box_update_converges_records_its_runs_and_resumes_after_a_crash(tiny, tmp_path, prefect_harness,
-                                                                                  monkeypatch):
+                                                                                  monkeypatch, check_summary):
     runs = tmp_path / "runs"
     summary = update.update_flow(_config(tiny, runs, "reference"))
+    check_summary(runs / "reference")  # a deck's run: the one shape of every run (kind frf)
     x = np.array([summary["parameters"][n] for n in ("alpha_1", "alpha_2")])    # t_root_low, t_tip_high
     assert np.max(np.abs(x - TRUTH)) < 2e-3, x          # forward differences (step 1e-3) on noise-free data
     ref = runs / "reference"

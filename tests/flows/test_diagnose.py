@@ -179,6 +179,12 @@ def test_diagnosis_of_a_missing_or_unfinished_run_exits_2_naming_the_file(tmp_pa
     (tmp_path / "half" / "summary.json").write_text(json.dumps({"parameters": {"alpha_1": 0.0}}))
     assert dg.main(["--run-id", "half", "--runs-dir", str(tmp_path)]) == 2
     assert "half/manifest.json: no manifest.json" in capsys.readouterr().err
+    # a modal run (here its record from before the summary's schema) has its closure in its own summary
+    (tmp_path / "modal").mkdir()
+    (tmp_path / "modal" / "summary.json").write_text(json.dumps(
+        {"kind": "modal update", "parameters": {"alpha_1": {"value": 0.1, "sd": 0.01, "lower95": 0.08, "upper95": 0.12}}}))
+    assert dg.main(["--run-id", "modal", "--runs-dir", str(tmp_path)]) == 2
+    assert "modal/summary.json: run 'modal' is a modal update" in capsys.readouterr().err
 
 
 def test_unknown_effects_and_bad_noise_are_refused(tmp_path, capsys):

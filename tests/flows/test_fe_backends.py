@@ -25,7 +25,7 @@ from tasks import fe_backends
 from tasks.fe_backends import FEBackendError, run_unordered
 from tasks.runstore import RunStore
 
-TIMING_KEYS = {"wall_seconds", "run_folder"}
+TIMING_KEYS = {"wall_seconds", "run_folder", "run_id"}  # the time and the name of the run
 FE_DELAY = "0.3"  # seconds per FE run where a worker is killed: the stage must still be running
 
 

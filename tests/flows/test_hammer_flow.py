@@ -1,4 +1,4 @@
-"""The benchmark's hammer test through the update flow: FRF kinds do not matter, the run records its data.
+"""The benchmark's hammer test through the update flow: FRF kinds and units do not matter, the run records its data.
 
 A reduced version of ``python -m benchmarks.hammer_kinds``: ``data/benchmark/hammer.uff``
 written again as accelerance, mobility and receptance, a band around the first
@@ -7,6 +7,7 @@ resonance, the reduced budget of ``tests/flows/conftest.py``.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import shutil
 from pathlib import Path
@@ -27,6 +28,11 @@ def load_model(name):
     return _load(name)[0]
 from tasks.update_data import update_data
 
+_spec = importlib.util.spec_from_file_location("units_helpers", REPO / "tests" / "tasks" / "test_measured_units.py")
+_helpers = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_helpers)
+write_variant = _helpers.write_variant
+
 HAMMER = REPO / "data" / "benchmark" / "hammer.uff"
 #: The issue's target: the same parameters from every kind of the same data.
 SAME_TOL = 1e-6
@@ -35,27 +41,38 @@ WINDOWS = [[100.0, 125.0]]
 
 @pytest.fixture(scope="module")
 def kinds(tmp_path_factory) -> dict[str, Path]:
+    """hammer.uff itself (accelerance, SI) and the same FRFs written as mobility and receptance (the writer's round
+    trip of every kind: tests/tasks/test_measured_channels.py)."""
     folder = tmp_path_factory.mktemp("kinds")
     measured = read_measured(HAMMER)
-    return {kind: write_measured(folder / f"{kind}.uff", measured, kind=kind)
-            for kind in ("accelerance", "mobility", "receptance")}
+    return {"accelerance": HAMMER, **{kind: write_measured(folder / f"{kind}.uff", measured, kind=kind)
+                                      for kind in ("mobility", "receptance")}}
+
+
+def _window_run(runs: Path, run_id: str, path: Path, settings) -> dict:
+    config = UpdateConfig(run_id=run_id, runs_dir=str(runs), measured=str(path), lines="windows",
+                          line_windows=WINDOWS, **dict(settings))
+    return update.update_flow(config)
+
+
+@pytest.fixture(scope="module")
+def kind_runs(kinds, tmp_path_factory, reduced_settings_frozen, prefect_harness) -> tuple[Path, dict]:
+    """(runs folder, summaries) of the reduced run of each kind; the accelerance one is the SI file's run, also the
+    reference of the units' run (tests/flows/test_measured_units_flow.py has their conversions)."""
+    runs = tmp_path_factory.mktemp("kind-runs")
+    return runs, {kind: _window_run(runs, kind, path, reduced_settings_frozen) for kind, path in kinds.items()}
 
 
 @pytest.mark.slow
-def test_accelerance_mobility_and_receptance_give_the_same_parameters(kinds, reduced_settings, prefect_harness,
-                                                                      tmp_path):
-    summaries = {}
-    for kind, path in kinds.items():
-        config = UpdateConfig(run_id=kind, runs_dir=str(tmp_path / "runs"), measured=str(path), lines="windows",
-                              line_windows=WINDOWS, **reduced_settings)
-        summaries[kind] = update.update_flow(config)
+def test_accelerance_mobility_and_receptance_give_the_same_parameters(kind_runs):
+    runs, summaries = kind_runs
     reference = np.array(list(summaries["accelerance"]["parameters"].values()))
     for kind, summary in summaries.items():
         alpha = np.array(list(summary["parameters"].values()))
         np.testing.assert_allclose(alpha, reference, rtol=0, atol=SAME_TOL, err_msg=kind)
         assert summary["fe_evaluations"] == summaries["accelerance"]["fe_evaluations"]
     # What the run recorded about its data: the conversion, the channels, the selection, the table.
-    root = tmp_path / "runs" / "mobility"
+    root = runs / "mobility"
     info = json.loads((root / "manifest.json").read_text())["measured_data"]
     assert any("from mobility to receptance" in note for note in info["notes"])
     assert [c["excitation"] for c in info["channels"]] == ["hammer"] * 6
@@ -65,6 +82,24 @@ def test_accelerance_mobility_and_receptance_give_the_same_parameters(kinds, red
     used = table[table["used"]]
     assert used["frequency_hz"].between(*WINDOWS[0]).all()
     assert info["values"] == 2 * len(used) == 2 * info["selection"]["values_kept"]
+
+
+@pytest.mark.slow
+def test_a_g_per_newton_file_gives_the_si_parameters(kind_runs, reduced_settings_frozen, tmp_path):
+    """Units through the update (moved from tests/flows/test_measured_units_flow.py, whose SI run was this module's
+    accelerance run): hammer.uff in g/N (``write_variant`` of tests/tasks/test_measured_units.py, read back to 1e-10
+    relative) gives the SI file's parameters to SAME_TOL; the mm/s and lbf files reach the fit as the same residual
+    vectors (that module's tests), which with the same deterministic run gives the same parameters. The run records
+    the unit and its conversion in the manifest."""
+    _, summaries = kind_runs
+    g = _window_run(tmp_path / "runs", "g", write_variant(tmp_path / "g.uff", "g"), reduced_settings_frozen)
+    reference = np.array(list(summaries["accelerance"]["parameters"].values()))
+    assert np.max(np.abs(reference)) > 0.01  # the run moved: equal parameters are not the start point
+    np.testing.assert_allclose(np.array(list(g["parameters"].values())), reference, rtol=0, atol=SAME_TOL)
+    info = json.loads((tmp_path / "runs" / "g" / "manifest.json").read_text())["measured_data"]
+    assert [c["unit"] for c in info["channels"]] == ["g/N"] * 6
+    assert any(note.startswith("unit g/N (accelerance) in 6 dataset(s)") and "x 9.80665" in note
+               for note in info["notes"])
 
 
 def test_the_closure_takes_the_hammer_test_only_as_the_models_default_excitation(tmp_path):
@@ -100,7 +135,9 @@ def test_the_hammer_test_selects_its_two_resonances():
 def test_two_references_at_once_run_through_the_flow(reduced_settings, prefect_harness, tmp_path):
     """MIMO: three responses under the hammer (UFF-style node labels) and three under the combined load (names),
     made with the direct solver at the actual alpha; the run evaluates all six channels per FE run, and the
-    intervals stack the two references in one error model."""
+    intervals stack the two references in one error model. posterior_fe = 0: the Laplace intervals, where the
+    stacking is; this reduced run ends far from the optimum, where the linearity check would otherwise sample the
+    posterior with 400 FE runs of both references (the sampled path: tests/flows/test_intervals_stage.py)."""
     from tasks.io.measured import MeasuredFRF
 
     model = load_model("three_plate")
@@ -111,13 +148,13 @@ def test_two_references_at_once_run_through_the_flow(reduced_settings, prefect_h
                            "s3", "s5"), references=("5:+z", "5:+z", "5:+z", None, None, None))
     path = write_measured(tmp_path / "mimo.csv", measured)
     config = UpdateConfig(run_id="mimo", runs_dir=str(tmp_path / "runs"), measured=str(path),
-                          **{**reduced_settings, "intervals": True})
+                          **{**reduced_settings, "intervals": True, "posterior_fe": 0})
     summary = update.update_flow(config)
     info = json.loads((tmp_path / "runs" / "mimo" / "manifest.json").read_text())["measured_data"]
     assert [c["excitation"] for c in info["channels"]] == ["hammer"] * 3 + ["combined"] * 3
     assert [c["sensor"] for c in info["channels"]] == ["s2", "s4", "s6", "s1", "s3", "s5"]
     assert "intervals_skipped" not in summary and set(summary["intervals"]) == set(summary["parameters"])
-    assert summary["interval_details"]["references"] == 2
+    assert summary["interval_details"]["references"] == 2 and summary["interval_method"] == "laplace"
     assert len(summary["per_sensor_error"]) == 6
     stage = tmp_path / "runs" / "mimo" / "iteration=1" / "stage=fe"
     fe, runs = pd.read_parquet(stage / "responses.parquet"), pd.read_parquet(stage / "runs.parquet")

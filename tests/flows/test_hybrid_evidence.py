@@ -21,7 +21,7 @@ import pytest
 from flows import update
 from flows.config import REPO, UpdateConfig
 from flows.problem import load_model
-from tasks import evidence as etasks
+from strategies import hybrid as hybrid_strategy
 from tasks.runstore import RunStore
 
 MODEL = "data/examples/cantilever_matrices/model.toml"
@@ -50,33 +50,31 @@ def test_an_undeclared_point_mass_ends_the_search_for_basins_with_the_mass_named
     reported = np.array([summary["parameters"][f"alpha_{i + 1}"] for i in range(4)])
     np.testing.assert_allclose(reported, best["alpha"], atol=1e-9)
     assert summary["fe_equivalents"] < 150.0  # the run without the evidence spent 227.5 on four cycles
-    assert store.is_finished(1, etasks.EVIDENCE_STAGE) and store.is_finished(2, etasks.WEIGH_STAGE)
+    assert store.is_finished(1, hybrid_strategy.EVIDENCE_STAGE) and store.is_finished(2, hybrid_strategy.WEIGH_STAGE)
 
 
 def test_the_strategy_in_memory_weighs_the_same_evidence_after_the_same_fe_runs(point_mass_run, in_memory_fe):
-    """One strategy, two drivers (as ``test_hybrid_flow.py``): :class:`strategies.hybrid.Hybrid` with
-    the screen makes the flow's FE runs and stops on the same evidence."""
-    from fe_core.closure.evidence import screen_points
+    """One strategy, one driver (as ``test_hybrid_flow.py``): the registry's hybrid on an in-memory memo, run by
+    ``run_loop``, makes the run's FE runs and stops on the same evidence, with the same report."""
     from flows.rerun import run_problem
-    from strategies.base import run_loop
-    from strategies.hybrid import Hybrid
-    from tasks.hybrid import hybrid_options
+    from strategies import registry
+    from strategies.base import InMemory, run_loop
+    from tasks.context import context
     from tasks.record import history as run_history
 
     summary, store = point_mass_run
     config = UpdateConfig(run_id="pm", runs_dir=str(store.root.parent), measured=str(DATA / "measured_point_mass.csv"),
                           **SETTINGS)
     problem = run_problem(config)
-    evaluate = in_memory_fe(problem)
-
-    model, why = etasks.screen_model(problem)
-    assert not why
-    strategy = Hybrid(problem.nominal, problem.data, *problem.solver_box, hybrid_options(config),
-                      screen=lambda points: screen_points(model, problem.data, points))
-    decision = run_loop(strategy, evaluate)
+    memo = InMemory()
+    strategy = registry.get("hybrid").make(context(problem, memo), config)
+    decision = run_loop(strategy, in_memory_fe(problem))
     assert decision.stop and not decision.converged and strategy.status == "effect"
-    assert strategy.evidence.choice == summary["evidence"]["choice"] == "closure"
-    assert strategy.evidence.rss_effect == pytest.approx(summary["evidence"]["rss_effect"], rel=1e-6)
+    assert strategy.decision["choice"] == summary["evidence"]["choice"] == "closure"
+    assert strategy.decision["rss_effect"] == pytest.approx(summary["evidence"]["rss_effect"], rel=1e-6)
+    assert (1, "evidence") in memo.steps and (2, "weigh") in memo.steps
+    report = strategy.report()
+    assert report.stop_reason == summary["stop_reason"] and report.candidates == [summary["best_sample_id"]]
     flow = run_history(store)
     memory = strategy.result().history
     assert len(memory) == len(flow) == summary["fe_evaluations"]
@@ -100,6 +98,6 @@ def test_without_an_effect_the_global_round_reaches_the_floor_and_nothing_is_wei
     summary = update.update_flow(config)
     store = RunStore(tmp_path / "runs" / "clean")
     assert summary["converged"] and summary["iterations"] == 2
-    assert store.is_finished(1, etasks.EVIDENCE_STAGE) and not store.is_finished(2, etasks.WEIGH_STAGE)
+    assert store.is_finished(1, hybrid_strategy.EVIDENCE_STAGE) and not store.is_finished(2, hybrid_strategy.WEIGH_STAGE)
     assert summary["evidence"]["choice"] is None and len(summary["evidence"]["screens"]) == 2
     assert max(abs(summary["parameters"][f"alpha_{i + 1}"] - t) for i, t in enumerate(truth)) < 1e-3

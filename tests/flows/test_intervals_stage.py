@@ -12,14 +12,15 @@ from scipy import stats
 
 from fe_core.benchmark import ALPHA_ACTUAL
 from flows import update
-from flows.summary import LEAST_SQUARES_SOURCE, report_least_squares_optimum
+from flows.summary import LEAST_SQUARES_SOURCE, report_least_squares_optimum, summary_interval_fields
 from flows.config import ConfigError, UpdateConfig, load_config
 from tasks.intervals import INTERVALS_STAGE
 from tasks.runstore import RunStore
 
 
 def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_reruns_them(reduced_config,
-                                                                                          prefect_harness):
+                                                                                          prefect_harness,
+                                                                                          check_summary):
     # posterior_fe = 0: the Laplace intervals whatever the check would say (the sampled path: the next test).
     # emulate = "errors": the paper's emulation ends this reduced run far from the optimum, which the sampled
     # path below needs (the modal one ends near enough for the linearity check to pass).
@@ -28,6 +29,7 @@ def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_reruns_
     summary = update.update_flow(config)
     root = Path(config.runs_dir) / config.run_id
     on_disk = json.loads((root / "summary.json").read_text())
+    check_summary(on_disk)  # the one shape, with its intervals
     names = list(summary["parameters"])
     for key in ("intervals", "covariance", "interval_method", "noise_sigma"):
         assert on_disk[key] == summary[key]
@@ -35,8 +37,9 @@ def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_reruns_
     cov = np.array(summary["covariance"], float)
     assert cov.shape == (6, 6) and np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) > 0)
     est = np.array([summary["interval_details"]["estimate"][n] for n in names])
-    low, high = np.array([summary["intervals"][n] for n in names]).T
+    low, high, sd = np.array([[summary["intervals"][n][k] for k in ("lower95", "upper95", "sd")] for n in names]).T
     z = stats.norm.ppf(0.975)  # noise given: normal quantile
+    np.testing.assert_allclose(sd, np.sqrt(np.diag(cov)), rtol=1e-12)
     np.testing.assert_allclose(low, est - z * np.sqrt(np.diag(cov)), rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(high, est + z * np.sqrt(np.diag(cov)), rtol=1e-12, atol=1e-15)
     cost = summary["interval_cost"]
@@ -86,7 +89,7 @@ def test_summary_has_intervals_covariance_and_method_and_a_changed_noise_reruns_
     assert np.all(low >= -1.0) and np.all(high <= 1.0) and np.all(low <= high)  # on the search box
     assert d["laplace"]["intervals"] == info["intervals"]  # the Laplace ones kept beside
     out = io.StringIO()
-    update.print_summary({**summary, **sampled}, file=out)
+    update.print_summary({**summary, **summary_interval_fields(sampled)}, file=out)
     assert "importance sampling of the posterior" in out.getvalue() and "why: importance" in out.getvalue()
 
 
@@ -116,7 +119,7 @@ def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(t
     X = rng.normal(size=(40, 3))
     X[:, 2] = 0.02 * X[:, 2]  # alpha_3 barely seen: a wide interval
     iv = laplace_intervals(0.01 * rng.normal(size=40), X, [0.1, 0.999, -0.2], noise=0.01, lower=-0.999, upper=1.0)
-    summary = {**iv.to_summary(), "interval_cost": {"fe_runs": 1, "jacobians": 1}}
+    summary = {**summary_interval_fields(iv.to_summary()), "interval_cost": {"fe_runs": 1, "jacobians": 1}}
     data = SimpleNamespace(summary=summary, true_parameters=np.array([0.1, 0.999, -0.2]), config={})
     section = intervals_section(data, tmp_path)
     assert (tmp_path / "intervals.png").stat().st_size > 10_000
@@ -139,7 +142,8 @@ def test_report_section_draws_marginals_and_correlations_and_repeats_the_flags(t
     check = LinearityCheck(names=names, checked=np.array([False, True, False]), ratio=np.full((3, 2), np.nan),
                            outside=np.array([[False, False], [False, True], [False, False]]), tolerance=0.25,
                            fe_runs=1)
-    sampled = {**sampled_summary(iv, check, post, 200), "interval_cost": {"fe_runs": 201, "jacobians": 1},
+    sampled = {**summary_interval_fields(sampled_summary(iv, check, post, 200)),
+               "interval_cost": {"fe_runs": 201, "jacobians": 1},
                "iterations": 2}
     folder = tmp_path / "run" / "iteration=2" / "stage=intervals"
     folder.mkdir(parents=True)

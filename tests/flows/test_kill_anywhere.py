@@ -6,7 +6,7 @@ SIGKILL there) and then started again with the same ``--run-id``; after the
 last kill it runs to the end. One uninterrupted run (``reference``) of the
 same settings, shared by the tests of the module, is the yardstick. Then:
 
-* both ``summary.json`` are equal apart from timings and the folder;
+* both ``summary.json`` are equal apart from timings and the run's id and folder;
 * every Parquet table of every stage is equal (apart from FE timing columns);
 * ``fe_evaluations.jsonl`` holds exactly one FE run per sample, for every
   sample: none evaluated twice, none lost (an FE run whose result the kill
@@ -22,6 +22,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -32,21 +33,24 @@ from flows.config import REPO
 from tasks.fe_runs import read_fe_log
 from tasks.runstore import RunStore
 
-TIMING_KEYS = {"wall_seconds", "run_folder"}
+TIMING_KEYS = {"wall_seconds", "run_folder", "run_id"}  # the time and the name of the run
 
-#: (point pattern for MRGP_KILL_AT, what it interrupts). The reduced run has 3 iterations:
-#: samples 0-7 in iteration 1, 8-11 in iteration 2, 12-15 in iteration 3 (which stops after 'errors'),
-#: then the polish (stage=polish of iteration 3) with FE runs 16-22, then the summary.
+#: (point pattern for MRGP_KILL_AT, what it interrupts), in the order the run passes them, each a distinct place in
+#: the code: tasks/runstore.py's atomic write and stage record, tasks/fe_runs.py's FE result and its log line, the
+#: driver's step and FE-stage records, the summary. Every step's tables go through one write (tasks/driver.py): a
+#: kill in iteration 2's select.parquet write repeated predict's point (every later resume replays iteration 1).
+#: The reduced run has 3 iterations: samples 0-7 in iteration 1, 8-11 in iteration 2, 12-15 in iteration 3 (which
+#: stops after its FE runs), then the polish (stage=polish of iteration 3) with FE runs 16-22, then the summary. An
+#: iteration's FE stage is recorded when the strategy moves on: after the steps its results lead to
+#: (distribution .. select).
 KILL_POINTS = [
-    ("tables-written/iteration=1/stage=samples", "inside samples: table written, record not"),
     ("before-rename:*/iteration=1/stage=fe/sample=000003.parquet", "inside fe: FE result written, not renamed"),
     ("fe-result-written/iteration=1/sample=5", "inside fe: FE result on disk, log line not written"),
-    ("tables-written/iteration=1/stage=errors", "inside errors: tables written, record not"),
     ("before-rename:*/iteration=1/stage=distribution/_stage.json", "inside distribution: record half-written"),
     ("tables-written/iteration=1/stage=train", "inside train: hyper-parameters written, record not"),
     ("before-rename:*/iteration=1/stage=predict/candidates.parquet", "inside predict: during the Parquet write"),
-    ("stage-finished/iteration=1/stage=select", "between iterations 1 and 2"),
-    ("before-rename:*/iteration=2/stage=select/select.parquet", "inside select: during the Parquet write"),
+    ("stage-finished/iteration=1/stage=select", "after select, before the FE stage's record"),
+    ("tables-written/iteration=1/stage=fe", "the FE stage's tables written, its record not"),
     ("before-rename:*/summary.json", "during the summary write, after the polish"),
 ]
 #: Inside the polish (a run of its own: see test_kill_inside_the_polish...).
@@ -131,7 +135,7 @@ def _assert_same_run(victim: Path, ref_root: Path, recovered: list[int]) -> None
     assert not [e for e in log if e["event"] == "discarded"]
     assert max(runs_per_sample.values()) == 1, "an FE sample was evaluated twice"
     store = RunStore(victim)
-    expected = {(k, int(sid)) for k in (1, 2, 3) for sid in store.read_table(k, "samples")["sample_id"]}
+    expected = {(k, int(sid)) for k in (1, 2, 3) for sid in store.read_table(k, "fe", "runs")["sample_id"]}
     expected |= {(3, int(sid)) for sid in store.read_table(3, "polish", "runs")["sample_id"]}
     assert set(runs_per_sample) == expected, "an FE sample was lost"
     assert len(expected) == got["fe_evaluations"] == 16 + got["polish"]["n"]
@@ -156,3 +160,45 @@ def test_kill_inside_the_polish_then_resume_gives_the_uninterrupted_run(referenc
     _kill_chain(cfg, victim, POLISH_KILL_POINTS, prefect_server)
     assert 16 + json.loads((victim / "summary.json").read_text())["polish"]["n"] > 20  # 18, 20 inside the polish
     _assert_same_run(victim, ref_root, recovered=[20])
+
+
+@pytest.mark.slow
+def test_sigkill_from_outside_during_the_fe_stage_of_iteration_2_then_resume_gives_the_same_run(reference_run,
+                                                                                                prefect_server):
+    """A kill at no named point: the process group killed from outside while an FE run of iteration 2 is under way
+    (each slowed by 0.4 s, so that the kill lands inside the stage), then resumed: the same summary, each sample
+    evaluated once."""
+    cfg, ref_root = reference_run
+    victim_root = ref_root.parent / "victim-outside"
+    victim = _start(["--config", str(cfg), "--run-id", victim_root.name],
+                    {**prefect_server, "MRGP_FE_DELAY_SECONDS": "0.4"})
+    log_path = victim_root / "fe_evaluations.jsonl"
+    deadline = time.time() + 240
+    killed_after = None
+    while time.time() < deadline and victim.poll() is None:
+        if log_path.exists():
+            entries = [json.loads(x) for x in log_path.read_text().splitlines() if x.strip()]
+            in_iteration_2 = [e for e in entries if e["iteration"] == 2]
+            if in_iteration_2:
+                os.killpg(victim.pid, signal.SIGKILL)
+                killed_after = len(in_iteration_2)
+                break
+        time.sleep(0.05)
+    victim.communicate(timeout=60)
+    assert killed_after is not None, "the run ended before the FE stage of iteration 2 could be interrupted"
+    assert killed_after < 4, "the FE stage had already finished when the kill arrived"
+    assert not (victim_root / "summary.json").exists()
+    assert not RunStore(victim_root).is_finished(2, "fe")
+
+    resumed = _start(["--config", str(cfg), "--run-id", victim_root.name], prefect_server)
+    out = _finish(resumed)
+    assert resumed.returncode == 0, out[-3000:]
+
+    reference = json.loads((ref_root / "summary.json").read_text())
+    again = json.loads((victim_root / "summary.json").read_text())
+    assert {k: v for k, v in again.items() if k not in TIMING_KEYS} == {
+        k: v for k, v in reference.items() if k not in TIMING_KEYS}
+    entries = [json.loads(x) for x in log_path.read_text().splitlines()]
+    ids = [e["sample_id"] for e in entries]
+    assert len(ids) == len(set(ids)) == again["fe_evaluations"], "an FE sample was evaluated twice or lost"
+    assert "resumes" in RunStore(victim_root).read_manifest()

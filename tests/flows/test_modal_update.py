@@ -30,15 +30,21 @@ def _run(tmp_path, measured, *extra):
 
 
 @pytest.mark.parametrize("measured", ["data/examples/modal/modes.uff", "data/examples/modal/modes_oma.csv"])
-def test_modal_update_recovers_the_actual_alpha_within_its_intervals(tmp_path, measured):
+def test_modal_update_recovers_the_actual_alpha_within_its_intervals(tmp_path, measured, check_summary):
     s = _run(tmp_path, measured)
-    assert all(s["inside95"].values()), s["parameters"]
-    sd = np.array([p["sd"] for p in s["parameters"].values()])
+    check_summary(s)  # the one shape of every run (tasks/io/summary.schema.json)
+    assert s["kind"] == "modal" and s["converged"] and s["run_folder"] == str(tmp_path / "r")
+    # the shape from before the schema (parameters as {value, sd, lower95, upper95}) is refused
+    old = {**s, "parameters": {n: {"value": v, **s["intervals"][n]} for n, v in s["parameters"].items()}}
+    with pytest.raises(AssertionError, match=r"parameters/alpha_1: \{.*\} is not of type 'number'"):
+        check_summary(old)
+    assert all(s["intervals_contain_truth"].values()), s["parameters"]
+    sd = np.array([s["intervals"][n]["sd"] for n in s["parameters"]])
     # the figure for 6 modes at 18 nodes with these noise levels: sd 0.004 - 0.023 (OMA: a little wider)
     assert 0.002 < sd.min() and sd.max() < 0.03
-    assert s["fe_runs"] >= s["jacobians"] - 1 > 0
+    assert s["fe_evaluations"] >= s["jacobians"] - 1 > 0
     lines = (tmp_path / "r" / "modal_runs.jsonl").read_text().splitlines()
-    assert len(lines) == s["fe_runs"]
+    assert len(lines) == s["fe_evaluations"]
     for name in ("mac_before.png", "mac_after.png", "shapes_after.png", "correlation_before.json", "report.html",
                  "correlation_after.json"):
         assert (tmp_path / "r" / name).exists()

@@ -14,7 +14,7 @@ from flows.run import write_manifest
 from strategies.emulation import AUTO_REDUCED_ABOVE, reduced_outputs
 from tasks.runstore import RunStore
 
-TIMING_KEYS = {"wall_seconds", "run_folder"}
+TIMING_KEYS = {"wall_seconds", "run_folder", "run_id"}  # the time and the name of the run
 
 
 def _strip(summary: dict) -> dict:

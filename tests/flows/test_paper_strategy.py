@@ -1,5 +1,6 @@
-"""The paper's loop, one strategy with two drivers: the flow's stages and :class:`PaperLoop` in memory make the
-same samples from the same FE results (the residual emulation of the paper, and the modal emulation)."""
+"""The paper's loop under the one driver: the stored run's stages and the same strategy in memory (the registry's
+entry on an in-memory memo, run by ``run_loop``) make the same samples from the same FE results (the residual
+emulation of the paper, and the modal emulation)."""
 
 from __future__ import annotations
 
@@ -7,11 +8,11 @@ import numpy as np
 import pytest
 
 from flows import update
-from tasks.record import history as run_history
 from flows.rerun import run_problem
-from strategies.base import Outcome, run_loop
-from strategies.paper import PaperLoop
-from tasks.paper import modal_layout, paper_options
+from strategies import registry
+from strategies.base import InMemory, Outcome, run_loop
+from tasks.context import context
+from tasks.record import history as run_history
 
 
 #: How far the two drivers' samples may lie apart. The residual emulation selects among discrete candidate draws:
@@ -34,18 +35,20 @@ def test_the_loop_in_memory_makes_the_flows_samples(emulate, reduced_config, pre
         out = []
         for x in batch.points:
             Z = problem.model.parameter_frf(x, problem.freqs_hz, problem.channels)
-            modes = problem.model.modal_terms(x, problem.modes, problem.channels) if problem.modes else None
+            modes = problem.model.modal_terms(x, problem.modes, problem.channels) if batch.modes else None
             out.append(Outcome(Z[line, channel], modes=modes))
         return out
 
-    layout = modal_layout(problem) if problem.modes else None
-    loop = PaperLoop(paper_options(config), problem.data, problem.lower, problem.upper,
-                     problem.solver_box, layout)
+    memo = InMemory()
+    loop = registry.get(config.strategy).make(context(problem, memo), config)
     decision = run_loop(loop, evaluate)
     flow = run_history(config.resolve(config.runs_dir) / config.run_id)
     assert [k for k, _, _ in loop.history] == list(range(1, summary["iterations"] + 1))
+    assert sorted(memo.steps) == [(k, s) for k in range(1, summary["iterations"])
+                                  for s in ("distribution", "predict", "select", "train")]
     X = np.vstack([points for _, points, _ in loop.history])
     assert len(X) == len(flow) == summary["fe_evaluations"] == 16
     np.testing.assert_allclose(X, np.array([h["x"] for h in flow]), rtol=0, atol=SAME_SAMPLES[emulate])
     x, error = loop.best()
     assert error == pytest.approx(summary["overall_error"], rel=1e-3) and decision.stop
+    assert loop.report().stop_reason == summary["stop_reason"]

@@ -12,12 +12,11 @@ import pytest
 from fe_core.benchmark import ALPHA_ACTUAL
 from flows import update
 from flows.problem import resolve
-from tasks.paper import loop_budget
 from flows.config import ConfigError, UpdateConfig
 from fe_core.inference.residual import relative_residual
 from strategies.polish import polish
 from tasks.io.measured import read_measured
-from tasks.polish import POLISH_STAGE, polish_task
+from strategies.polish import STAGE as POLISH_STAGE
 from tasks.runstore import RunStore
 
 REPO = Path(__file__).resolve().parents[2]
@@ -74,7 +73,7 @@ def test_polish_stage_is_counted_stored_and_resumes_from_its_fe_runs(reduced_con
     k = summary["iterations"]
     table = store.read_table(k, POLISH_STAGE, "runs")
     info = store.stage_info(k, POLISH_STAGE)
-    loop_runs = sum(len(store.read_table(i, "samples")) for i in range(1, k + 1))
+    loop_runs = sum(len(store.read_table(i, "fe", "runs")) for i in range(1, k + 1))
     # Counted: the budget is shared, the polish's runs are in fe_evaluations.
     assert loop_runs <= reduced_config.max_fe_evaluations - reduced_config.polish_max_fe
     assert summary["fe_evaluations"] == loop_runs + len(table) <= reduced_config.max_fe_evaluations
@@ -110,7 +109,11 @@ def test_polish_stage_is_counted_stored_and_resumes_from_its_fe_runs(reduced_con
     # ... and one stored result was damaged afterwards.
     damaged = files[2]
     damaged.write_bytes(b"not a parquet file")
-    again = polish_task.fn(str(root), resolve(reduced_config), reduced_config, k)
+    from strategies import registry
+    from tasks.driver import Driver
+
+    Driver(store, resolve(reduced_config), reduced_config, registry.get("adaptive")).run()  # the resume, replayed
+    again = store.stage_info(k, POLISH_STAGE)
     assert again["ran_now"] == len(lost) + 1  # only the lost and the damaged runs are made again
     pd.testing.assert_frame_equal(store.read_table(k, POLISH_STAGE, "runs").drop(columns="seconds"),
                                   table.drop(columns="seconds"))  # same ids, same points
@@ -131,7 +134,17 @@ def test_polish_settings_are_checked_and_can_be_switched_off(tmp_path):
         UpdateConfig(polish_target=0.0)
     with pytest.raises(ConfigError, match="polish_stall_rtol"):
         UpdateConfig(polish_stall_rtol=-0.1)
-    # Off, or for the conventional baseline, the loop keeps the whole budget.
+    # Off, or for the conventional baseline, the loop keeps the whole budget (as the strategies are built).
+    def loop_budget(config):
+        from flows.rerun import run_problem
+        from strategies import registry
+        from strategies.base import InMemory
+        from tasks.context import context
+
+        strategy = registry.get(config.strategy).make(context(run_problem(config), InMemory()), config)
+        first = strategy.parts[0] if hasattr(strategy, "parts") else strategy
+        return first.options.max_fe if hasattr(first.options, "max_fe") else first.options.max_cost
+
     assert loop_budget(UpdateConfig(polish=False)) == 240
     assert loop_budget(UpdateConfig(strategy="conventional")) == 240
     assert loop_budget(UpdateConfig(strategy="adaptive")) == 240 - 200

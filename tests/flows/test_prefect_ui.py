@@ -3,7 +3,7 @@ against it, and the run's pages opened in headless Chromium.
 
 Needs Debian's ``chromium`` and ``chromium-driver`` (``.ci/run`` installs them);
 nothing is downloaded at run time. Screenshots go to the test's tmp folder, and
-also to ``$MRGP_UI_SCREENSHOT_DIR`` when set (that is how ``docs/prefect-ui-*.png``
+also to ``$MRGP_UI_SCREENSHOT_DIR`` when set (that is how ``docs/figures/prefect-ui-*.png``
 were made).
 """
 
@@ -193,7 +193,7 @@ def test_the_prefect_ui_shows_the_run_its_iterations_their_tasks_and_logs(server
     sub = iterations[f"iteration-{k}"]
     tasks = _api(base, "/task_runs/filter", {"flow_runs": {"id": {"any_": [sub["id"]]}}})
     names = sorted(t["name"] for t in tasks)
-    assert {f"iteration-{k}-samples", f"iteration-{k}-fe", f"iteration-{k}-errors"} <= set(names), names
+    assert {f"iteration-{k}-fe", f"iteration-{k}-distribution", f"iteration-{k}-train"} <= set(names), names
     assert all(t["state_type"] == "COMPLETED" for t in tasks)
     browser.get(f"{base}/runs/flow-run/{sub['id']}")
     fe_done = f"iteration {k}, stage fe: "

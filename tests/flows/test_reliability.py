@@ -29,8 +29,10 @@ from flows import update
 from flows.config import REPO
 from flows.problem import resolve
 from flows.run import write_manifest
+from strategies import registry
 from strategies.emulation import merge_duplicates, train_mrgp
-from tasks import paper
+from tasks import record
+from tasks.driver import Driver
 from tasks.fe_runs import read_fe_log
 from tasks.io.measured import read_measured
 from tasks.runlock import LOCK_NAME, RunLock, RunLockedError
@@ -44,13 +46,11 @@ def measured():
     return read_measured(MEASURED)
 
 
-def first_stages(config, measured) -> RunStore:
+def first_stages(config, measured=None) -> RunStore:
+    """The run folder after iteration 1's FE stage and the steps after it (the driver without Prefect)."""
     store = RunStore(config.resolve(config.runs_dir) / config.run_id)
-    root = str(store.root)
-    problem = resolve(config)
-    paper.samples_task.fn(root, problem, config, 1)
-    paper.fe_task.fn(root, problem, config, 1)
-    paper.errors_task.fn(root, problem, config, 1)
+    driver = Driver(store, resolve(config), config, registry.get(config.strategy))
+    driver.run_stage(driver.first())
     return store
 
 
@@ -77,27 +77,29 @@ def _wrong_schema(path: Path) -> None:
 def test_a_damaged_stage_file_is_never_read_and_its_stage_is_recomputed(
         damage, why, reduced_config, measured, caplog):
     store = first_stages(reduced_config, measured)
-    path = store.path(1, "errors", "errors")
-    good = store.read_table(1, "errors", "errors")
+    path = store.path(1, "train", "hyperparameters")
+    good = store.read_table(1, "train", "hyperparameters")
     damage(path)
     with pytest.raises(CorruptFileError, match=f"{path}: {why}"):
-        store.read_table(1, "errors", "errors")  # every read-back is checked, not only the resume
+        store.read_table(1, "train", "hyperparameters")  # every read-back is checked, not only the resume
+    from tasks.driver import StoredMemo
+
     with pytest.raises(CorruptFileError, match=str(path)):
-        paper.training_data(store, 1)
+        StoredMemo(store)._read(1, "train")  # the driver's read-back of a step too
     with caplog.at_level(logging.WARNING):
-        assert not store.is_finished(1, "errors")
+        assert not store.is_finished(1, "train")
     assert f"{path}: {why}" in caplog.text and "will be recomputed" in caplog.text
-    paper.errors_task.fn(str(store.root), resolve(reduced_config), reduced_config, 1)
-    pd.testing.assert_frame_equal(good, store.read_table(1, "errors", "errors"))
+    first_stages(reduced_config)  # the resumed strategy computes the step again
+    pd.testing.assert_frame_equal(good, store.read_table(1, "train", "hyperparameters"))
 
 
 def test_a_stage_record_written_half_is_a_stage_not_finished(reduced_config, measured):
     store = first_stages(reduced_config, measured)
-    record = store.stage_dir(1, "errors") / "_stage.json"
-    record.write_text(record.read_text()[:20])
-    assert not store.is_finished(1, "errors")
+    stage_record = store.stage_dir(1, "distribution") / "_stage.json"
+    stage_record.write_text(stage_record.read_text()[:20])
+    assert not store.is_finished(1, "distribution")
     with pytest.raises(CorruptFileError, match="not part of a finished stage"):
-        store.read_table(1, "errors", "errors")
+        store.read_table(1, "distribution", "distribution")
 
 
 def test_damaged_fe_results_are_set_aside_logged_and_evaluated_again(reduced_config, measured, caplog):
@@ -111,8 +113,8 @@ def test_damaged_fe_results_are_set_aside_logged_and_evaluated_again(reduced_con
     df.to_parquet(other_alpha)
     _wrong_schema(wrong_schema)
     with caplog.at_level(logging.WARNING):
-        ran = paper.fe_task.fn(str(store.root), resolve(reduced_config), reduced_config, 1)
-    assert ran == 3
+        first_stages(reduced_config)
+    assert store.stage_info(1, "fe")["ran_now"] == 3
     for path, why in ((truncated, "unreadable"), (other_alpha, "computed for other parameters"), (wrong_schema, "wrong schema")):
         assert f"FE result {path}: {why}" in caplog.text
         assert len(list(path.parent.glob(path.name + ".corrupt-*"))) == 1  # kept for inspection
@@ -311,7 +313,7 @@ def test_the_flow_goes_on_through_duplicates_failed_fe_runs_and_constant_respons
     system), and one response that is the same for every sample."""
     from prefect.settings import PREFECT_API_URL, temporary_settings
 
-    config = reduced_config.replace(run_id="faults", max_fe_evaluations=30)  # iterations 1 (14 runs), 2, 3
+    config = reduced_config.replace(run_id="faults", max_fe_evaluations=30, q=14)  # iterations 1 (14 runs), 2, 3
     store = RunStore(config.resolve(config.runs_dir) / config.run_id)
     rng = np.random.default_rng(5)
     X = rng.uniform(-0.9, 1.0, (14, 6))
@@ -319,11 +321,9 @@ def test_the_flow_goes_on_through_duplicates_failed_fe_runs_and_constant_respons
     X[2] = X[0] + 1e-13
     X[3, 1] = -1.0
     singular = X[4].copy()
-    df = pd.DataFrame(X, columns=[f"alpha_{i}" for i in range(1, 7)])
-    df.insert(0, "iteration", np.int64(1))
-    df.insert(0, "sample_id", np.arange(14, dtype=np.int64))
-    store.write_table(1, "samples", "samples", df)
-    store.finish(1, "samples", ["samples"], {"n": 14})
+    import strategies.paper
+
+    monkeypatch.setattr(strategies.paper, "first_samples", lambda *args: X.copy())  # the loop's first batch
 
     cls = type(three_plate())
     real_frf = cls.frf
@@ -339,17 +339,24 @@ def test_the_flow_goes_on_through_duplicates_failed_fe_runs_and_constant_respons
     with temporary_settings({PREFECT_API_URL: prefect_server["PREFECT_API_URL"]}):
         summary = update.update_flow(config)
 
-    errors = store.read_table(1, "errors", "errors").set_index("sample_id")
-    assert list(errors.index[errors["status"] != "ok"]) == [3, 4]
-    messages = store.read_table(1, "fe", "runs").set_index("sample_id")["message"]
+    runs = store.read_table(1, "fe", "runs").set_index("sample_id")
+    np.testing.assert_array_equal(runs[[f"alpha_{i}" for i in range(1, 7)]].to_numpy(), X)
+    assert list(runs.index[runs["status"] != "ok"]) == [3, 4]
+    messages = runs["message"]
     assert "alpha_2 = -1.0 is outside the valid domain" in messages[3]
     assert "LinAlgError: singular matrix" in messages[4]
     log = read_fe_log(store.root)
     assert sorted(e["sample_id"] for e in log if e.get("status") == "failed") == [3, 4]
     assert summary["iterations"] == 3
-    ids, Xt, Yt, E = paper.training_data(store, 3)
-    assert 3 not in ids and 4 not in ids and np.all(np.isfinite(Yt))
-    assert np.ptp(Yt[:, 0]) == 0.0  # the constant response reached the MRGP
+    every = record.fe_runs(store, 3)
+    ok = every[(every["status"] == "ok") & (every["stage"] == "fe")]
+    assert 3 not in set(ok["sample_id"]) and 4 not in set(ok["sample_id"])
+    data = resolve(config).data
+    p, n = data.amplitude.shape
+    Yt = np.array([data.residuals(record.grid(record.responses(store, 3, [sid]), p, n, 6)[0])
+                   for sid in ok["sample_id"]])
+    assert np.all(np.isfinite(Yt))
+    assert np.ptp(Yt[:, 0]) == 0.0  # the constant response reached the loop's training data
     hyper = store.read_table(1, "train", "hyperparameters").set_index("name")["value"]
     assert hyper["length_scale_1"] > 1e-3  # not collapsed by the duplicates
     assert np.isfinite(summary["overall_error"]) and summary["fe_evaluations"] >= 14

@@ -114,6 +114,58 @@ def test_every_run_and_every_repeat_writes_its_model_vtu(runs):
         assert len(grid.point_data) == 6
 
 
+def test_every_summary_has_the_one_shape_and_a_broken_one_is_refused(runs, check_summary):
+    """The module's runs (an FRF run, repeats of the paper's loop and of the conventional baseline, the hybrid with
+    its intervals) validate against tasks/io/summary.schema.json; each way of breaking one is refused."""
+    import copy
+
+    import jsonschema
+
+    kinds = {name: check_summary(runs / name)["kind"] for name in ("single", "repeats", "conventional", "hybrid")}
+    assert kinds == {"single": "frf", "repeats": "repeats", "conventional": "repeats", "hybrid": "frf"}
+    repeats = json.loads((runs / "repeats" / "summary.json").read_text())
+    assert [r["run_id"] for r in repeats["runs"]] == ["repeats/repeat=0", "repeats/repeat=1"]
+    assert repeats["parameters"] == pytest.approx(
+        {n: np.mean([r["parameters"][n] for r in repeats["runs"]]) for n in repeats["parameters"]}, rel=1e-12)
+    hybrid = json.loads((runs / "hybrid" / "summary.json").read_text())
+    cov = np.array(hybrid["covariance"], float)
+    sd = np.array([hybrid["intervals"][n]["sd"] for n in hybrid["parameters"]])
+    np.testing.assert_allclose(sd, np.sqrt(np.diag(cov)), rtol=1e-12)
+
+    def broken(summary, change):
+        s = copy.deepcopy(summary)
+        change(s)
+        return s
+
+    first = next(iter(hybrid["parameters"]))
+    cases = {
+        "no version": broken(hybrid, lambda s: s.pop("schema_version")),
+        "another version": broken(hybrid, lambda s: s.update(schema_version=2)),
+        "unknown kind": broken(hybrid, lambda s: s.update(kind="deck")),
+        "intervals as pairs": broken(hybrid, lambda s: s["intervals"].update({first: [0.0, 1.0]})),
+        "a parameter as a dict": broken(hybrid, lambda s: s["parameters"].update({first: {"value": 0.1}})),
+        "intervals without covariance": broken(hybrid, lambda s: s.pop("covariance")),
+        "a field nobody documented": broken(hybrid, lambda s: s.update(extra=1)),
+        "a modal field in an FRF run": broken(hybrid, lambda s: s.update(chi2=1.0)),
+        "an FRF run called modal": broken(hybrid, lambda s: s.update(kind="modal")),
+        "stop reason missing": broken(hybrid, lambda s: s.pop("stop_reason")),
+        "a repeat of another kind": broken(repeats, lambda s: s["runs"][0].update(kind="repeats")),
+        "a repeat's parameters missing": broken(repeats, lambda s: s["runs"][1].pop("parameters")),
+        "intervals of other parameters": broken(hybrid, lambda s: s["intervals"].pop(first)),
+    }
+    accepted = []
+    for name, s in cases.items():
+        try:
+            check_summary(s)
+        except AssertionError:
+            continue
+        accepted.append(name)
+    assert accepted == []
+    schema = json.loads((REPO / "tasks" / "io" / "summary.schema.json").read_text())
+    with pytest.raises(jsonschema.ValidationError, match="is not of type 'number'"):
+        jsonschema.validate(cases["a parameter as a dict"], schema, cls=jsonschema.Draft202012Validator)
+
+
 def test_measured_amplitudes_recovered_from_the_run_equal_the_measurement_file(runs):
     data = load_run(runs / "single")
     measured = read_measured(REPO / "data" / "benchmark" / "measured.csv")

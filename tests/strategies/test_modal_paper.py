@@ -10,7 +10,7 @@ import pytest
 import scipy.sparse as sp
 
 from fe_core.modal_update import ModalResidual, fit_modes
-from strategies.modal_paper import noise_threshold, run_modal_paper
+from strategies.modal_paper import noise_threshold
 from fe_core.solvers.modal import eigenmodes
 from strategies.paper import PaperOptions
 
@@ -85,8 +85,13 @@ def test_the_paper_stages_are_stored_and_a_resume_replays_them_without_an_eigen_
     assert a["fe_runs_computed"] == a["fe_runs"] > 0
     store = RunStore(folder)
     assert all(store.is_finished(1, f"paper-{k}") for k in range(1, a["iterations"] + 1))
+    # the loop's steps are stages too (under the one driver), read back on the resume: no MRGP trained again
+    steps = [f"paper-{k}-{s}" for k in range(1, a["iterations"]) for s in ("distribution", "train", "predict", "select")]
+    assert all(store.is_finished(1, s) for s in steps)
+    trained = {s: store.stage_info(1, s)["seconds"] for s in steps if s.endswith("-train")}
     again = _residual(model, fn, sn)
     b = paper_task.fn(str(folder), again, LOWER, UPPER, OPTIONS)
     assert b["fe_runs_computed"] == 0 and b["fe_runs"] == a["fe_runs"]
     assert np.allclose(b["best"], a["best"]) and b["iterations"] == a["iterations"]
     assert all(h["stage"] == "fit" for h in again.history)  # only the nominal pairing: no loop eigen-solve
+    assert {s: store.stage_info(1, s)["seconds"] for s in trained} == trained  # the training records unchanged

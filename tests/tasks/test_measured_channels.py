@@ -243,7 +243,7 @@ def test_uff_mimo_accelerance_with_coherence(tmp_path, rng):
      ["dataset 3", "no coherence dataset"]),
     (lambda x: [_frf58((1, 3), (1, 3), x, np.ones(x.size) * 1e-3),
                 _frf58((1, 3), (1, 3), x, np.full(x.size, 1.5), ordinate=0, func_type=6)],
-     ["dataset 1 (response 1:+z, reference 1:+z) point 1", "coherence 1.5"]),
+     ["dataset 2 (coherence of response 1:+z, reference 1:+z) point 1", "coherence 1.5"]),
     (lambda x: [_frf58((1, 3), (1, 3), x, np.ones(x.size) * 1e-3),
                 _frf58((5, 3), (1, 3), x, np.full(x.size, 0.9), ordinate=0, func_type=6)],
      ["dataset 2", "belongs to no FRF"]),

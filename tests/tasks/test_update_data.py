@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-
 import numpy as np
-import pandas as pd
 import pytest
 
 from fe_core.benchmark import ALPHA_ACTUAL
@@ -12,7 +10,6 @@ from fe_core.inference.residual import relative_residual
 from tasks.io.measured import MeasuredDataError, MeasuredFRF
 from tasks.lines import resonance_windows, select_lines
 from flows.problem import load_model as _load
-from tasks.paper import residual_matrix
 
 
 def load_model(name):
@@ -96,20 +93,6 @@ def test_complex_residuals_need_phase(model):
     assert update_data(amplitude_only, model).residual == "amplitude"
     with pytest.raises(ValueError, match="holds amplitudes only"):
         update_data(amplitude_only, model, residuals="complex")
-
-
-def test_residual_tables_read_back_in_the_residual_vectors_layout(model):
-    """errors/polish write long rows per kept value; the MRGP's matrix must be the residual vectors again."""
-    coherence = np.ones((FREQS.size, 3))
-    coherence[1, 2] = coherence[3, 0] = 0.5  # two values left out
-    m = _measured(model, ["s2", "s4", "s6"], ["hammer"] * 3, coherence=coherence)
-    d = update_data(m, model, min_coherence=0.9)
-    assert d.mask.sum() == FREQS.size * 3 - 2 and d.selection["coherence_dropped"] == 2
-    rng = np.random.default_rng(3)
-    Zs = [model.frf_channels(ALPHA_ACTUAL * (1 + 0.1 * rng.standard_normal(6)), FREQS, *d.channels) for _ in range(3)]
-    table = pd.concat([pd.DataFrame({"sample_id": k, **d.residual_columns(Z)}) for k, Z in enumerate(Zs)])
-    Y = residual_matrix(table.sample(frac=1.0, random_state=1), [2, 0, 1])
-    np.testing.assert_array_equal(Y, np.stack([d.residuals(Zs[k]) for k in (2, 0, 1)]))
 
 
 def test_channel_errors_average_each_channels_kept_values(model):

@@ -62,9 +62,7 @@ def segment_stiffness(model: ParametricModel, i: int) -> sp.csr_matrix:
     model): a derivative with respect to alpha_i touches only the segment's rows."""
     cache = model.__dict__.setdefault("_segment_stiffness_cache", {})
     if i not in cache:
-        K = model.stiffness_segments.segment(i).copy()  # the segment shares the pattern's index arrays
-        K.eliminate_zeros()
-        cache[i] = K
+        cache[i] = model.stiffness_segments.own(i)
     return cache[i]
 
 

@@ -61,7 +61,7 @@ with supports as lists of node ids from the DOF table and sensors/excitations
 given by ``node`` (points need coordinates, which matrices do not carry).
 
 A CalculiX deck replaces ``mesh`` by ``solver = "calculix"`` and ``deck = "panel.inp"``
-(:mod:`.calculix_model`; docs/solver-decks.md).
+(:mod:`.calculix_model`; docs/guide/solver-decks.md).
 
 The package: :mod:`.spec` (loading, checks, shared tables), :mod:`.sensors` (sensors, excitations, test
 DOFs), :mod:`.mesh_model` and :mod:`.matrices_model` (the two builders); :func:`read_model_toml` here

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ...assembly import DOFS_PER_NODE, SegmentedMatrix, assemble, cell_dofs, free_dof_map
+from ...assembly import DOFS_PER_NODE, SegmentedMatrix, assemble_free, cell_dofs, free_dof_map
 from ...material import Material
 from ...model import ParametricModel
 from ..mesh_file import MeshFile, MeshFileError, read_mesh
@@ -18,6 +18,9 @@ from .sensors import _Locator, _sensors_and_excitation
 from .spec import UNITS, _fixed_dofs, _get, _keys, _segment_parameters, _Spec, _tables
 
 log = logging.getLogger(__name__)
+
+#: Cells whose element matrices are computed and assembled at once (memory ~ 20 kB a tet10 cell).
+ASSEMBLY_CHUNK = 20_000
 
 
 def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> ParametricModel:
@@ -92,30 +95,33 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
         seg_names.append(_get(spec, seg, "name", where, (str,), name))
     mass_parameters, bounds = _segment_parameters(spec, seg_tables, seg_names)
 
-    # Element matrices and assembly.
+    # Element matrices and assembly: a chunk of cells at a time, straight onto the free DOFs (a large mesh
+    # never holds every cell's element matrices at once).
     coords = mesh.nodes[mesh.cells] * length
-    Ke = np.empty((n_cells, coords.shape[1] * 3, coords.shape[1] * 3))
-    Me = np.empty_like(Ke)
-    for i, mat in enumerate(materials):
-        cells = np.flatnonzero(material_of == i)
-        try:
-            Ke[cells] = family.element_stiffness(coords[cells], mat.D, **options)
-            Me[cells] = family.element_mass(coords[cells], mat.rho)
-        except (ValueError, np.linalg.LinAlgError) as exc:
-            msg = re.sub(r"element (\d+)", lambda m: f"cell {cells[int(m.group(1))]}", str(exc), count=1)
-            raise spec.error("mesh", f"{mf.path.name}: {mf.cell_type} {msg}") from None
-    dofs = cell_dofs(mesh.cells)
-
     fixed = _mesh_supports(spec, mf)
     free = free_dof_map(n_total, fixed)
     _check_rigid_body_modes(spec, mesh.nodes * length, fixed)
-    ux = np.zeros(n_total)
-    ux[0::DOFS_PER_NODE] = 1.0
+    position = np.full(n_total, -1, dtype=np.int32 if free.size < 2**31 else np.int64)
+    position[free] = np.arange(free.size)
+    cell_matrices = _CellMatrices(mf.cell_type, coords, materials, material_of, options)
 
     def part(cells):
-        K = assemble(Ke[cells], dofs[cells], n_total)
-        M = assemble(Me[cells], dofs[cells], n_total)
-        return K[free][:, free], M[free][:, free], float(ux @ (M @ ux))
+        masses = []
+
+        def blocks(kind):
+            for start in range(0, cells.size, ASSEMBLY_CHUNK):
+                chunk = cells[start:start + ASSEMBLY_CHUNK]
+                try:
+                    Ae = cell_matrices.stiffness(chunk) if kind == "K" else cell_matrices.mass(chunk)
+                except (ValueError, np.linalg.LinAlgError) as exc:
+                    raise spec.error("mesh", f"{mf.path.name}: {mf.cell_type} {exc}") from None
+                if kind == "M":  # a rigid translation in x picks up each node's share of the mass once
+                    masses.append(float(Ae[:, 0::DOFS_PER_NODE, 0::DOFS_PER_NODE].sum()))
+                yield Ae, cell_dofs(mesh.cells[chunk])
+
+        K = assemble_free(blocks("K"), n_total, free)
+        M = assemble_free(blocks("M"), n_total, free)
+        return K, M, float(sum(masses))
 
     K_parts, M_parts, masses = zip(*(part(np.flatnonzero(owner == i)) for i in range(len(seg_tables))))
     rest = np.flatnonzero(owner < 0)
@@ -123,11 +129,13 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
     rest_mass = 0.0
     if rest.size:
         K0, M0, rest_mass = part(rest)
+    stiffness_segments = SegmentedMatrix.from_matrices(K_parts, K0)
+    del K_parts, K0
+    mass_segments = SegmentedMatrix.from_matrices(M_parts, M0)
+    del M_parts, M0
 
     tol = _get(spec, spec.data, "point_tolerance", "", (float,), 0.01 * float(np.ptp(mesh.nodes, axis=0).max()))
     locator = _Locator(spec, mf, mesh.nodes, None, tol)
-    position = np.full(n_total, -1)
-    position[free] = np.arange(free.size)
 
     def dof_of(node: int, component: int) -> int:
         return int(position[DOFS_PER_NODE * node + component])
@@ -136,15 +144,14 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
     mesh.nodes = mesh.nodes * length  # the model's mesh is in m
     model = ParametricModel(
         mesh=mesh, free_dofs=free,
-        stiffness_segments=SegmentedMatrix.from_matrices(K_parts, K0),
-        mass_segments=SegmentedMatrix.from_matrices(M_parts, M0),
+        stiffness_segments=stiffness_segments, mass_segments=mass_segments,
         segment_names=seg_names, damping=damping, segment_masses=list(masses),
         material=materials[0] if len(materials) == 1 else None,
         formulation=options.get("formulation") if mf.cell_type == "hexahedron" else None,
         outputs=outputs, load=load, sensor_names=names, excitation_name=exc_name, n_total_dofs=n_total,
         parameter_bounds=bounds, source=str(spec.path), remainder_mass=rest_mass, placements=placements,
         cell_segment=owner,
-        cell_stiffness=_cell_stiffness_of(family, coords, materials, material_of, options),
+        cell_stiffness=cell_matrices.stiffness,
         mass_parameters=mass_parameters, **extra,
     )
     log.info("%s: %d %s cells, %d nodes, %d free DOFs, %d segments, %d remainder cells", spec.path, n_cells,
@@ -152,20 +159,43 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
     return model
 
 
-def _cell_stiffness_of(family, coords: np.ndarray, materials: list, material_of: np.ndarray, options: dict):
-    """``cells -> (len(cells), d, d)`` element stiffness matrices (N/m) of a mesh model's cells, each with its
-    material: for effects that stiffen or weaken a set of cells (:mod:`fe_core.closure.effects`)."""
-    def cell_stiffness(cells: np.ndarray) -> np.ndarray:
-        cells = np.asarray(cells, dtype=int)
-        d = coords.shape[1] * DOFS_PER_NODE
-        Ke = np.empty((cells.size, d, d))
-        for i, mat in enumerate(materials):
-            mine = material_of[cells] == i
-            if mine.any():
-                Ke[mine] = family.element_stiffness(coords[cells[mine]], mat.D, **options)
-        return Ke
+class _CellMatrices:
+    """Element matrices of a mesh model's cells, each with its material: ``stiffness(cells)`` and
+    ``mass(cells)``, shape ``(len(cells), d, d)`` (N/m, kg); the assembly uses both and the model keeps
+    ``stiffness`` for effects that stiffen or weaken a set of cells (:mod:`fe_core.closure.effects`).
+    A plain object (the element family by its cell type), so a model can be pickled
+    (:mod:`fe_core.io.cache`)."""
 
-    return cell_stiffness
+    def __init__(self, cell_type: str, coords: np.ndarray, materials: list, material_of: np.ndarray,
+                 options: dict):
+        self.cell_type, self.coords, self.materials = cell_type, coords, materials
+        self.material_of, self.options = material_of, options
+
+    def _matrices(self, cells, kind: str) -> np.ndarray:
+        from ...elements import element_family
+
+        family = element_family(self.cell_type)
+        cells = np.asarray(cells, dtype=int)
+        d = self.coords.shape[1] * DOFS_PER_NODE
+        out = np.empty((cells.size, d, d))
+        for i, mat in enumerate(self.materials):
+            mine = self.material_of[cells] == i
+            if not mine.any():
+                continue
+            sub = cells[mine]
+            try:
+                out[mine] = (family.element_stiffness(self.coords[sub], mat.D, **self.options)
+                             if kind == "K" else family.element_mass(self.coords[sub], mat.rho))
+            except (ValueError, np.linalg.LinAlgError) as exc:  # name the mesh's cell, not the batch's element
+                msg = re.sub(r"element (\d+)", lambda m: f"cell {sub[int(m.group(1))]}", str(exc), count=1)
+                raise type(exc)(msg) from None
+        return out
+
+    def stiffness(self, cells) -> np.ndarray:
+        return self._matrices(cells, "K")
+
+    def mass(self, cells) -> np.ndarray:
+        return self._matrices(cells, "M")
 
 
 def _element_options(spec: _Spec, cell_type: str) -> dict:

@@ -32,7 +32,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     from tasks.io.measured.modes import describe_modes, is_modal_file, read_modes
 
-    if is_modal_file(args.path):  # measured modes (UFF dataset 55, the modal CSV): docs/modal-data.md
+    if is_modal_file(args.path):  # measured modes (UFF dataset 55, the modal CSV): docs/guide/modal-data.md
         try:
             modes = read_modes(args.path)
         except (MeasuredDataError, OSError) as exc:

@@ -41,8 +41,8 @@ _KIND_NAMES = {
     "accelerance": "accelerance", "inertance": "accelerance", "acceleration": "accelerance",
     "m/s^2/n": "accelerance", "(m/s^2)/n": "accelerance", "m/s2/n": "accelerance",
 }
-#: Power of (j w) that turns a receptance into each kind.
-_POWER = {"receptance": 0, "mobility": 1, "accelerance": 2}
+#: Power of (j w) that turns a receptance into each kind (the units a test system measures it in).
+POWER = {"receptance": 0, "mobility": 1, "accelerance": 2}
 
 
 def kind_of(text) -> str | None:
@@ -65,7 +65,7 @@ def to_receptance(values, frequencies_hz, kind: str):
     frequencies_hz : ndarray, Hz
     kind : {"receptance", "mobility", "accelerance"}
     """
-    k = _POWER[kind]
+    k = POWER[kind]
     if k == 0:
         return values
     jw = 2j * np.pi * np.asarray(frequencies_hz, float)
@@ -75,7 +75,7 @@ def to_receptance(values, frequencies_hz, kind: str):
 
 def from_receptance(values, frequencies_hz, kind: str):
     """The inverse of :func:`to_receptance`: receptance (m/N) to ``kind``."""
-    k = _POWER[kind]
+    k = POWER[kind]
     if k == 0:
         return values
     jw = 2j * np.pi * np.asarray(frequencies_hz, float)

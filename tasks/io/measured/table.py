@@ -47,13 +47,13 @@ included) from 1; Parquet ``row k`` counts data rows from 1.
 from __future__ import annotations
 
 import csv
-import io
 import re
 
 import numpy as np
 
 from .frf import KINDS, MeasuredDataError, MeasuredFRF, from_receptance, grid_from_rows, kind_of
 from .problems import Problems
+from .text import csv_lines
 from .units import SI_FRF_UNIT, UnitError, frf_unit
 
 __all__ = ["read_csv", "read_parquet", "write_csv", "write_parquet", "table_columns", "LEGACY_COLUMNS", "COLUMNS"]
@@ -222,38 +222,21 @@ def _grid(columns, where, source, declared, declared_at, unit, unit_at, problems
 
 # -- CSV ---------------------------------------------------------------------------------------
 def read_csv(path) -> MeasuredFRF:
-    records, where = [], []
     declared, declared_at, unit, unit_at, averages = None, "", None, "", None
-    try:
-        # utf-8-sig: spreadsheet programs put a byte-order mark before the header.
-        with open(path, newline="", encoding="utf-8-sig") as fh:
-            text = fh.read()
-        if "\x00" in text:
-            raise csv.Error("NUL byte in the file")
-        reader = csv.reader(io.StringIO(text, newline=""))
-        for record in reader:
-            if not record or (len(record) == 1 and not record[0].strip()):
-                continue
-            if record[0].lstrip().startswith("#"):
-                match = _DECLARATION.match(",".join(record).strip())
-                unit_match = _UNIT_DECLARATION.match(",".join(record).strip())
-                averages_match = _AVERAGES_DECLARATION.match(",".join(record).strip())
-                if averages_match:
-                    averages = (averages_match.group(1), f"line {reader.line_num}")
-                if unit_match:
-                    if unit is not None or len(records) > 1:
-                        raise MeasuredDataError(f"{path}: line {reader.line_num}: a second unit declaration or "
-                                                "one after data rows; one '# unit = ...' before the header or "
-                                                "the first data row, or a 'unit' column")
-                    unit, unit_at = unit_match.group(1), f"line {reader.line_num}"
-                if match:
-                    declared, declared_at = _declaration(match.group(1), f"line {reader.line_num}", path,
-                                                         declared, declared_at, len(records) > 1)
-                continue
-            records.append(record)
-            where.append(f"line {reader.line_num}")
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise MeasuredDataError(f"{path}: not a CSV text table ({exc})") from None
+    records, where, comments = csv_lines(path)
+    for text, place, before in comments:
+        match = _DECLARATION.match(text)
+        unit_match = _UNIT_DECLARATION.match(text)
+        averages_match = _AVERAGES_DECLARATION.match(text)
+        if averages_match:
+            averages = (averages_match.group(1), place)
+        if unit_match:
+            if unit is not None or before > 1:
+                raise MeasuredDataError(f"{path}: {place}: a second unit declaration or one after data rows; one "
+                                        "'# unit = ...' before the header or the first data row, or a 'unit' column")
+            unit, unit_at = unit_match.group(1), place
+        if match:
+            declared, declared_at = _declaration(match.group(1), place, path, declared, declared_at, before > 1)
     if not records:
         raise MeasuredDataError(f"{path}: empty file (no header line)")
     names = [name.strip() for name in records[0]]

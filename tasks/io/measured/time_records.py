@@ -35,7 +35,6 @@ a pulse, a double hit, a hit without one of the channels, a value that is not a 
 from __future__ import annotations
 
 import csv
-import io
 import re
 from pathlib import Path
 
@@ -44,6 +43,7 @@ import numpy as np
 from .frf import MeasuredDataError, dof_label, grid_from_rows, parse_dof
 from .problems import Problems
 from .records import Records, RecordOptions, h1_from_records
+from .text import csv_lines, open_uff
 from .units import UnitError, force_unit, numerator_unit
 
 __all__ = ["is_time_records", "read", "write_uff", "write_table", "FORCE_TYPE", "RESPONSE_TYPES"]
@@ -146,13 +146,7 @@ def _check_lengths(groups, problems):
 
 # -- UFF58 -------------------------------------------------------------------------------------
 def _read_uff(path) -> Records:
-    import pyuff
-
-    try:
-        uff = pyuff.UFF(str(path))
-        types = list(uff.get_set_types())
-    except Exception as exc:  # pyuff raises bare Exception
-        raise MeasuredDataError(f"{path}: not a UFF file ({exc})") from None
+    uff, types = open_uff(path)
     problems, hits, notes, unlabelled = Problems(path), {}, [], []
     for k, set_type in enumerate(types):
         if set_type != 58:
@@ -291,23 +285,13 @@ def _read_table(path) -> Records:
             declared[key.decode("utf-8", "replace")] = (value.decode("utf-8", "replace"), "the schema metadata")
         where = [f"row {i + 1}" for i in range(table.num_rows)]
     else:
-        try:
-            with open(path, newline="", encoding="utf-8-sig") as fh:
-                text = fh.read()
-        except UnicodeDecodeError as exc:
-            raise MeasuredDataError(f"{path}: not a CSV text table ({exc})") from None
-        rows = []
-        reader = csv.reader(io.StringIO(text, newline=""))
-        for record in reader:
-            if not record or (len(record) == 1 and not record[0].strip()):
-                continue
-            if record[0].lstrip().startswith("#"):
-                match = _DECLARATION.match(",".join(record).strip())
-                if match:
-                    declared[match.group(1).lower()] = (match.group(2), f"line {reader.line_num}")
-                continue
-            rows.append(record)
-            where.append(f"line {reader.line_num}")
+        rows, where, comments = csv_lines(path)
+        for text, place, _ in comments:
+            match = _DECLARATION.match(text)
+            if match:
+                declared[match.group(1).lower()] = (match.group(2), place)
+        if not rows:
+            raise MeasuredDataError(f"{path}: empty file (no header line)")
         names = [n.strip() for n in rows[0]]
         problems = Problems(path)
         body = []

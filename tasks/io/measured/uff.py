@@ -49,6 +49,7 @@ import re
 import numpy as np
 
 from .problems import Problems
+from .text import open_uff
 from .units import SI_FRF_UNIT, UnitError, frequency_unit, uff_units
 from .frf import (DIRECTION_NAMES, MeasuredDataError, MeasuredFRF, dof_label, from_receptance,
                   grid_from_rows, parse_dof)
@@ -80,13 +81,7 @@ _UNITS_LABEL = {"receptance": "m", "mobility": "m/s", "accelerance": "m/s^2"}
 
 
 def read(path) -> MeasuredFRF:
-    import pyuff
-
-    try:
-        uff = pyuff.UFF(str(path))
-        types = list(uff.get_set_types())
-    except Exception as exc:  # pyuff raises bare Exception
-        raise MeasuredDataError(f"{path}: not a UFF file ({exc})") from None
+    uff, types = open_uff(path)
     frfs, coherences, skipped, system = [], {}, 0, None
     problems = Problems(path)
     for k, set_type in enumerate(types):
