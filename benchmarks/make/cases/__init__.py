@@ -10,7 +10,7 @@ element size, scikit-fem's Q2 on the frame's hexahedra, ccx's matrices of a deck
 segments' factors drawn in [-0.3, 0.3], one effect (a point mass, a mount, a damaged patch; a mass layer or a
 flexible joint outside the tool's library) or none, lines from 0 Hz across 6-10 modes at 0.5 or 1 Hz, and the
 noise of an impact test (H1 and coherence of simulated hits: relative response noise, a sensor floor, force
-noise, fewer averages on some channels). ``truth.json`` holds what was drawn and made. docs/heldout.md says
+noise, fewer averages on some channels). ``truth.json`` holds what was drawn and made. docs/results/held-out.md says
 how, lists the sets and holds the development set's table (``python -m benchmarks.heldout``).
 
 Modules: :mod:`.sets` (ids, kinds, seeds), :mod:`.solids` (geometry and meshes), :mod:`.deck` (the shell deck),

@@ -110,7 +110,7 @@ def cards(cells=MODEL_MESH, factors=None, effect: dict | None = None) -> str:
 
 
 MODEL_TOML = """# A cantilevered aluminium C-channel of S8R shells, a CalculiX deck (route A).
-# Written by python -m benchmarks.make.cases (issue 40's held-out cases; docs/heldout.md).
+# Written by python -m benchmarks.make.cases (issue 40's held-out cases; docs/results/held-out.md).
 units = "SI"
 solver = "calculix"
 deck = "channel.inp"

@@ -40,7 +40,7 @@ def write_solid_model(s: dict, folder: Path, damping) -> dict:
     E, nu, rho = s["material"]
     h = s["sizes"][0] if s.get("sizes") else 0.015
     lines = [f"# {s['description']}.",
-             "# Written by python -m benchmarks.make.cases (issue 40's held-out cases; docs/heldout.md).",
+             "# Written by python -m benchmarks.make.cases (issue 40's held-out cases; docs/results/held-out.md).",
              'units = "SI"', f'mesh = "{s["name"]}.vtu"', f"point_tolerance = {h:.4g}   # m: the model's element size",
              "", "[damping]", f"a = {damping[0]!r}", f"b = {damping[1]!r}", ""]
     if s["model_cell_type"] == "hexahedron":
