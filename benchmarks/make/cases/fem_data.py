@@ -170,12 +170,31 @@ def x_dofs(basis) -> np.ndarray:
     return np.concatenate([np.asarray(p)[0].ravel() for p in parts if np.asarray(p).size])
 
 
+def _locate_mkl() -> None:
+    """Find MKL's runtime once and hand it to pypardiso (``PYPARDISO_MKL_RT``): pypardiso otherwise searches
+    ``sys.prefix`` with a recursive glob for every solver it makes (2-3 s each)."""
+    import ctypes.util
+    import glob
+    import os
+    import sys
+
+    if "PYPARDISO_MKL_RT" in os.environ:
+        return
+    path = ctypes.util.find_library("mkl_rt") or ctypes.util.find_library("mkl_rt.1")
+    if path is None:
+        found = glob.glob(f"{sys.prefix}/[Ll]ib*/**/*mkl_rt*", recursive=True)
+        path = sorted(found, key=len)[0] if found else None
+    if path is not None:
+        os.environ["PYPARDISO_MKL_RT"] = path
+
+
 class Factor:
     """PARDISO's factorisation of a real sparse matrix, as a solve."""
 
     def __init__(self, A):
         import pypardiso
 
+        _locate_mkl()
         self.A = sp.csr_matrix(A)
         self.solver = pypardiso.PyPardisoSolver(mtype=11)
         self.solver.factorize(self.A)
