@@ -23,6 +23,9 @@ from typing import Any
 from strategies import registry
 from strategies.options import Key, keys_of, setting
 from strategies.paper import EMULATES, TRAINERS
+from tasks.fe_backends import FE_BACKENDS
+from tasks.lines import LINE_MODES as LINES
+from tasks.update_data import RESIDUALS
 
 __all__ = ["UpdateConfig", "RunSettings", "KEYS", "ConfigError", "load_config", "stored_settings", "TRAINERS",
            "STRATEGIES", "EMULATES", "MODELS", "OUTPUTS", "LINES", "RESIDUALS", "parse_windows", "add_setting_flags",
@@ -31,10 +34,7 @@ __all__ = ["UpdateConfig", "RunSettings", "KEYS", "ConfigError", "load_config", 
 REPO = Path(__file__).resolve().parents[1]
 STRATEGIES = registry.names()
 MODELS = ("three_plate",)
-FE_BACKENDS = ("loky", "dask")  # tasks.fe_backends.FE_BACKENDS
 OUTPUTS = ("full", "reduced", "auto")  # strategies.emulation.reduced_outputs
-LINES = ("all", "windows", "resonances")  # tasks.lines.LINE_MODES
-RESIDUALS = ("auto", "amplitude", "complex")  # tasks.update_data.RESIDUALS
 
 #: Keys added after runs were made whose default changed what a run does: a run manifest without the key was
 #: made with this value (a run of the paper loop before ``emulate`` existed emulated the errors).
@@ -129,6 +129,9 @@ def _keys() -> list[Key]:
 
 #: Every key of the run's config, in the order of :class:`UpdateConfig`'s fields.
 KEYS = _keys()
+#: What a refused choice is called in its message ("unknown backend 'x'"), where not the key's name.
+CHOICE_WORDS = {"fe_backend": "backend", "emulate": "emulation", "outputs": "output model", "lines": "line selection",
+                "residuals": "residual"}
 
 
 class _Config:
@@ -145,19 +148,16 @@ class _Config:
                     "starts"):
             if getattr(self, key) < 1:
                 raise bad(key, f"must be at least 1, got {getattr(self, key)}")
+        for key in KEYS:  # the choices as each key declares them (``setting(choices=...)``)
+            value = getattr(self, key.name)
+            if key.choices and value not in key.choices:
+                raise bad(key.name, f"unknown {CHOICE_WORDS.get(key.name, key.name)} {value!r}; choose one of "
+                                    f"{', '.join(key.choices)}")
         if self.n_jobs == 0 or self.n_jobs < -1:
             raise bad("n_jobs", f"must be a positive number of processes or -1 (all cores), got {self.n_jobs}")
-        if self.fe_backend not in FE_BACKENDS:
-            raise bad("fe_backend", f"unknown backend {self.fe_backend!r}; choose one of {', '.join(FE_BACKENDS)}")
         if self.fe_backend == "dask" and not self.dask_address:
             raise bad("dask_address", "is required with fe_backend 'dask': the scheduler's address, "
                                       "e.g. tcp://127.0.0.1:8786")
-        if self.trainer not in TRAINERS:
-            raise bad("trainer", f"unknown trainer {self.trainer!r}; choose one of {', '.join(TRAINERS)}")
-        if self.emulate not in EMULATES:
-            raise bad("emulate", f"unknown emulation {self.emulate!r}; choose one of {', '.join(EMULATES)}")
-        if self.strategy not in STRATEGIES:
-            raise bad("strategy", f"unknown strategy {self.strategy!r}; choose one of {', '.join(STRATEGIES)}")
         if self.model not in MODELS:
             check_model_path(self, bad)
         if not self.threshold > 0:
@@ -193,8 +193,6 @@ class _Config:
             raise bad("polish_target", f"must be positive, got {self.polish_target}")
         if not 0 <= self.polish_stall_rtol < 1:
             raise bad("polish_stall_rtol", f"must be in [0, 1) (0 = no stagnation stop), got {self.polish_stall_rtol}")
-        if self.outputs not in OUTPUTS:
-            raise bad("outputs", f"unknown output model {self.outputs!r}; choose one of {', '.join(OUTPUTS)}")
         if self.noise is not None and not (isinstance(self.noise, (int, float)) and 0 < self.noise < 1):
             raise bad("noise", f"must be a relative amplitude noise in (0, 1), e.g. 0.01 = 1 %, got {self.noise!r}")
         if not (isinstance(self.posterior_fe, int) and self.posterior_fe >= 0):
@@ -205,8 +203,6 @@ class _Config:
             raise bad("run_id", f"must be a plain folder name, got {self.run_id!r}")
 
     def _validate_lines(self, bad) -> None:
-        if self.lines not in LINES:
-            raise bad("lines", f"unknown line selection {self.lines!r}; choose one of {', '.join(LINES)}")
         if self.line_windows is not None:
             for i, w in enumerate(self.line_windows):
                 ok = (isinstance(w, (list, tuple)) and len(w) == 2
@@ -221,8 +217,6 @@ class _Config:
             raise bad("resonance_widen", f"must be a factor >= 1 on the half-power band, got {self.resonance_widen!r}")
         if not 0 <= self.min_coherence <= 1:
             raise bad("min_coherence", f"must lie in [0, 1] (0 keeps every line), got {self.min_coherence!r}")
-        if self.residuals not in RESIDUALS:
-            raise bad("residuals", f"unknown residual {self.residuals!r}; choose one of {', '.join(RESIDUALS)}")
 
     def replace(self, **changes: Any) -> "UpdateConfig":
         return dataclasses.replace(self, **changes)

@@ -1,0 +1,127 @@
+"""The held-out cases' generator (``benchmarks.make.cases``) on a tiny structure (a cantilever of 30 hexahedra): deterministic
+from its seed, its modal FRF equal to a direct complex solve, and the effect the truth names really in the data."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+pytest.importorskip("skfem")
+pytest.importorskip("pypardiso")
+
+from benchmarks.make.cases import build, case, effects, fem_data, solids  # noqa: E402
+
+
+def _spec(kind, seed=11, set_="t"):
+    return {"id": f"tiny-{kind}", "structure": "tiny_bar", "kind": kind, "seed": seed, "expected": "x", "set": set_}
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory):
+    import shutil
+
+    root = tmp_path_factory.mktemp("held_out")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(fem_data, "CACHE", root / "cache")     # not the repository's runs/
+        info = build.structure_info("tiny_bar", root)
+        first = build.make_case(_spec("point_mass"), root)
+        other = tmp_path_factory.mktemp("again")
+        shutil.copytree(root / "structures", other / "structures")
+        again = build.make_case(_spec("point_mass"), other)
+        yield root, info, first, (other, again)
+
+
+def test_the_same_seed_gives_the_same_files(made):
+    root, info, first, (other, again) = made
+    assert first["measured_sha256"] == again["measured_sha256"]
+    assert (root / "t" / "tiny-point_mass" / "measured.csv").read_bytes() == \
+        (other / "t" / "tiny-point_mass" / "measured.csv").read_bytes()
+    other = build.make_case({**_spec("point_mass", seed=12), "id": "tiny-seed-12"}, root)
+    assert other["measured_sha256"] != first["measured_sha256"]
+
+
+def test_truth_says_what_was_drawn(made):
+    _, info, truth, _ = made
+    e = truth["effect"]
+    assert 0.02 <= e["share_of_mass"] <= 0.08
+    assert e["value"] == pytest.approx(e["share_of_mass"] * truth["structure_mass_kg"], rel=1e-12)
+    # the structure's mass from its geometry: 0.3 x 0.01 x 0.01 m of steel
+    assert truth["structure_mass_kg"] == pytest.approx(7850 * 0.3 * 0.01 * 0.01, rel=1e-10)
+    assert all(-0.3 <= a <= 0.3 for a in truth["factors"])
+    # the place: a surface node of the tool's mesh away from the clamp, where the data carry the mass
+    nodes = solids.tiny_bar()["mesh"]()[0]
+    assert np.allclose(nodes[e["node"]], e["xyz_m"]) and e["xyz_m"][0] >= case.CLEAR * 0.3
+    n = truth["lines"]["count"]
+    assert n == round(truth["lines"]["top_hz"] / truth["lines"]["step_hz"]) + 1
+    assert truth["natural_frequencies_hz"][truth["lines"]["modes_in_band"] - 1] < truth["lines"]["top_hz"] \
+        < truth["natural_frequencies_hz"][truth["lines"]["modes_in_band"]]
+
+
+def _system(alpha, extra_M=None):
+    s = solids.structure("tiny_bar")
+    d = fem_data.data_model(s, cache=False)
+    K, M = fem_data.assembled(d, alpha, None, extra_M)
+    Kc, Mc = fem_data.condensed(K, M, d["free"])
+    return s, d, Kc, Mc, d["outputs"][:, d["free"]], d["load"][d["free"]]
+
+
+def test_modal_frf_equals_a_direct_complex_solve(made):
+    _, info, truth, _ = made
+    s, d, Kc, Mc, out, load = _system(np.asarray(truth["factors"]))
+    a, b = info["damping"]
+    top = truth["lines"]["top_hz"]
+    spec = fem_data.spectral(Kc, Mc, out, load, fem_data.MODES_UP_TO * top)
+    lines = np.array([0.37 * top, truth["natural_frequencies_hz"][2], top])
+    H = fem_data.modal_frf(spec, (a, b), lines)
+    for f, h in zip(lines, H):
+        w = 2 * np.pi * f
+        A = sp.csc_matrix(Kc - w**2 * Mc + 1j * w * (a * Mc + b * Kc))
+        direct = out @ spla.spsolve(A, load.astype(complex))          # SuperLU, not PARDISO's real 2n system
+        # the modes left out (above twice the top) enter to O((f / f_cut)^8) of their small part
+        assert np.max(np.abs(h - direct)) <= 1e-6 * np.max(np.abs(direct))
+    # the generator's own check of its lines (the solution put back into the equations)
+    assert truth["check_equilibrium_residual"]["largest_relative"] < 1e-5   # 2.4 without the modes left out
+
+
+def test_the_effect_is_in_the_data(made):
+    """The measured FRF is the structure with the mass: against the same structure without it, the lines with
+    a good coherence differ by far more than the noise; with it, by the noise."""
+    root, info, truth, _ = made
+    import pandas as pd
+
+    table = pd.read_csv(root / "t" / "tiny-point_mass" / "measured.csv", comment="#")
+    names = [n for n, _, _ in solids.tiny_bar()["sensors"]]
+    f = np.sort(table["frequency_hz"].unique())[1:]
+    Z = np.stack([table[table.response == n].sort_values("frequency_hz")[["real", "imag"]].to_numpy()[1:] @ [1, 1j]
+                  for n in names], axis=1)
+    good = np.stack([table[table.response == n].sort_values("frequency_hz")["coherence"].to_numpy()[1:]
+                     for n in names], axis=1) >= 0.9
+    alpha = np.asarray(truth["factors"])
+    e = truth["effect"]
+    s, d, Kc, Mc, out, load = _system(alpha)
+    top = fem_data.MODES_UP_TO * truth["lines"]["top_hz"]
+    without = fem_data.modal_frf(fem_data.spectral(Kc, Mc, out, load, top), info["damping"], f)
+    v = int(np.argmin(np.linalg.norm(s["data_nodes"] - e["xyz_m"], axis=1)))
+    s, d, Kc, Mc, out, load = _system(alpha, effects.point_mass(d, v, e["value"]))
+    with_ = fem_data.modal_frf(fem_data.spectral(Kc, Mc, out, load, top), info["damping"], f)
+    acc = -((2 * np.pi * f[:, None]) ** 2)
+    r_with = np.log(np.abs(Z / (acc * with_)))[good]
+    r_without = np.log(np.abs(Z / (acc * without)))[good]
+    sigma = truth["noise"]["response_relative"]
+    assert np.sqrt(np.mean(r_with**2)) < 3 * sigma
+    assert np.sqrt(np.mean(r_without**2)) > 5 * np.sqrt(np.mean(r_with**2))
+    assert max(abs(x) for x in truth["effect_frequency_shift_percent"]) > 0.5
+
+
+def test_clean_and_outside_cases_of_the_tiny_bar(made):
+    root, *_ = made
+    clean = build.make_case(_spec("none"), root)
+    assert clean["effect"] == {"kind": "none"} and clean["effect_rms_log_amplitude_change"] == 0.0
+    layer = build.make_case(_spec("mass_layer"), root)
+    assert layer["effect"]["value"] == pytest.approx(layer["effect"]["share_of_mass"] * layer["structure_mass_kg"])
+    assert layer["effect"]["segments"] == ["root", "tip"] and layer["effect_rms_log_amplitude_change"] > 0.01
+    assert json.loads((root / "t" / "tiny-none" / "truth.json").read_text())["expected"] == "x"
