@@ -15,6 +15,7 @@ from prefect.cache_policies import NO_CACHE
 from prefect.context import FlowRunContext
 
 from strategies import registry
+from strategies.base import close_strategy
 from tasks.driver import Driver
 from tasks.runstore import RunStore
 
@@ -49,8 +50,11 @@ def run_strategy(problem, config, store: RunStore) -> tuple[int, dict]:
     ``candidates``, ``intervals`` and its summary fields)."""
     spec = registry.get(config.strategy)
     driver = Driver(store, problem, config, spec, wrap=_as_task)
-    batch = driver.first()
-    while batch is not None:
-        word = spec.round_word
-        batch = iteration_flow.with_options(name=word, flow_run_name=f"{word}-{batch.iteration}")(driver, batch)
-    return driver.outcome()
+    try:
+        batch = driver.first()
+        while batch is not None:
+            word = spec.round_word
+            batch = iteration_flow.with_options(name=word, flow_run_name=f"{word}-{batch.iteration}")(driver, batch)
+        return driver.outcome()
+    finally:
+        close_strategy(driver.strategy)  # a strategy in a thread of its own (strategies.callback) ends with the run

@@ -28,6 +28,7 @@ import numpy as np
 from prefect import flow
 
 from flows.config import ConfigError, load_config
+from strategies.modal_fit import LEAST_SQUARES_STATUS
 from tasks.io.summary import SCHEMA_VERSION, interval_entries
 from tasks.modal_stages import MODAL_STAGES
 
@@ -273,12 +274,6 @@ def paper_options(config):
                         max_fe=config.max_fe_evaluations, min_distance_factor=config.min_distance_factor,
                         std_floor=config.std_floor, trainer=config.trainer, outputs=config.outputs,
                         emulate="errors", seed=config.seed)
-
-
-#: ``scipy.optimize.least_squares``'s ``status`` of the kept start, in words (``stop_reason``); > 0: converged.
-LEAST_SQUARES_STATUS = {-1: "improper input", 0: "the FE-run budget of the start (max_nfev) spent",
-                        1: "gradient tolerance met", 2: "cost tolerance met", 3: "step tolerance met",
-                        4: "cost and step tolerances met"}
 
 
 def modal_summary(job, fit: dict, closure: dict | None, true_parameters) -> dict:

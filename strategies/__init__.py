@@ -9,6 +9,7 @@ The strategies use the FE side (:mod:`fe_core`: residual statistics, the effect 
 * :mod:`.hybrid`: the default, Gauss-Newton with exact Jacobians from the nominal model and global cycles
   with the MRGP emulator when the residual is not noise (phases in :mod:`.hybrid_phases`, Gauss-Newton in
   :mod:`.gauss_newton`, the round counting in :mod:`.ledger`);
-* :mod:`.modal_paper`: the paper's loop on measured modes;
+* :mod:`.modal_paper`: the paper's loop on measured modes; :mod:`.modal_fit`: the modal Gauss-Newton fit, a
+  callback optimiser made ask-tell by :mod:`.callback` (any such optimiser in a worker thread);
 * :mod:`.closure_emulator`: the MRGP over (alpha, effect position, log size) for the closure's first round.
 """

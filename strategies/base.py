@@ -32,7 +32,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 
 __all__ = ["Batch", "Outcome", "StopDecision", "Strategy", "Evaluate", "run_loop", "Report", "report_of", "Step",
-           "Memo", "InMemory", "Context", "jsonable"]
+           "Memo", "InMemory", "Context", "jsonable", "close_strategy"]
 
 
 @dataclass(frozen=True)
@@ -66,8 +66,9 @@ class Batch:
 
 
 class Outcome(NamedTuple):
-    """One FE run's result: ``Z`` (k,) complex; ``dZ`` (k, m) or None; ``cost`` in FE-run equivalents (None:
-    1, or the strategy's Jacobian cost with a derivative); ``modes`` = (omega2 (r,), participation (r, n))
+    """One FE run's result: ``Z`` (k,) complex (the modal strategies, :mod:`.modal_fit`, :mod:`.modal_paper`: the
+    weighted residual's real values); ``dZ`` (k, m) or None; ``cost`` in FE-run equivalents (None: 1, or the
+    strategy's Jacobian cost with a derivative); ``modes`` = (omega2 (r,), participation (r, n))
     when the run gave its lowest modes; ``at`` (m,): where the evaluation ended when it moved from the point
     asked (local steps from it, as the closure's emulated search takes), None: at the point asked."""
 
@@ -211,10 +212,21 @@ Evaluate = Callable[[Batch], Sequence]
 
 
 def run_loop(strategy: Strategy, evaluate: Evaluate) -> StopDecision:
-    """Propose, evaluate, update until the strategy stops; returns its last decision."""
-    while True:
-        decision = strategy.stop()
-        if decision.stop:
-            return decision
-        batch = strategy.propose()
-        strategy.update(batch, evaluate(batch))
+    """Propose, evaluate, update until the strategy stops; returns its last decision. A strategy with a
+    ``close()`` (one running a callback optimiser in a thread, :mod:`.callback`) is closed however the loop ends."""
+    try:
+        while True:
+            decision = strategy.stop()
+            if decision.stop:
+                return decision
+            batch = strategy.propose()
+            strategy.update(batch, evaluate(batch))
+    finally:
+        close_strategy(strategy)
+
+
+def close_strategy(strategy) -> None:
+    """``strategy.close()`` when it has one (:class:`.callback.CallbackStrategy`: its worker thread ended)."""
+    close = getattr(strategy, "close", None)
+    if close is not None:
+        close()

@@ -14,8 +14,8 @@ Stopping "at the noise": the residual is divided by the measurement's standard d
 truth its entries are standard normal and ``mean |r|`` has mean ``sqrt(2/pi)`` and standard deviation
 ``sqrt(1 - 2/pi)/sqrt(n)``; the loop stops when an FE run's ``mean |r|`` is within two of those standard
 deviations of ``sqrt(2/pi)`` (:func:`noise_threshold`). The best FE run is then polished by the local
-least squares with Nelson Jacobians (:func:`~fe_core.modal_update.fit.fit_modes`, one start), whose end
-point gives the Laplace intervals, as the FRF paper loop ends with its polish.
+least squares with Nelson Jacobians (:class:`strategies.modal_fit.ModalFitStrategy`, one start, under the
+same driver), whose end point gives the Laplace intervals, as the FRF paper loop ends with its polish.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from strategies.base import Step, jsonable, report_of
+from strategies.base import Step, close_strategy, jsonable, report_of
 from tasks.common import heartbeat, logger
 from tasks.context import context
 from tasks.fe_runs import FEStage
@@ -204,11 +204,15 @@ class Driver:
         return following
 
     def run(self):
-        """The whole strategy without Prefect; returns :meth:`outcome`."""
-        batch = self.first()
-        while batch is not None:
-            batch = self.step(batch)
-        return self.outcome()
+        """The whole strategy without Prefect; returns :meth:`outcome`. A strategy running in a thread of its own
+        (:mod:`strategies.callback`) is closed however the run ends (an FE run raised, a rerun's stage reached)."""
+        try:
+            batch = self.first()
+            while batch is not None:
+                batch = self.step(batch)
+            return self.outcome()
+        finally:
+            close_strategy(self.strategy)
 
     # -- FE stages ----------------------------------------------------------------------------------------------
     def _open(self, batch) -> FEStage:

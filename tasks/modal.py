@@ -1,6 +1,7 @@
 """Modal data's steps, one core call each: read and match the measured modes to a model, correlate (FE
 modes at the test DOFs, MAC, pairing, frequency differences, COMAC), the MAC picture, the modal update
-(:mod:`fe_core.modal_update`) with its FE runs logged to the run folder, and the identifiability check.
+(:mod:`fe_core.modal_update`; its fit under the driver, :mod:`tasks.modal_fit`) with its FE runs logged to
+the run folder, and the identifiability check.
 The commands are :mod:`flows.correlate` and :mod:`flows.modal_update`."""
 
 from __future__ import annotations
@@ -11,14 +12,14 @@ from pathlib import Path
 import numpy as np
 
 from fe_core.correlation import comac, frequency_differences, mac_matrix, pair_modes, pairing_report
-from fe_core.modal_update import ModalResidual, fit_modes, identifiability
+from fe_core.modal_update import ModalResidual, identifiability
 from tasks.io.measured.frf import MeasuredDataError
 from tasks.io.measured.modes import read_modes
 from tasks.modal_data import band_limit, check_band, match_modes
 from tasks.runstore import atomic_write_json
 
-__all__ = ["load_modal_data", "correlate", "mac_figure", "modal_residual", "check_identifiable", "run_fit",
-           "N_EXTRA_MODES"]
+__all__ = ["load_modal_data", "correlate", "mac_figure", "modal_residual", "check_identifiable",
+           "write_runs", "N_EXTRA_MODES"]
 
 #: Model modes computed beyond the measured ones, for pairing and tracking.
 N_EXTRA_MODES = 6
@@ -116,17 +117,6 @@ def check_identifiable(residual: ModalResidual, names: list[str], source: str) -
         f"{source}: {pairing.n_pairs} paired mode(s) for {len(names)} parameters: fewer paired modes than "
         f"parameters, and {what} cannot determine {', '.join(lost)} (not identifiable)"
         + ("; unpaired: " + "; ".join(pairing.messages) if pairing.messages else ""))
-
-
-def run_fit(residual: ModalResidual, lower, upper, n_starts, seed, stated, folder: Path, x0=None):
-    """The fit (first start ``x0``, default the nominal model); every FE run of the residual (eigen-solve:
-    parameters, frequencies) goes to ``<folder>/modal_runs.jsonl``, the checks' runs before it included."""
-    folder.mkdir(parents=True, exist_ok=True)
-    residual.set_active(np.zeros(lower.size))
-    try:
-        return fit_modes(residual, lower, upper, n_starts=n_starts, seed=seed, stated=stated, x0=x0)
-    finally:
-        write_runs(residual, folder)
 
 
 def write_runs(residual: ModalResidual, folder: Path) -> None:

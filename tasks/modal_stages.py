@@ -2,11 +2,14 @@
 
 Stages (``MODAL_STAGES``), all ``iteration=1`` of the run folder (:class:`tasks.runstore.RunStore`)::
 
-    identifiable -> correlation_before -> [paper-1 .. paper-K] -> fit -> correlation_after -> closure
+    identifiable -> correlation_before -> [paper-1 .. paper-K] -> [fit-start-1 ..] fit -> correlation_after
+    -> closure
 
 The ``paper-<k>`` stages (``--strategy adaptive``/``paper`` only) are the paper loop's iterations, one each, run
 by the one driver (:class:`tasks.driver.Driver`): its FE runs (parameters and residual vectors), and its steps
-``paper-<k>-distribution``, ``-train``, ``-predict``, ``-select``; a resumed run replays them.
+``paper-<k>-distribution``, ``-train``, ``-predict``, ``-select``; a resumed run replays them. The
+``fit-start-<k>`` stages are the Gauss-Newton fit's evaluations from its start k (:mod:`tasks.modal_fit`), run by
+the same driver and replayed likewise.
 
 Each writes one table ``<stage>.parquet`` and its record ``_stage.json`` whose ``info`` holds the stage's
 result (JSON); a resumed run (same inputs and settings, :func:`flows.preflight.check_resume`) reads a
@@ -69,22 +72,22 @@ def correlation_task(root: str, stage: str, data, model, theta, n_model: int, th
 
 @task(name="fit", task_run_name="fit", cache_policy=NO_CACHE)
 def fit_task(root: str, residual, lower, upper, starts: int, seed: int, stated: bool, x0=None) -> dict:
-    """The modal update's fit (:func:`tasks.modal.run_fit`: every FE run to ``modal_runs.jsonl``); ``x0``
+    """The modal update's Gauss-Newton fit under the one driver (:func:`tasks.modal_fit.run_fit`: each start's
+    evaluations a stage ``fit-start-<k>``, replayed on a resume; every FE run to ``modal_runs.jsonl``); ``x0``
     the first start (the paper loop's best FE run; default the nominal model)."""
+    from tasks.modal_fit import run_fit
+
     store = RunStore(root)
     if done(store, ITERATION, "fit"):
         return store.stage_info(ITERATION, "fit")
     t0 = time.perf_counter()
-    fit = modal.run_fit(residual, np.asarray(lower, float), np.asarray(upper, float), starts, seed, stated,
-                        store.root, x0)
-    final = fit.final
+    fit, pairing, computed = run_fit(store, residual, lower, upper, starts, seed, stated, x0)
     info = {"theta": fit.theta, "sd": fit.sd, "lower95": fit.lower95, "upper95": fit.upper95,
             "covariance": fit.covariance, "chi2": fit.chi2, "n_residuals": fit.n_residuals, "scale2": fit.scale2,
             "starts": fit.starts, "fe_runs": fit.n_fe_runs, "jacobians": fit.n_jacobians,
-            "seconds": time.perf_counter() - t0, "swaps": list(residual.swaps), "active": residual.active,
-            "pairing": {"test": final["pairing"].test, "model": final["pairing"].model,
-                        "f_model": final["f_model"], "mac": final["mac"]},
-            "unpaired": final["unpaired"]}
+            "evaluations_computed": computed, "seconds": time.perf_counter() - t0, "swaps": list(residual.swaps), "active": residual.active,
+            "pairing": {k: pairing[k] for k in ("test", "model", "f_model", "mac")},
+            "unpaired": pairing["unpaired"]}
     table = pd.DataFrame({"theta": fit.theta, "sd": fit.sd, "lower95": fit.lower95, "upper95": fit.upper95})
     return _store(store, "fit", table, info)
 

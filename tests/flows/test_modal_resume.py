@@ -71,12 +71,12 @@ def test_a_second_call_reads_the_stages_back_and_changed_inputs_are_refused(tmp_
     assert "setting sigma_s (0.02 then, 0.03 now)" in err
     # an interrupted run (the closure's record missing): only the closure is computed again, the fit read back
     monkeypatch.undo()
-    import tasks.modal
+    import tasks.modal_fit
 
     def no_fit(*args, **kwargs):
         raise AssertionError("the fit again on resume")
 
-    monkeypatch.setattr(tasks.modal, "fit_modes", no_fit)
+    monkeypatch.setattr(tasks.modal_fit, "run_fit", no_fit)
     (root / "iteration=1" / "stage=closure" / "_stage.json").unlink()
     assert update.main(argv) == 0
     assert json.loads((root / "summary.json").read_text())["closure"]["verdict"] == "noise"
