@@ -3,6 +3,7 @@ from its seed, its modal FRF equal to a direct complex solve, and the effect the
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -61,9 +62,15 @@ def test_truth_says_what_was_drawn(made):
         < truth["natural_frequencies_hz"][truth["lines"]["modes_in_band"]]
 
 
-def _system(alpha, extra_M=None):
+@functools.lru_cache(maxsize=1)
+def _data_model():
+    """The tiny bar's data model, assembled once for the tests that build systems from it (a few seconds each)."""
     s = solids.structure("tiny_bar")
-    d = fem_data.data_model(s, cache=False)
+    return s, fem_data.data_model(s, cache=False)
+
+
+def _system(alpha, extra_M=None):
+    s, d = _data_model()
     K, M = fem_data.assembled(d, alpha, None, extra_M)
     Kc, Mc = fem_data.condensed(K, M, d["free"])
     return s, d, Kc, Mc, d["outputs"][:, d["free"]], d["load"][d["free"]]
