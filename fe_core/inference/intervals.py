@@ -247,23 +247,16 @@ def _weighted(at, start, lo, hi, freqs, noise):
     """``(at, noise, weights, model)`` for the Gauss-Newton steps: with a noise per line and channel, ``at``
     divides the residual and the Jacobian by it and the noise is 1 (known); an :class:`Estimated` model is fitted
     to the residual at the start (``at`` called once more there)."""
-    from .noise import MIN_DIFFERENCES, Estimated, NoiseModel, calibrate, differences_per_channel, estimate_noise_model
+    from .noise import Estimated, judged_by, one_level
 
-    if isinstance(noise, Estimated) and differences_per_channel(freqs) < MIN_DIFFERENCES:
-        noise = None  # a few windows of lines: one level (as the residual's test, :func:`analyse_residual`)
-    if not isinstance(noise, (NoiseModel, Estimated)):
-        return at, noise, None, None
+    if one_level(noise, freqs):  # as the residual's test (:func:`analyse_residual`)
+        return at, (None if isinstance(noise, Estimated) else noise), None, None
     first = {}
-    measured = isinstance(noise, NoiseModel) and noise.source in ("coherence", "records")
-    if isinstance(noise, Estimated) or measured:
+    if isinstance(noise, Estimated) or noise.source in ("coherence", "records"):  # judged at the start's residual
         x0 = np.clip(np.asarray(start, float), lo, hi)
         first[x0.tobytes()] = at(x0)  # the start's Jacobian serves the first step too
-        r0 = first[x0.tobytes()][0]
-        if measured:  # the measured shape, its level per channel checked against the residual
-            noise = calibrate(noise, r0.reshape(noise.sigma.shape), freqs)
-        else:
-            amplitude = np.asarray(noise.amplitude, float)
-            noise = estimate_noise_model(r0.reshape(amplitude.shape), amplitude, freqs)
+        shape = np.shape(noise.amplitude) if isinstance(noise, Estimated) else noise.sigma.shape
+        noise = judged_by(noise, first[x0.tobytes()][0].reshape(shape), freqs)
         log.info("intervals: the noise per line and channel %s", noise.describe())
     weights = np.asarray(noise.sigma, float).ravel()
 

@@ -31,7 +31,7 @@ from scipy import stats
 from .levels import CLIP, CLIP_FACTOR, _clipped_level, frequency_bands
 
 __all__ = ["NoiseModel", "Estimated", "NOISE_SOURCES", "estimate_noise_model", "calibrate", "noise_model_test",
-           "differences_per_channel", "MIN_DIFFERENCES"]
+           "differences_per_channel", "MIN_DIFFERENCES", "one_level", "judged_by"]
 
 NOISE_SOURCES = ("configured", "coherence", "records", "estimated")
 
@@ -261,6 +261,28 @@ def estimate_noise_model(residual: np.ndarray, amplitude: np.ndarray, freqs_hz) 
 def differences_per_channel(freqs_hz) -> int:
     """Second differences each channel has along the evenly stepped bands of ``freqs_hz``."""
     return int(sum(b.size - 2 for b in _bands(freqs_hz)))
+
+
+def one_level(noise, freqs_hz) -> bool:
+    """Whether ``noise`` (a level, None, a :class:`NoiseModel` or :class:`Estimated`) judges a residual on the
+    lines ``freqs_hz`` by one level for every value: a level or None, or a model to estimate from too few second
+    differences per channel (a few windows of lines: a model per channel would fit a misfit)."""
+    if isinstance(noise, Estimated):
+        return differences_per_channel(freqs_hz) < MIN_DIFFERENCES
+    return not isinstance(noise, NoiseModel)
+
+
+def judged_by(noise, residual: np.ndarray, freqs_hz) -> NoiseModel:
+    """The noise per line and channel that judges the log residual (p, n) when not :func:`one_level`: a measured
+    model (coherence, records) with its level per channel checked against the residual (:func:`calibrate`), a
+    configured one as it is, an :class:`Estimated` one fitted to the residual (:func:`estimate_noise_model`)."""
+    r = np.asarray(residual, float)
+    if isinstance(noise, Estimated):
+        amplitude = np.asarray(noise.amplitude, float)
+        if amplitude.shape != r.shape:
+            raise ValueError(f"the noise model's amplitudes have shape {amplitude.shape}, the residual {r.shape}")
+        return estimate_noise_model(r, amplitude, freqs_hz)
+    return calibrate(noise, r, freqs_hz) if noise.source in ("coherence", "records") else noise
 
 
 def _fit_model(d: np.ndarray, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -264,25 +264,18 @@ def analyse_residual(residual: np.ndarray, freqs_hz, n_fitted: int, noise=None, 
         An estimated relative level above this is not believed: the residual is structure, whatever the
         chi-square says (the level, too high, would call any misfit noise).
     """
-    from .noise import (MIN_DIFFERENCES, Estimated, NoiseModel, calibrate, differences_per_channel,
-                        estimate_noise_model, noise_model_test)
+    from .noise import Estimated, judged_by, noise_model_test, one_level
 
     r = np.asarray(residual, float)
     if r.ndim != 2:
         raise ValueError(f"residual must be (frequencies, sensors), got shape {r.shape}")
     estimated = estimate_noise(r, freqs_hz)
     model, amplitude = None, None
-    if isinstance(noise, NoiseModel):
-        # a measured model's level is checked against the residual; a configured one is taken as it is
-        model = calibrate(noise, r, freqs_hz) if noise.source in ("coherence", "records") else noise
-    elif isinstance(noise, Estimated):
-        amplitude = np.asarray(noise.amplitude, float)
-        if amplitude.shape != r.shape:
-            raise ValueError(f"the noise model's amplitudes have shape {amplitude.shape}, the residual {r.shape}")
-        if differences_per_channel(freqs_hz) >= MIN_DIFFERENCES:
-            model = estimate_noise_model(r, amplitude, freqs_hz)
-        else:  # a few windows of lines: one level for every value (a model per channel would fit a misfit)
-            noise = None
+    if one_level(noise, freqs_hz):
+        noise = None if isinstance(noise, Estimated) else noise  # a few windows of lines: one estimated level
+    else:  # measured (its level checked here), configured, or estimated from this residual
+        model = judged_by(noise, r, freqs_hz)
+        amplitude = np.asarray(noise.amplitude, float) if isinstance(noise, Estimated) else None
     if model is not None:
         T, dof, p = noise_model_test(r, model, n_fitted, amplitude, freqs_hz)
         sigma, source = float(np.median(model.sigma)), model.source
