@@ -226,10 +226,14 @@ def modal_flow(job: "ModalJob", true_parameters=None, identified=None, stabilisa
     folder = config.resolve(config.runs_dir) / config.run_id
     root = str(folder)
     threshold = job.settings["mac_threshold"]
-    if identified is not None:
-        from tasks.io.measured.modes import write_uff55
+    if identified is not None:  # UFF55 needs test DOFs NODE:DIR; channels named as sensors go to a table
+        from tasks.io.measured.frf import parse_dof
+        from tasks.io.measured.modes import write_csv, write_uff55
 
-        write_uff55(folder / "identified_modes.uff", identified)
+        if all(parse_dof(d) is not None for d in identified.dofs):
+            write_uff55(folder / "identified_modes.uff", identified)
+        else:
+            write_csv(folder / "identified_modes.csv", identified)
     before = modal_stages.correlation_task(root, "correlation_before", data, model, np.zeros(len(names)),
                                            job.n_model, threshold)
     modal.write_json(folder / "correlation_before.json", before)

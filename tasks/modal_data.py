@@ -1,5 +1,6 @@
 """Measured modes matched to a model: each test DOF ``NODE:DIR`` to the model sensor whose ``test_node`` is
-NODE and whose test direction is along DIR (as UFF58 channels are matched, :mod:`tasks.update_data`), and
+NODE and whose test direction is along DIR (as UFF58 channels are matched, :mod:`tasks.update_data`), a
+response named as a model sensor to that sensor, and
 the checks that need the model (test nodes, the model's band, identifiability)."""
 
 from __future__ import annotations
@@ -23,12 +24,23 @@ class ModalData:
 
 
 def match_modes(modes: MeasuredModes, model) -> ModalData:
-    """The model's output vector of every test DOF; a test node or direction the model lacks is refused."""
+    """The model's output vector of every test DOF (or sensor name); a test node, direction or name the model lacks
+    is refused."""
     tests = model.sensor_test_dofs
     known = sorted({t[0] for t in tests if t is not None})
     place = modes.places[0] if modes.places and modes.places[0] else "data"
     columns, signs, names = [], [], []
     for label in modes.dofs:
+        if parse_dof(label) is None:  # a channel named as a model sensor (a table's response column)
+            if label not in model.sensor_names:
+                raise MeasuredDataError(
+                    f"{modes.source}: {place}: response {label!r} is neither a test DOF NODE:DIR nor a sensor of "
+                    f"the model {model.source or ''} (its sensors: {', '.join(model.sensor_names)})")
+            k = list(model.sensor_names).index(label)
+            columns.append(k)
+            signs.append(1.0)
+            names.append(label)
+            continue
         node, direction = parse_dof(label)
         here = [(k, t) for k, t in enumerate(tests) if t is not None and t[0] == node]
         if not here:
