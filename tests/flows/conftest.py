@@ -38,11 +38,17 @@ def prefect_harness():
 
     Each ``prefect_test_harness()`` starts a server and a database of its own, 5-20 s on a
     busy 2-core machine; the flow tests share one instead of starting one per module.
+
+    The flows run here without Prefect's flow-run heartbeats (``PREFECT_FLOWS_HEARTBEAT_FREQUENCY``, 180 s by
+    default; an environment variable cannot turn them off, a settings context can): each flow run's heartbeat
+    thread sleeps in steps of 1 s and the flow run waits for it at its end, about 0.5 s per flow and subflow run
+    (a reduced update is 4: ~2 s of ~9 s), for an event no test reads (the zombie detection of deployments).
     """
-    from prefect.settings import PREFECT_API_URL
+    from prefect.settings import PREFECT_API_URL, PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
     from prefect.testing.utilities import prefect_test_harness
 
-    with prefect_test_harness(server_startup_timeout=120):
+    with prefect_test_harness(server_startup_timeout=120), \
+            temporary_settings(updates={PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
         yield PREFECT_API_URL.value()
 
 
