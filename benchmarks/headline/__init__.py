@@ -18,7 +18,7 @@ and logs go to ``runs/headline/<row>/``; ``row.json`` there holds the row's comm
 The page is written from every stored ``row.json`` (so ``--only`` and ``--keep`` resume a partial run), and
 the README's headline table is rewritten from the same figures (``--no-readme`` leaves it): the README's
 result column is then exactly what the page measured. ``tests/test_docs.py`` checks that every number of
-that column is on the page and that the page's commits are at most 60 commits behind HEAD.
+that column is on the page and that the page's commits are at most 40 commits of code or data behind HEAD.
 """
 
 from __future__ import annotations
@@ -155,8 +155,8 @@ def write_page(rows, records: dict, total: dict) -> str:
         f"**{wall / 60:.1f} min** ({wall:.0f} s){total.get('text', '')}.",
         "",
         "Every figure of the README's `## Headline results` table is one of this page's (the README's table is "
-        "written from it; `tests/test_docs.py` checks both that and that the commits above are at most 60 "
-        "commits behind HEAD). Rerun before a change of behaviour is merged: `nice -n 5 python -m "
+        "written from it; `tests/test_docs.py` checks both that and that the commits above are at most 40 "
+        "commits of code or data behind HEAD). Rerun before a change of behaviour is merged: `nice -n 5 python -m "
         "benchmarks.headline` (`--only ROW ...` for some rows, `--keep` to resume).",
         "",
         "| row | what | result | wall | load (1 min) before / after | commit |",

@@ -140,10 +140,13 @@ def smooth_measured(sigma: np.ndarray, amplitude: np.ndarray, half: int = SMOOTH
     the residual, made the 95 % intervals of simulated hammer tests cover 0.91 (measured while building it, issue 40); the
     smoothed sigma keeps the measured level and shape. ``sigma^2`` is ``sigma_true^2 chi2(nu) / nu``, whose
     variance goes with its mean squared whatever ``nu``: the fit's weights are ``1 / v^2``. Non-finite values
-    (zero coherence) are left out of the fit and keep their value."""
+    (zero coherence) are left out of the fit and keep their value. A zero (a coherence written as exactly 1: the
+    export's digits, not a perfect line; it would weigh its residual infinitely) is left out of the fit and gets
+    the smoothed value of its line."""
     s2 = np.asarray(sigma, float) ** 2
     u = np.asarray(amplitude, float)
     ok = np.isfinite(s2) & (s2 > 0) & np.isfinite(u) & (u > 0)
+    zero = (s2 == 0) & np.isfinite(u) & (u > 0)
     out = np.array(s2)
     for j in range(s2.shape[1]):
         k = ok[:, j]
@@ -162,7 +165,8 @@ def smooth_measured(sigma: np.ndarray, amplitude: np.ndarray, half: int = SMOOTH
         ratio = np.where(k, s2[:, j] / model, 0.0)
         kernel = np.ones(2 * half + 1)
         local = np.convolve(ratio, kernel, "same") / np.maximum(np.convolve(k.astype(float), kernel, "same"), 1)
-        out[k, j] = (model * local)[k]
+        fill = k | zero[:, j]
+        out[fill, j] = (model * local)[fill]
     return np.sqrt(out)
 
 

@@ -101,3 +101,18 @@ def test_a_few_windows_of_lines_take_one_level_for_every_value():
     r = _noise(2)[lines]
     a = analyse_residual(r, FREQS[lines], 2, Estimated(U[lines]))
     assert a.noise_model is None and a.sigma_source in ("estimated", STRUCTURED_ESTIMATE)
+
+
+def test_a_coherence_written_as_exactly_one_gets_its_lines_level_not_an_infinite_weight():
+    """Coherence exported with a few digits reads 1 at strong peaks: the line's sigma is that of its neighbours
+    (the smoothed model), so a residual of the stated noise passes instead of weighing infinitely."""
+    n_avg = 10
+    g2 = 1.0 / (1.0 + 2.0 * (n_avg - 1) * SIGMA**2)  # the coherence whose random error is SIGMA (inverted)
+    ones = SIGMA <= np.sort(SIGMA, axis=0)[6]  # each channel's seven best lines, at its peaks, written as 1
+    written = np.where(ones, 1.0, g2)
+    model = NoiseModel.from_coherence(written, n_avg, U)
+    assert np.all(np.isfinite(model.sigma)) and np.all(model.sigma > 0)
+    # at those lines the sigma is the smoothed level of the line: within 10 % of the truth
+    assert np.all(np.abs(model.sigma[ones] / SIGMA[ones] - 1) < 0.10)
+    a = analyse_residual(_noise(5), FREQS, 2, model)
+    assert np.isfinite(a.chi2) and not a.structured

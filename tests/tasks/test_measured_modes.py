@@ -120,3 +120,24 @@ def test_the_validator_describes_a_modal_file(tmp_path, capsys):
     _patch_analysis_type(path, 0, 6)
     assert main([str(path)]) == 2
     assert "analysis type 6 (buckling)" in capsys.readouterr().err
+
+
+def test_modes_at_channels_named_as_sensors_match_by_name_and_round_trip_as_a_table(tmp_path):
+    """A table's FRF channels are named as the model's sensors (the held-out cases' ``measured.csv``); modes
+    identified from them carry those names, are written as a CSV table and matched to the sensors by name."""
+    from tasks.modal_data import match_modes
+    from tasks.problem import read_model_ref
+
+    model, _ = read_model_ref("data/benchmark/model.toml")
+    modes = _modes(dofs=["s3", "s1", "s2"])
+    back = read_modes(write_csv(tmp_path / "named.csv", modes))
+    assert back.dofs == ["s1", "s2", "s3"]  # names after test DOFs, in order
+    np.testing.assert_array_equal(back.shapes, SHAPES[:, [1, 2, 0]])
+    matched = match_modes(back, model)
+    assert matched.sensors == ["s1", "s2", "s3"]
+    # each column reads its sensor exactly as the model's own output row does
+    np.testing.assert_array_equal(matched.outputs.toarray(), np.asarray(model.outputs[:, :3].todense()))
+    with pytest.raises(MeasuredDataError, match=r"response 'nowhere' is neither a test DOF NODE:DIR nor a sensor"):
+        match_modes(_modes(dofs=["s1", "s2", "nowhere"]), model)
+    mixed = read_modes(write_csv(tmp_path / "mixed.csv", _modes(dofs=["s2", "1:+z", "3:+x"])))
+    assert mixed.dofs == ["1:+z", "3:+x", "s2"]

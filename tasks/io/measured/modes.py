@@ -21,7 +21,8 @@ What the imaginary part held (1 - MPC, the modal phase collinearity) is kept per
     1,112.3,0.004,2:+z,0.0311
     ...
 
-``damping_ratio`` may be empty; ``dof`` is ``NODE:DIR`` as in the FRF tables; every mode must give a value
+``damping_ratio`` may be empty; ``dof`` is ``NODE:DIR`` as in the FRF tables, or the name of a model sensor (as a
+table's response column may be); every mode must give a value
 at every DOF (write 0 where a mode is at rest, leave out a DOF nobody measured).
 
 A file is modal when it holds a dataset 55 and no dataset 58 FRF (UFF), or has the columns ``mode`` and
@@ -198,6 +199,15 @@ def _read_uff(path: Path) -> MeasuredModes:
                          [dof_label(*key) for key in keys], names, places, str(path), notes, nodes)
 
 
+def _label(dof) -> str:
+    return dof if isinstance(dof, str) else dof_label(*dof)
+
+
+def _dof_order(dof):
+    """Test DOFs by node and direction, then sensor names."""
+    return (1, dof, 0) if isinstance(dof, str) else (0, "", *dof)
+
+
 def _read_csv(path: Path) -> MeasuredModes:
     with open(path, newline="") as fh:
         rows = list(csv.reader(fh))
@@ -220,32 +230,37 @@ def _read_csv(path: Path) -> MeasuredModes:
             zeta = float(row[col["damping_ratio"]]) if "damping_ratio" in col and row[col["damping_ratio"]].strip() \
                 else np.nan
             value = float(row[col["shape"]])
-            dof = parse_dof(row[col["dof"]])
+            label = row[col["dof"]].strip()
+            dof = parse_dof(label)
         except (ValueError, IndexError) as exc:
             raise MeasuredDataError(f"{where}: {exc}") from None
-        if dof is None or not 1 <= abs(dof[1]) <= 3:
-            raise MeasuredDataError(f"{where}: dof {row[col['dof']]!r} must be NODE:DIR with a translation x, y, z")
+        if dof is None and (not label or ":" in label):
+            raise MeasuredDataError(f"{where}: dof {label!r} must be NODE:DIR with a translation x, y, z, or the "
+                                    "name of a model sensor")
+        if dof is not None and not 1 <= abs(dof[1]) <= 3:
+            raise MeasuredDataError(f"{where}: dof {label!r} must be NODE:DIR with a translation x, y, z")
+        dof = dof if dof is not None else label  # a sensor's name, matched by name (tasks.modal_data)
         if not np.isfinite(value):
-            raise MeasuredDataError(f"{where}: mode {number}: the shape is not finite at {dof_label(*dof)}")
+            raise MeasuredDataError(f"{where}: mode {number}: the shape is not finite at {_label(dof)}")
         entry = modes.setdefault(number, {"f": f, "zeta": zeta, "line": line, "values": {}})
         if entry["f"] != f:
             raise MeasuredDataError(f"{where}: mode {number} has frequency {f} here and {entry['f']} on line "
                                     f"{entry['line']}")
         if dof in entry["values"]:
-            raise MeasuredDataError(f"{where}: mode {number} gives {dof_label(*dof)} twice")
+            raise MeasuredDataError(f"{where}: mode {number} gives {_label(dof)} twice")
         entry["values"][dof] = value
     if not modes:
         raise MeasuredDataError(f"{path}: no mode found (no data rows)")
-    keys = sorted(set().union(*(m["values"] for m in modes.values())))
+    keys = sorted(set().union(*(m["values"] for m in modes.values())), key=_dof_order)
     for number, m in modes.items():
         if set(m["values"]) != set(keys):
             gap = sorted(set(keys) - set(m["values"]))
             raise MeasuredDataError(f"{path}: line {m['line']}: mode {number} has no value at "
-                                    f"{', '.join(dof_label(*g) for g in gap)}")
+                                    f"{', '.join(_label(g) for g in gap)}")
     numbers = sorted(modes)
     return MeasuredModes(np.array([modes[n]["f"] for n in numbers]), np.array([modes[n]["zeta"] for n in numbers]),
                          np.array([[modes[n]["values"][k] for k in keys] for n in numbers]),
-                         [dof_label(*k) for k in keys], [f"mode {n}" for n in numbers],
+                         [_label(k) for k in keys], [f"mode {n}" for n in numbers],
                          [f"line {modes[n]['line']}" for n in numbers], str(path))
 
 
