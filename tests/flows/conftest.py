@@ -63,6 +63,23 @@ def prefect_server(prefect_harness, tmp_path_factory):
     return {"PREFECT_HOME": str(home), "PREFECT_API_URL": prefect_harness, "DO_NOT_TRACK": "1"}
 
 
+#: ``python -m flows.update`` as the subprocess tests start it, with its flow runs' heartbeats off as in
+#: prefect_harness (the environment cannot say so): flows.environment first (the environment Prefect is imported
+#: in), then the module run as ``__main__`` under that settings context, its arguments and exit code as they are.
+UPDATE_LAUNCHER = ("import runpy, flows.environment\n"
+                   "from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings\n"
+                   "with temporary_settings(updates={PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):\n"
+                   "    runpy.run_module('flows.update', run_name='__main__', alter_sys=True)\n")
+
+
+@pytest.fixture(scope="session")
+def update_command() -> list[str]:
+    """The command line of ``python -m flows.update`` for subprocesses (append its arguments); see UPDATE_LAUNCHER."""
+    import sys
+
+    return [sys.executable, "-c", UPDATE_LAUNCHER]
+
+
 @pytest.fixture
 def two_iterations(prefect_harness):
     """Run a reduced config for two iterations (12 FE runs, no polish); returns (run store, parameter columns)

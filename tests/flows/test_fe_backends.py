@@ -11,7 +11,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -35,8 +34,9 @@ def _write_config(path: Path, runs_dir: Path, settings) -> Path:
     return path
 
 
-def _start(args: list[str], env: dict) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "flows.update", *args], cwd=REPO,
+def _start(command: list[str], args: list[str], env: dict) -> subprocess.Popen:
+    """``python -m flows.update`` (``command``: tests/flows/conftest.py's update_command) in a session of its own."""
+    return subprocess.Popen([*command, *args], cwd=REPO,
                             env={**os.environ, **env}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
 
@@ -91,9 +91,9 @@ def work(tmp_path_factory, reduced_settings_frozen) -> dict:
 
 
 @pytest.fixture(scope="module")
-def loky_reference(work, prefect_server) -> dict:
+def loky_reference(work, prefect_server, update_command) -> dict:
     """summary.json of the reduced run with the default backend (loky)."""
-    _finish(_start(["--config", str(work["config"]), "--run-id", "loky"], prefect_server))
+    _finish(_start(update_command, ["--config", str(work["config"]), "--run-id", "loky"], prefect_server))
     return json.loads((work["runs"] / "loky" / "summary.json").read_text())
 
 
@@ -126,12 +126,12 @@ def test_unreachable_scheduler_is_refused_before_any_work(tmp_path, monkeypatch,
 # -- Dask ---------------------------------------------------------------------------------------
 @pytest.mark.slow
 def test_dask_cluster_gives_the_loky_summary_and_runs_every_fe_run_on_its_workers(work, loky_reference,
-                                                                                 prefect_server):
+                                                                                 prefect_server, update_command):
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
             Client(cluster) as client:
         workers = set(client.run(os.getpid).values())
-        proc = _start(["--config", str(work["config"]), "--run-id", "dask", "--fe-backend", "dask",
-                       "--dask-address", cluster.scheduler_address], prefect_server)
+        proc = _start(update_command, ["--config", str(work["config"]), "--run-id", "dask", "--fe-backend", "dask",
+                                       "--dask-address", cluster.scheduler_address], prefect_server)
         _finish(proc)
         assert set(client.run(os.getpid).values()) == workers  # no worker was replaced meanwhile
     run = work["runs"] / "dask"
@@ -149,13 +149,14 @@ def test_dask_cluster_gives_the_loky_summary_and_runs_every_fe_run_on_its_worker
 
 @pytest.mark.slow
 def test_killed_dask_worker_mid_stage_its_runs_are_rescheduled_and_the_result_is_the_same(
-        work, loky_reference, prefect_server):
+        work, loky_reference, prefect_server, update_command):
     run = work["runs"] / "dask-killed"
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
                       env={"MRGP_FE_DELAY_SECONDS": FE_DELAY}) as cluster, Client(cluster) as client:
         before = set(client.run(os.getpid).values())
-        proc = _start(["--config", str(work["config"]), "--run-id", "dask-killed", "--fe-backend", "dask",
-                       "--dask-address", cluster.scheduler_address], prefect_server)
+        proc = _start(update_command, ["--config", str(work["config"]), "--run-id", "dask-killed",
+                                       "--fe-backend", "dask", "--dask-address", cluster.scheduler_address],
+                      prefect_server)
         killed, t_kill, logged = _kill_first_fe_worker(proc, run)
         out = _finish(proc)
         client.wait_for_workers(2, timeout=60)
@@ -176,9 +177,9 @@ def test_killed_dask_worker_mid_stage_its_runs_are_rescheduled_and_the_result_is
 # -- loky ---------------------------------------------------------------------------------------
 @pytest.mark.slow
 def test_killed_loky_worker_mid_stage_the_lost_runs_are_submitted_again_and_the_result_is_the_same(
-        work, loky_reference, prefect_server):
+        work, loky_reference, prefect_server, update_command):
     run = work["runs"] / "loky-killed"
-    proc = _start(["--config", str(work["config"]), "--run-id", "loky-killed", "--n-jobs", "2"],
+    proc = _start(update_command, ["--config", str(work["config"]), "--run-id", "loky-killed", "--n-jobs", "2"],
                   {**prefect_server, "MRGP_FE_DELAY_SECONDS": FE_DELAY})
     killed, t_kill, logged = _kill_first_fe_worker(proc, run)
     out = _finish(proc)

@@ -22,7 +22,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from collections import Counter
 from pathlib import Path
@@ -62,11 +61,11 @@ KILL_POINTS = [
 
 
 @pytest.fixture(scope="module")
-def reference_run(tmp_path_factory, reduced_settings_frozen, prefect_server) -> tuple[Path, Path]:
+def reference_run(tmp_path_factory, reduced_settings_frozen, prefect_server, update_command) -> tuple[Path, Path]:
     """(config file, run folder) of one uninterrupted reduced run, shared by the tests of this module."""
     tmp = tmp_path_factory.mktemp("kill-anywhere")
     cfg = _config(tmp, tmp / "runs", dict(reduced_settings_frozen))
-    proc = _start(["--config", str(cfg), "--run-id", "reference"], prefect_server)
+    proc = _start(update_command, ["--config", str(cfg), "--run-id", "reference"], prefect_server)
     out = _finish(proc)
     assert proc.returncode == 0, out[-3000:]
     return cfg, tmp / "runs" / "reference"
@@ -78,8 +77,9 @@ def _config(tmp_path: Path, runs: Path, settings: dict) -> Path:
     return path
 
 
-def _start(args, env):
-    return subprocess.Popen([sys.executable, "-m", "flows.update", *args], cwd=REPO, env={**os.environ, **env},
+def _start(command, args, env):
+    """``python -m flows.update`` (``command``: tests/flows/conftest.py's update_command) in a session of its own."""
+    return subprocess.Popen([*command, *args], cwd=REPO, env={**os.environ, **env},
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
 
 
@@ -102,17 +102,17 @@ def _tables(root: Path) -> dict[str, pd.DataFrame]:
     return out
 
 
-def _kill_chain(cfg: Path, victim: Path, points, env) -> str:
+def _kill_chain(command, cfg: Path, victim: Path, points, env) -> str:
     """Kill the run at each point in turn, then let it finish; returns the last run's output."""
     for point, what in points:
-        proc = _start(["--config", str(cfg), "--run-id", victim.name], {**env, "MRGP_KILL_AT": point})
+        proc = _start(command, ["--config", str(cfg), "--run-id", victim.name], {**env, "MRGP_KILL_AT": point})
         out = _finish(proc)
         assert proc.returncode == -signal.SIGKILL, f"not killed at {point} ({what}):\n{out[-3000:]}"
         if point.startswith("before-rename:"):  # the kill came between the write and the rename
             name = point.rsplit("/", 1)[1]
             assert list(victim.rglob(f".{name}.*.tmp")), f"no temporary {name} left at {point}"
         assert point == points[-1][0] or not (victim / "summary.json").exists()
-    proc = _start(["--config", str(cfg), "--run-id", victim.name], env)
+    proc = _start(command, ["--config", str(cfg), "--run-id", victim.name], env)
     out = _finish(proc)
     assert proc.returncode == 0, out[-3000:]
     assert "stale lock" in out  # the killed run's lock was detected and taken over
@@ -145,10 +145,10 @@ def _assert_same_run(victim: Path, ref_root: Path, recovered: list[int]) -> None
 
 
 @pytest.mark.slow
-def test_kill_at_every_point_then_resume_gives_the_uninterrupted_run(reference_run, prefect_server):
+def test_kill_at_every_point_then_resume_gives_the_uninterrupted_run(reference_run, prefect_server, update_command):
     cfg, ref_root = reference_run
     victim = ref_root.parent / "victim"
-    _kill_chain(cfg, victim, KILL_POINTS, prefect_server)
+    _kill_chain(update_command, cfg, victim, KILL_POINTS, prefect_server)
     assert 16 + json.loads((victim / "summary.json").read_text())["polish"]["n"] > 20  # 18, 20 inside the polish
     # Sample 5 of iteration 1 and sample 20 of the polish: each killed between its result and its log line.
     _assert_same_run(victim, ref_root, recovered=[5, 20])
@@ -157,13 +157,14 @@ def test_kill_at_every_point_then_resume_gives_the_uninterrupted_run(reference_r
 
 @pytest.mark.slow
 def test_sigkill_from_outside_during_the_fe_stage_of_iteration_2_then_resume_gives_the_same_run(reference_run,
-                                                                                                prefect_server):
+                                                                                                prefect_server,
+                                                                                                update_command):
     """A kill at no named point: the process group killed from outside while an FE run of iteration 2 is under way
     (each slowed by 0.4 s, so that the kill lands inside the stage), then resumed: the same summary, each sample
     evaluated once."""
     cfg, ref_root = reference_run
     victim_root = ref_root.parent / "victim-outside"
-    victim = _start(["--config", str(cfg), "--run-id", victim_root.name],
+    victim = _start(update_command, ["--config", str(cfg), "--run-id", victim_root.name],
                     {**prefect_server, "MRGP_FE_DELAY_SECONDS": "0.4"})
     log_path = victim_root / "fe_evaluations.jsonl"
     deadline = time.time() + 240
@@ -183,7 +184,7 @@ def test_sigkill_from_outside_during_the_fe_stage_of_iteration_2_then_resume_giv
     assert not (victim_root / "summary.json").exists()
     assert not RunStore(victim_root).is_finished(2, "fe")
 
-    resumed = _start(["--config", str(cfg), "--run-id", victim_root.name], prefect_server)
+    resumed = _start(update_command, ["--config", str(cfg), "--run-id", victim_root.name], prefect_server)
     out = _finish(resumed)
     assert resumed.returncode == 0, out[-3000:]
 
