@@ -31,7 +31,7 @@ __all__ = [
 
 
 #: The three verdicts of a closure.
-VERDICTS = ("noise", "explained", "ambiguous", "partly explained")
+VERDICTS = ("noise", "explained", "ambiguous", "partly explained", "not explained")
 
 
 @dataclass
@@ -151,11 +151,15 @@ def verdict(before: ResidualAnalysis, after: ResidualAnalysis, n_added: int, ide
             own_misfit: bool = False) -> str:
     """``noise`` (nothing to explain), ``explained`` (effects added, noise after, or a structure left that is the
     model's own misfit (``own_misfit``, :func:`fe_core.closure.far.misfit.judge_misfit`), each effect singled out
-    by the data), ``ambiguous`` (explained so, but a rival explanation fits about as well) or ``partly explained``
-    (structure remains beyond the model's own misfit)."""
+    by the data), ``ambiguous`` (explained so, but a rival explanation fits about as well), ``partly explained``
+    (effects added, structure remains beyond the model's own misfit) or ``not explained`` (structure, and no effect
+    of the library stands out from it: the model's own error or an effect outside the library; as the modal
+    closure says, :mod:`fe_core.modal_update.closure`)."""
     if not before.structured:
         return "noise"
-    if n_added > 0 and (not after.structured or own_misfit):
+    if n_added == 0:
+        return "not explained"
+    if not after.structured or own_misfit:
         return "explained" if identified else "ambiguous"
     return "partly explained"
 

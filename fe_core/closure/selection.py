@@ -439,7 +439,8 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         if steps and analysis.structured:
             move_log += _refine_contenders(model, freqs, u, current, checked, max_moves, alpha_bounds)
         times["check"] = times.get("check", 0.0) + time.perf_counter() - t
-        mark_negligible(model, freqs, current, checked)  # plausible in size: shifts a mode by half a per cent
+        if steps:  # after an effect, plausible in size: shifts a mode by half a per cent (the model's own error)
+            mark_negligible(model, freqs, current, checked)
         if baseline is not None and steps:  # at the model's own misfit a further effect must take out most of it
             mark_polish(baseline.residual, current.residual, checked, analysis.sigma)
         chosen = decide(current, analysis, checked)

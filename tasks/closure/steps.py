@@ -18,7 +18,6 @@ from prefect.cache_policies import NO_CACHE
 from fe_core.closure import decisions, fits, screening
 from fe_core.closure.effects import build_library, extended_frf, registered_effects
 from fe_core.closure.far.misfit import judge_misfit
-from fe_core.closure.far.plausible import mark_negligible
 from fe_core.closure.far.search import alpha_restarts
 from fe_core.closure.selection import forward_select
 from fe_core.inference.residual import analyse_residual, log_residual
@@ -359,7 +358,6 @@ def decide_task(root: str, problem, settings: dict, run_info: dict) -> dict:
     from fe_core.closure.decisions import dedupe_counting  # a tie with the emulated search keeps its FE solves
 
     checked = dedupe_counting(checked)
-    mark_negligible(model, freqs, base, checked)  # an effect must shift a mode by half a per cent (plausible size)
     chosen = decisions.decide(base, before, checked)
     final = chosen.fit if chosen is not None else base
     # Tested against the configured noise, else the level estimated from this residual itself (never the first
