@@ -46,6 +46,7 @@ from ..inference.residual import ResidualAnalysis, analyse_residual
 from .far.picks import search_candidates
 from .far.misfit import mark_polish, worth_checking
 from .far.plausible import mark_negligible
+from .prune import prune
 
 __all__ = [
     "Selection",
@@ -478,6 +479,14 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         if not analysis.structured:
             stopped = "noise"
             break
+    if len(steps) >= 2:  # every effect kept must still stand out beside the others (fe_core.closure.prune)
+        current, dropped, notes = prune(model, freqs, u, current, analysis.sigma, alpha_bounds)
+        for j in reversed(dropped):
+            del steps[j], rivals[j], keys[j]
+        move_log += notes
+        if dropped:
+            analysis = analyse_residual(current.residual, freqs, current.n_parameters, sigma, significance,
+                                        current.relative(u))
     weights, listed = [], []
     for j, step in enumerate(steps):
         r = rivals[j]
