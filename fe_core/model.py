@@ -250,13 +250,19 @@ class ParametricModel(ModelResponses):
         if ids is None:
             ids = self._node_ids_cache = np.unique(np.asarray(self.dof_table)[:, 0])
         i = int(np.searchsorted(ids, int(node)))
-        return self.node_coordinates[i].copy() if i < ids.size and ids[i] == int(node) else None
+        if i >= ids.size or ids[i] != int(node) or not np.all(np.isfinite(self.node_coordinates[i])):
+            return None
+        return self.node_coordinates[i].copy()
 
     @property
     def size_m(self) -> float | None:
         """The structure's size, m: the diagonal of its nodes' bounding box; None without coordinates."""
         xyz = self.mesh.nodes if self.mesh is not None else self.node_coordinates
-        return None if xyz is None else float(np.linalg.norm(np.ptp(xyz, axis=0)))
+        if xyz is None:
+            return None
+        xyz = np.asarray(xyz, float)
+        xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+        return float(np.linalg.norm(np.ptp(xyz, axis=0))) if len(xyz) else None
 
     @property
     def n_sensors(self) -> int:

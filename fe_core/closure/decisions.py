@@ -31,7 +31,7 @@ __all__ = [
 
 
 #: The three verdicts of a closure.
-VERDICTS = ("noise", "explained", "ambiguous", "partly explained")
+VERDICTS = ("noise", "explained", "ambiguous", "partly explained", "not explained")
 
 
 @dataclass
@@ -67,6 +67,10 @@ class ClosureResult:
     #: and whether they lie close together (:func:`fe_core.closure.selection.located`).
     spreads: list[list[tuple[str, float]]] = field(default_factory=list)
     located: list[bool] = field(default_factory=list)
+    #: What is left beyond the noise and whether it is the model's own (:class:`fe_core.closure.far.misfit.Misfit`),
+    #: and the records of the exact searches made far off.
+    misfit: object = None
+    searches: list = field(default_factory=list)
 
 
 def at_bound(effect: Effect, location: str, values, rtol: float = 1e-2) -> bool:
@@ -107,26 +111,55 @@ def score(base: Fit, checked: Sequence[Candidate]) -> None:
         c.implausible = any(at_bound(a.effect, a.location, a.values) for a in c.fit.applied)
 
 
-def decide(base: Fit, before: ResidualAnalysis, checked: Sequence[Candidate]) -> Candidate | None:
+def decide(base: Fit, before: ResidualAnalysis, checked: Sequence[Candidate], noise=None) -> Candidate | None:
     """Score the checked candidates against the model without the new effect; the chosen one, or None.
 
-    Sets the scores of :func:`score` on each candidate; an implausible one is never chosen.
+    Sets the scores of :func:`score` on each candidate; an implausible one is never chosen, nor a negligible one
+    (:func:`fe_core.closure.far.plausible.mark_negligible`, set by the caller: too small to be told from the model's
+    own error). The best by extended
+    BIC is chosen only if its gain also stands out from a misfit correlated along frequency
+    (:func:`stands_out`): the model's own error is not fitted with negligible effects. ``noise``: the noise level,
+    a number or per-value levels (p, n) (the residual analysis's level when None); it weights the residual whose
+    correlation is measured.
     """
     score(base, checked)
-    plausible = [c for c in checked if not c.implausible]
+    plausible = [c for c in checked if not c.implausible and not c.negligible]
     if not plausible or not before.structured:
         return None
     best = min(plausible, key=lambda c: c.ebic)
-    return best if best.delta_ebic < 0 else None
+    if best.delta_ebic >= 0:
+        return None
+    return best if stands_out(base, best, before.sigma if noise is None else noise) else None
 
 
-def verdict(before: ResidualAnalysis, after: ResidualAnalysis, n_added: int, identified: bool = True) -> str:
-    """``noise`` (nothing to explain), ``explained`` (effects added, noise after, each effect singled out
-    by the data), ``ambiguous`` (noise after, but a rival explanation fits about as well) or
-    ``partly explained`` (structure remains)."""
+def stands_out(base: Fit, candidate: Candidate, noise=None) -> bool:
+    """The candidate's gain over ``base`` stands out from the misfit it leaves: the extended BIC with the
+    effectively independent values of its residual in place of N is negative
+    (:func:`fe_core.closure.far.misfit.effective_ebic`; sets ``candidate.n_effective`` and
+    ``candidate.effective_ebic``)."""
+    from .far.misfit import effective_ebic, effective_values
+
+    sigma = None if noise is None or np.ndim(noise) == 0 else noise
+    n_eff = effective_values(candidate.fit.residual, sigma)
+    k = candidate.fit.n_parameters - base.n_parameters
+    candidate.n_effective = n_eff
+    candidate.effective_ebic = effective_ebic(candidate.fit.rss, base.rss, n_eff, max(k, 1), candidate.n_locations)
+    return candidate.effective_ebic < 0
+
+
+def verdict(before: ResidualAnalysis, after: ResidualAnalysis, n_added: int, identified: bool = True,
+            own_misfit: bool = False) -> str:
+    """``noise`` (nothing to explain), ``explained`` (effects added, noise after, or a structure left that is the
+    model's own misfit (``own_misfit``, :func:`fe_core.closure.far.misfit.judge_misfit`), each effect singled out
+    by the data), ``ambiguous`` (explained so, but a rival explanation fits about as well), ``partly explained``
+    (effects added, structure remains beyond the model's own misfit) or ``not explained`` (structure, and no effect
+    of the library stands out from it: the model's own error or an effect outside the library; as the modal
+    closure says, :mod:`fe_core.modal_update.closure`)."""
     if not before.structured:
         return "noise"
-    if n_added > 0 and not after.structured:
+    if n_added == 0:
+        return "not explained"
+    if not after.structured or own_misfit:
         return "explained" if identified else "ambiguous"
     return "partly explained"
 

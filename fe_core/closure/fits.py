@@ -413,13 +413,17 @@ def multistart_update(model: ParametricModel, freqs_hz, amplitude, alpha_start=N
 
 def baseline(model: ParametricModel, freqs_hz, amplitude, alpha_start, noise: float | None = None,
              significance: float = 0.01, restarts: int = 0, seed: int = 0,
-             alpha_bounds: tuple[float, float] = ALPHA_BOUNDS) -> tuple[Fit, ResidualAnalysis]:
+             alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, far_restarts=None) -> tuple[Fit, ResidualAnalysis]:
     """The alpha-only fit from the earlier updated point, and its residual analysis.
 
     If the residual is structure and ``restarts > 0``, alpha-only fits from
     ``restarts`` Sobol points follow (:func:`multistart_update`): a structured
     residual may be a local minimum of the updating rather than a missing
-    effect, and the best alpha-only fit is what an effect must beat.
+    effect, and the best alpha-only fit is what an effect must beat. Far off
+    (:func:`far_off`) and given ``far_restarts``
+    (:func:`fe_core.closure.far.search.alpha_restarts`, handed in: the far
+    package builds on this module), the starts run on the reduced model at the
+    fit and only their best ends are fitted in full.
     """
     u = np.asarray(amplitude, float)
     base = fit_update(model, freqs_hz, u, alpha_start, alpha_bounds=alpha_bounds)
@@ -427,7 +431,15 @@ def baseline(model: ParametricModel, freqs_hz, amplitude, alpha_start, noise: fl
     log.info("alpha-only fit from the run's parameters: %d FE solves; %s", base.evaluations, before.summary())
     if before.structured and restarts > 0:
         log.info("the residual is structure: alpha-only fits from %d more starts", restarts)
-        other = multistart_update(model, freqs_hz, u, None, restarts, seed, alpha_bounds)
+        if far_restarts is not None and far_off(base):  # the starts on the reduced model, the best ends in full
+            other = None
+            for start, _ in far_restarts(model, freqs_hz, u, base.alpha, restarts, seed, alpha_bounds):
+                trial = fit_update(model, freqs_hz, u, start, alpha_bounds=alpha_bounds)
+                if other is not None:
+                    trial.evaluations += other.evaluations
+                other = trial if other is None or trial.rss < other.rss else _spent(other, trial)
+        else:
+            other = multistart_update(model, freqs_hz, u, None, restarts, seed, alpha_bounds)
         other.evaluations += base.evaluations
         if other.rss < base.rss:
             base = other
@@ -436,6 +448,12 @@ def baseline(model: ParametricModel, freqs_hz, amplitude, alpha_start, noise: fl
         else:
             base.evaluations = other.evaluations
     return base, before
+
+
+def _spent(kept: Fit, other: Fit) -> Fit:
+    """``kept`` with ``other``'s FE evaluations counted (``other`` carries the running count)."""
+    kept.evaluations = other.evaluations
+    return kept
 
 
 def error_summary(fit: Fit, amplitude: np.ndarray) -> tuple[float, np.ndarray]:

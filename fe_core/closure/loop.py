@@ -17,6 +17,8 @@ from ..model import ParametricModel
 from .effects import Effect, build_library
 from .decisions import ClosureResult, verdict
 from .fits import ALPHA_BOUNDS, baseline, far_off
+from .far.misfit import judge_misfit
+from .far.search import alpha_restarts
 from .selection import forward_select
 
 __all__ = ["close_loop"]
@@ -76,7 +78,8 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     library = build_library(model) if library is None else list(library)
     freqs = np.asarray(freqs_hz, float)
     u = np.asarray(amplitude, float)
-    base, before = baseline(model, freqs, u, alpha_start, noise, significance, restarts, seed, alpha_bounds)
+    base, before = baseline(model, freqs, u, alpha_start, noise, significance, restarts, seed, alpha_bounds,
+                            far_restarts=alpha_restarts)
     times["baseline"] = time.perf_counter() - t
     log.info("baseline: %s", before.summary())
     handed = {}
@@ -88,11 +91,15 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
         times["emulator"] = time.perf_counter() - t
     sel = forward_select(model, freqs, u, handed.pop("start", base), handed.pop("analysis", before), library,
                          significance=significance, per_type=per_type, max_moves=max_moves, check_noise=check_noise,
-                         alpha_bounds=alpha_bounds, max_effects=max_effects, times=times, swaps=swaps, **handed)
+                         alpha_bounds=alpha_bounds, max_effects=max_effects, times=times, swaps=swaps, baseline=base,
+                         **handed)
     for c in (handed.get("rounds") or [[]])[0]:  # the implausible fits of a first round made with the emulator
         if c.fit is not None and c.implausible and all(c is not d for d in sel.implausible):
             sel.implausible.insert(0, c)
-    return ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
-                         sel.final, sel.after, times, sel.steps,
-                         verdict(before, sel.after, len(sel.steps), sel.identified), sel.implausible, sel.rounds,
-                         sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads, sel.located)
+    misfit = judge_misfit(base.residual, sel.final.residual, sel.after.sigma, sel.stopped == "nothing stands out")
+    result = ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
+                           sel.final, sel.after, times, sel.steps,
+                           verdict(before, sel.after, len(sel.steps), sel.identified, misfit.own), sel.implausible,
+                           sel.rounds, sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads, sel.located)
+    result.misfit, result.searches = misfit, sel.searches
+    return result

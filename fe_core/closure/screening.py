@@ -49,6 +49,17 @@ class Candidate:
     moved_from: list[str] = field(default_factory=list)
     #: The full fit ended on a plausibility bound (of this or an earlier effect): never added.
     implausible: bool = False
+    #: Where a search that evaluated the candidate exactly (:func:`fe_core.closure.far.exact_search`) fitted alpha
+    #: with it: the joint check starts there (with ``linear_values``, then the search's value), None otherwise.
+    start_alpha: np.ndarray | None = None
+    #: Effectively independent values of the residual the candidate's fit leaves, and its extended BIC with them
+    #: (:func:`fe_core.closure.decisions.stands_out`); None until decided.
+    n_effective: float | None = None
+    effective_ebic: float | None = None
+    #: Its own effect shifts no natural frequency in the band by :data:`fe_core.closure.far.plausible.MIN_SHIFT`
+    #: (not plausible in size: never added), and the largest relative shift it gives; None until judged.
+    negligible: bool = False
+    largest_shift: float | None = None
 
 
 # -- screening ----------------------------------------------------------------------------------------
@@ -291,10 +302,15 @@ def check(model: ParametricModel, freqs_hz, amplitude, base: Fit, effect: Effect
     # several starts (the update's and the nominal alpha, the linearised size kept halfway from a bound and
     # multiples of it); else from the update's alpha and the linearised size alone.
     far = far_off(base)
-    fit = joint_fit(model, freqs_hz, amplitude, alpha_starts(model, base.alpha, alpha_bounds) if far
-                    else {"update": base.alpha}, effect, candidate.location, candidate.linear_values,
-                    multiples=SIZE_MULTIPLES if far else (), base_rss=base.rss, contender=contender,
-                    primary=_start_value(effect, candidate.location, candidate.linear_values), **kw)
+    starts = alpha_starts(model, base.alpha, alpha_bounds) if far else {"update": base.alpha}
+    primary = _start_value(effect, candidate.location, candidate.linear_values)
+    multiples = SIZE_MULTIPLES if far else ()
+    if candidate.start_alpha is not None:  # the exact search's joint point: one start, where it ended
+        starts, multiples = {"search": np.asarray(candidate.start_alpha, float)}, ()
+        primary = np.asarray(candidate.linear_values, float)
+    fit = joint_fit(model, freqs_hz, amplitude, starts, effect, candidate.location, candidate.linear_values,
+                    multiples=multiples, base_rss=base.rss, contender=contender,
+                    primary=primary, **kw)
     if fit.rss > base.rss:  # the linear start led astray: start from the effect's absence
         again = fit_update(model, freqs_hz, amplitude, base.alpha, effect, candidate.location, None, **kw)
         again.evaluations += fit.evaluations

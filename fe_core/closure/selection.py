@@ -38,11 +38,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .decisions import decide, dedupe, merge, rank, score
-from .fits import ALPHA_BOUNDS, Fit, checks_per_type, fit_update
+from .fits import ALPHA_BOUNDS, Fit, checks_per_type, far_off, fit_update
 from .screening import (Candidate, _relocation_fits, _relocation_target, _start_value, check, check_in_waves,
                         pick_for_check, pick_in_waves, screen)
 from .effects import Effect
 from ..inference.residual import ResidualAnalysis, analyse_residual
+from .far.picks import search_candidates
+from .far.misfit import mark_polish, worth_checking
+from .far.plausible import mark_negligible
+from .prune import prune
 
 __all__ = [
     "Selection",
@@ -111,6 +115,11 @@ class Selection:
     moves: list[str] = field(default_factory=list)
     spreads: list[list[tuple[str, float]]] = field(default_factory=list)
     located: list[bool] = field(default_factory=list)
+    #: Records of the exact searches made (far off), in order.
+    searches: list[dict] = field(default_factory=list)
+    #: Why the selection stopped: "noise" (the residual left is noise), "nothing stands out" (no checked candidate
+    #: lowers the extended BIC with its gain standing out from the misfit) or "most effects" (``max_effects``).
+    stopped: str = ""
 
     @property
     def identified(self) -> bool:
@@ -350,7 +359,8 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
                    check_noise: bool = False, alpha_bounds: tuple[float, float] = ALPHA_BOUNDS,
                    max_effects: int = 3, times: dict | None = None, steps: Sequence[Candidate] = (),
                    rounds: Sequence[list[Candidate]] = (), swaps: bool = True,
-                   always: Sequence[str] = ("sensor_mass",)) -> Selection:
+                   always: Sequence[str] = ("sensor_mass",), search: bool = True,
+                   baseline: Fit | None = None) -> Selection:
     """Add effects one at a time from ``start`` (a fit with or without effects, ``analysis`` its residual).
 
     Each round screens every candidate with the effects so far in the model,
@@ -369,8 +379,16 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
     a flow that made the first round itself) and ``rounds`` their rounds'
     rankings: the checked candidates of the last one are the rivals of a
     single effect.
+
+    ``search``: where the residual is structure and far off (:func:`fe_core.closure.fits.far_off`), the round's
+    first checks are the candidates of the exact search (:func:`fe_core.closure.far.picks.search_candidates`),
+    each from its own fitted alpha and size; its records go to ``Selection.searches``.
+
+    ``baseline``: the alpha-only fit; once the misfit left is the model's own level, a further effect must take out
+    most of it (:func:`fe_core.closure.far.misfit.mark_polish`).
     """
     times = {} if times is None else times
+    searches: list[dict] = []
     freqs = np.asarray(freqs_hz, float)
     u = np.asarray(amplitude, float)
     by_kind = {e.kind: e for e in library}
@@ -388,6 +406,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         keys[-1] = _key(current, len(steps) - 1)
     swap_log: list[str] = []
     move_log: list[str] = []
+    stopped = "most effects"
 
     def note_implausible(cands):
         seen = {id(c) for c in implausible}
@@ -397,20 +416,39 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         t = time.perf_counter()
         screened = screen(model, freqs, current, library)
         times["screen"] = times.get("screen", 0.0) + time.perf_counter() - t
+        if baseline is not None and steps and analysis.structured and not worth_checking(
+                baseline.residual, current.residual, [c.linear_rss for c in screened], analysis.sigma):
+            log.info("at the model's own misfit, no screened candidate could take out half of it: no full checks")
+            rounds.append(rank(screened))
+            stopped = "nothing stands out"
+            break
         t = time.perf_counter()
         checked = []
         if analysis.structured or (check_noise and not steps):
             first, rest = pick_in_waves(screened, per_type, checks_per_type(current, per_type), always=always)
+            if search and analysis.structured and far_off(current):
+                # Far off: the candidates evaluated exactly (fe_core.closure.far) first; the linearised picks only
+                # where none of those makes a contender (second_wave).
+                t_search = time.perf_counter()
+                found, record = search_candidates(model, freqs, u, current, library, alpha_bounds=alpha_bounds)
+                searches.append(record)
+                times["search"] = times.get("search", 0.0) + time.perf_counter() - t_search
+                first, rest = found, first + rest
             checked = check_in_waves(model, freqs, u, current, by_kind, first, rest, max_moves, alpha_bounds,
                                      CHECK_EVALUATIONS)
         checked = dedupe(checked)
         if steps and analysis.structured:
             move_log += _refine_contenders(model, freqs, u, current, checked, max_moves, alpha_bounds)
         times["check"] = times.get("check", 0.0) + time.perf_counter() - t
+        if steps:  # after an effect, plausible in size: shifts a mode by half a per cent (the model's own error)
+            mark_negligible(model, freqs, current, checked)
+        if baseline is not None and steps:  # at the model's own misfit a further effect must take out most of it
+            mark_polish(baseline.residual, current.residual, checked, analysis.sigma)
         chosen = decide(current, analysis, checked)
         note_implausible(checked)
         rounds.append(rank(merge(checked, screened)))
         if chosen is None:
+            stopped = "nothing stands out" if analysis.structured else "noise"
             break
         steps.append(chosen)
         rivals.append(checked)
@@ -439,7 +477,16 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
                                     current.relative(u))
         log.info("after step %d: %s", len(steps), analysis.summary())
         if not analysis.structured:
+            stopped = "noise"
             break
+    if len(steps) >= 2:  # every effect kept must still stand out beside the others (fe_core.closure.prune)
+        current, dropped, notes = prune(model, freqs, u, current, analysis.sigma, alpha_bounds)
+        for j in reversed(dropped):
+            del steps[j], rivals[j], keys[j]
+        move_log += notes
+        if dropped:
+            analysis = analyse_residual(current.residual, freqs, current.n_parameters, sigma, significance,
+                                        current.relative(u))
     weights, listed = [], []
     for j, step in enumerate(steps):
         r = rivals[j]
@@ -449,4 +496,4 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
     spreads = [location_spread(model, freqs, current, j) for j in range(len(steps))]
     where = [located(model, a.effect, a.location, sp) for a, sp in zip(current.applied, spreads)]
     return Selection(steps, rounds, implausible, current, analysis, weights, listed, swap_log, move_log, spreads,
-                     where)
+                     where, searches, stopped)

@@ -17,6 +17,8 @@ from prefect.cache_policies import NO_CACHE
 
 from fe_core.closure import decisions, fits, screening
 from fe_core.closure.effects import build_library, extended_frf, registered_effects
+from fe_core.closure.far.misfit import judge_misfit
+from fe_core.closure.far.search import alpha_restarts
 from fe_core.closure.selection import forward_select
 from fe_core.inference.residual import analyse_residual, log_residual
 from tasks.closure.store import (
@@ -116,7 +118,7 @@ def baseline_task(root: str, problem, settings: dict) -> dict:
         model = problem.model
         fit, analysis = fits.baseline(model, freqs, u, settings["alpha_start"], noise_of(problem, settings),
                                       settings["significance"], settings["restarts"], settings["seed"],
-                                      tuple(settings["alpha_bounds"]))
+                                      tuple(settings["alpha_bounds"]), far_restarts=alpha_restarts)
         store.write_table("baseline", "baseline", _param_table(fit, {}))
         store.write_table("baseline", "residual_before",
                           residual_table(freqs, sensors, fit.relative(u), fit.residual))
@@ -156,13 +158,15 @@ def screen_task(root: str, problem, settings: dict) -> dict:
 
 
 def check_candidate(ref, effects, kind: str, location: str, linear_values, base_alpha, freqs, u,
-                    max_moves: int, alpha_bounds) -> dict:
+                    max_moves: int, alpha_bounds, start_alpha=None) -> dict:
     """One full FE check (runs in a worker process; ``ref``: the model's :class:`tasks.problem.ModelRef`);
-    returns a flat record."""
+    returns a flat record. ``start_alpha``: where the exact search fitted alpha with the candidate (the check
+    starts there)."""
     model = ref.load()
     library = _cached_library(model, effects)
     cand = screening.Candidate(effect=kind, location=location, n_locations=len(library[kind].locations()),
-                               linear_values=np.asarray(linear_values, float), linear_rss=0.0, linear_explained=0.0)
+                               linear_values=np.asarray(linear_values, float), linear_rss=0.0, linear_explained=0.0,
+                               start_alpha=None if start_alpha is None else np.asarray(start_alpha, float))
     base = fits.Fit(alpha=np.asarray(base_alpha, float), effect=None, location=None, values=np.zeros(0),
                     model_amplitude=None, residual=np.full(np.shape(u), np.inf), evaluations=0)
     # The base residual is only compared against (a fit worse than it restarts from zero):
@@ -192,6 +196,8 @@ def check_task(root: str, problem, settings: dict) -> dict:
             logger.info("closure: the residual is noise (chi-square p = %.3g); no candidate is checked",
                         analysis["p_chi2"])
             first, rest = [], []
+        elif analysis["structured"] and settings.get("search", True) and fits.far_off(base):
+            first, rest = _searched(store, model, settings, base, freqs, u), first + rest
         wave = list(enumerate(first))
         _run_checks(store, problem, settings, base, freqs, u, wave)
         parts = [pd.read_parquet(store.path("check", f"check={k:03d}")) for k, _ in wave]
@@ -250,7 +256,8 @@ def _run_checks(store, problem, settings: dict, base, freqs, u, wave) -> None:
     if not todo:
         return
     jobs = (delayed(_indexed)(k, problem.ref, settings.get("effects"), c.effect, c.location, c.linear_values,
-                              base.alpha, freqs, u, settings["max_moves"], settings["alpha_bounds"]) for k, c in todo)
+                              base.alpha, freqs, u, settings["max_moves"], settings["alpha_bounds"], c.start_alpha)
+            for k, c in todo)
     parallel = Parallel(n_jobs=settings.get("n_jobs", 1), backend="loky", return_as="generator_unordered")
     count = [len(wave) - len(todo)]
     with heartbeat("closure checks", lambda: f"{count[0]} of {len(wave)} candidates checked"):
@@ -259,6 +266,56 @@ def _run_checks(store, problem, settings: dict, base, freqs, u, wave) -> None:
             count[0] += 1
             logger.info("closure check %d of %d (candidate %d): %s at %s, rss %.3g (%d FE solves)", count[0],
                         len(wave), k + 1, record["effect"], record["location"], record["rss"], record["evaluations"])
+
+
+def _searched(store, model, settings: dict, base, freqs, u) -> list:
+    """Far off: the exact search's candidates (:func:`fe_core.closure.far.picks.search_candidates`), found in the
+    main process on the reduced model and stored (``check/search.json``); read back on resume."""
+    from fe_core.closure.far.picks import as_candidate, pick_found
+    from fe_core.closure.far.search import Found
+
+    path = store.root / "step=check" / "search.json"
+    if path.is_file():
+        record = json.loads(path.read_text())
+    else:
+        from fe_core.closure.far.picks import search_candidates
+
+        _, record = search_candidates(model, freqs, u, base, list(_library(model, settings).values()),
+                                      alpha_bounds=tuple(settings["alpha_bounds"]))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(path, record)
+    library = _library(model, settings)
+    found = [Found(f["effect"], f["location"], np.asarray(f["values"]), np.asarray(f["alpha"]), f["scan"], f["rss"],
+                   len(library[f["effect"]].locations())) for f in record["found"]]
+    picked = {tuple(p) for p in record["picked"]}
+    picks = [f for f in pick_found(found) if (f.effect, f.location) in picked]
+    # The closure starts from the evidence too: what the update's exact screens found, with their alpha.
+    for e in _evidence_found(store, library):
+        if all((e.effect, e.location) != (f.effect, f.location) for f in picks):
+            picks.append(e)
+    _logger().info("closure: far off (rms %.3g): exact search of %d places in %.1f s; checking %s",
+                   float(np.sqrt(np.mean(base.residual ** 2))), sum(p["scanned"] for p in record["passes"]),
+                   record["seconds"], ", ".join(f"{f.effect} at {f.location} = {f.values[0]:.4g}" for f in picks))
+    return [as_candidate(f, base) for f in picks]
+
+
+def _evidence_found(store, library) -> list:
+    """The effects the update's evidence evaluated exactly (``summary.json``'s ``evidence.screens`` of the run whose
+    closure this is), as found candidates with the alpha fitted with them; none without them."""
+    from fe_core.closure.far.search import Found
+
+    path = store.root.parent / "summary.json"
+    try:
+        screens = (json.loads(path.read_text()).get("evidence") or {}).get("screens") or []
+    except (OSError, ValueError):
+        return []
+    out = []
+    for sc in screens:
+        if sc.get("exact") and sc.get("effect") in library and sc.get("effect_alpha"):
+            out.append(Found(sc["effect"], sc["location"], np.asarray(sc["values"], float),
+                             np.asarray(sc["effect_alpha"], float), float(sc["rss_effect"]), float(sc["rss_effect"]),
+                             len(library[sc["effect"]].locations())))
+    return out
 
 
 def _indexed(k, *args):
@@ -287,7 +344,9 @@ def decide_task(root: str, problem, settings: dict, run_info: dict) -> dict:
     screened = {(c.effect, c.location): c for c in _screened(store)}
     checked = []
     for r in store.read_table("check", "checks").itertuples(index=False):
-        c = screened.get((r.effect, r.screened_location))
+        c = screened.get((r.effect, r.screened_location)) or screening.Candidate(
+            effect=r.effect, location=r.screened_location, n_locations=len(library[r.effect].locations()),
+            linear_values=np.asarray(json.loads(r.values), float), linear_rss=float(r.rss), linear_explained=0.0)
         c = screening.Candidate(effect=r.effect, location=r.location, n_locations=c.n_locations,
                                 linear_values=c.linear_values, linear_rss=c.linear_rss,
                                 linear_explained=c.linear_explained, linear_delta_bic=c.linear_delta_bic,
@@ -314,11 +373,17 @@ def decide_task(root: str, problem, settings: dict, run_info: dict) -> dict:
         sel = forward_select(model, freqs, u, final, after, list(library.values()),
                              significance=settings["significance"], per_type=settings["per_type"],
                              max_moves=settings["max_moves"], alpha_bounds=tuple(settings["alpha_bounds"]),
-                             max_effects=settings.get("max_effects", 3), steps=[chosen], rounds=[ranked])
+                             max_effects=settings.get("max_effects", 3), steps=[chosen], rounds=[ranked],
+                             baseline=base)
         steps = sel.steps
         implausible += [c for c in sel.implausible if all(c is not d for d in implausible)]
         final, after = sel.final, sel.after
-    verdict = decisions.verdict(before, after, len(steps), True if sel is None else sel.identified)
+    # The structure left beyond the noise: the model's own misfit when nothing more stands out from it and it is small
+    # beside what the effects explained (fe_core.closure.far.misfit.judge_misfit); closure.json reports its size.
+    misfit = judge_misfit(base.residual, final.residual, after.sigma, sel is not None and sel.stopped ==
+                          "nothing stands out")
+    verdict = decisions.verdict(before, after, len(steps), True if sel is None else sel.identified,
+                                misfit.own and after.structured)
     cand_df = _candidates_frame(ranked, library)
     if not store.is_finished("decide"):
         store.write_table("decide", "candidates", cand_df)
@@ -336,6 +401,13 @@ def decide_task(root: str, problem, settings: dict, run_info: dict) -> dict:
     summary = _closure_json(store, settings, run_info, base, final, before, after, ranked, library, u, sensors,
                             freqs, _verdict_json(verdict, steps, implausible, library, final, sel),
                             float(np.mean(np.abs(at_run))))
+    summary.update(misfit.to_dict())
+    if steps and after.structured:
+        summary["decision"] += f"; {misfit.reason}"
+    search = store.root / "step=check" / "search.json"
+    if search.is_file():
+        record = json.loads(search.read_text())
+        summary["search"] = {k: record[k] for k in ("seconds", "rss_alpha", "picked", "passes") if k in record}
     # Issue 19: 95 % intervals and the covariance of alpha and every added effect's value (the effects of the
     # forward selection, in the order added, as in parameters_after).
     from tasks.closure.intervals import closure_interval_fields

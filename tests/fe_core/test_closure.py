@@ -113,7 +113,8 @@ def test_verdicts_name_noise_explained_and_partly_explained():
     assert verdict(A(False), A(False), 0) == "noise"
     assert verdict(A(True), A(False), 2) == "explained"
     assert verdict(A(True), A(True), 2) == "partly explained"
-    assert verdict(A(True), A(True), 0) == "partly explained"
+    assert verdict(A(True), A(True), 0) == "not explained"  # nothing stands out: nothing explained
+    assert verdict(A(True), A(True), 0, own_misfit=True) == "not explained"
 
 
 def test_an_earlier_effect_is_refitted_with_alpha_and_the_new_one(benchmark_model):

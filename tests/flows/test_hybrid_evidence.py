@@ -41,12 +41,15 @@ def test_an_undeclared_point_mass_ends_the_search_for_basins_with_the_mass_named
     truth = json.loads((DATA / "truth.json").read_text())["point_mass"]
     ev = summary["evidence"]
     assert ev["choice"] == "closure" and summary["iterations"] == 2 and not summary["converged"]
-    best = next(s for s in ev["screens"] if s["effect"] == "point_mass" and s["at"] == "best basin")
-    assert best["location"] == f"node {truth['node']}"
-    assert best["values"][0] == pytest.approx(truth["mass_kg"], rel=0.10)  # linearised size within 10 %
-    assert ev["rss_effect"] <= 0.1 * ev["rss_basin"]
+    # Far off, the best point's candidates are evaluated exactly (issue 40): the mass at its node with its size
+    # and the factors fitted with it, already at the local fit, in another basin than the truth's.
+    best = min(ev["screens"], key=lambda s: s["rss_effect"])
+    assert best["exact"] and best["effect"] == "point_mass" and best["location"] == f"node {truth['node']}"
+    assert best["values"][0] == pytest.approx(truth["mass_kg"], rel=0.02)
+    np.testing.assert_allclose(best["effect_alpha"], truth["alpha"], atol=0.01)
+    assert ev["rss_effect"] <= 0.1 * ev["rss_basin"] and ev["rss_effect"] == pytest.approx(best["rss_effect"])
     assert "closure takes over" in summary["stop_reason"] and "evidence" in summary["stop_reason"]
-    # The reported point is the basin where the effect was screened: the closure starts there.
+    # The reported point is the FE run where the chosen effect was screened: the closure starts there.
     reported = np.array([summary["parameters"][f"alpha_{i + 1}"] for i in range(4)])
     np.testing.assert_allclose(reported, best["alpha"], atol=1e-9)
     assert summary["fe_equivalents"] < 150.0  # the run without the evidence spent 227.5 on four cycles

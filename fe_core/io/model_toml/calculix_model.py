@@ -199,6 +199,10 @@ def _calculix_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
     table = np.column_stack([labels[:, 0], labels[:, 1] - 1])
     ux = (table[:, 1] == 0).astype(float)
     masses = [float(ux @ (M @ ux)) for M in M_seg]
+    # The deck's coordinates of the nodes the DOF table names (NaN for a node ccx made, not in the deck): the
+    # closure places nodal effects and measures their spread with them, as for a matrices model's node table.
+    ids = np.unique(table[:, 0])
+    coordinates = np.array([deck.nodes.get(int(i), (np.nan,) * 3) for i in ids], float)
     model = ParametricModel(
         mesh=None, free_dofs=np.arange(n),
         stiffness_segments=SegmentedMatrix.from_matrices(K_seg, K0),
@@ -206,7 +210,7 @@ def _calculix_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Pa
         segment_names=names, damping=damping, segment_masses=masses, outputs=outputs, load=load,
         sensor_names=snames, excitation_name=exc_name, n_total_dofs=n, parameter_bounds=bounds,
         source=str(spec.path), remainder_mass=float(ux @ (M0 @ ux)), placements=placements, dof_table=table,
-        mass_parameters=mass_parameters, **extra,
+        mass_parameters=mass_parameters, node_coordinates=coordinates, **extra,
     )
     model.deck_view = deck_view(deck, [seg.elset for seg in segments], labels)   # for model.vtu
     return model

@@ -1,0 +1,42 @@
+"""The backward check of a forward selection (fe_core.closure.prune): an effect that later refits left with no gain
+of its own is dropped, and two effects the data carry are both kept. Data: the three-plate benchmark's FRF with
+effects added by the direct solve (extended_frf), 0.5 % noise."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ as F
+from fe_core.closure.effects import Applied, GroundedSpring, PointMass, extended_frf
+from fe_core.closure.fits import fit_update
+from fe_core.closure.prune import prune
+
+NOISE = 0.005
+
+
+def _data(model, truth, seed):
+    u = np.abs(extended_frf(model, ALPHA_ACTUAL, F, truth, method="direct"))
+    return u * np.exp(NOISE * np.random.default_rng(seed).standard_normal(u.shape))
+
+
+def test_an_effect_left_with_no_gain_is_dropped_and_the_true_one_kept(benchmark_model):
+    pm = PointMass(benchmark_model)
+    u = _data(benchmark_model, [Applied(pm, "node 337", np.array([0.12]))], 3)
+    # what a move can leave: an earlier mass, shrunk to a few grams at another node, beside the true one
+    both = fit_update(benchmark_model, F, u, ALPHA_ACTUAL, pm, "node 337", [0.12],
+                      prior=[Applied(pm, "node 457", np.array([0.002]))])
+    fit, dropped, notes = prune(benchmark_model, F, u, both, NOISE)
+    assert dropped == [0] and len(notes) == 1 and "node 457" in notes[0]
+    assert [a.location for a in fit.applied] == ["node 337"]
+    assert fit.applied[0].values[0] == pytest.approx(0.12, rel=0.05)
+    assert fit.rss <= 1.05 * both.rss  # what the dropped mass explained is within the noise
+
+
+def test_two_effects_the_data_carry_are_both_kept(benchmark_model):
+    pm, gs = PointMass(benchmark_model), GroundedSpring(benchmark_model)
+    truth = [Applied(pm, "node 337", np.array([0.12])), Applied(gs, "node 919", np.array([4e5]))]
+    u = _data(benchmark_model, truth, 4)
+    both = fit_update(benchmark_model, F, u, ALPHA_ACTUAL, gs, "node 919", [4e5], prior=truth[:1])
+    fit, dropped, notes = prune(benchmark_model, F, u, both, NOISE)
+    assert dropped == [] and notes == [] and fit is both
