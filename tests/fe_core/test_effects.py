@@ -340,3 +340,23 @@ def test_linearised_sensitivities_on_any_model_match_differences_of_the_direct_s
                    for v in (step, lo))
     fd = (np.log(np.abs(plus)) - np.log(np.abs(minus))).ravel() / (step - lo)
     assert np.max(np.abs(analytic - fd)) <= (1e-4 if lo < 0 else 5e-3) * np.max(np.abs(fd))
+
+
+def test_a_matrices_model_offers_only_the_nodes_its_node_table_places():
+    """A solver's own nodes (CalculiX's expanded shell nodes carry DOFs in its matrices but no place in the deck)
+    are not candidate places: a mass there is not a claim about the structure."""
+    from dataclasses import replace
+
+    from fe_core.closure.effects.base import candidate_nodes, node_rows
+    from tasks.problem import read_model_ref
+
+    model, _ = read_model_ref("data/examples/cantilever_matrices/model.toml")
+    nodes, _ = node_rows(model)
+    every = candidate_nodes(model)
+    assert model.node_coordinates is not None and every.size > 10
+    xyz = np.array(model.node_coordinates, float)
+    unplaced = every[::7]
+    xyz[np.searchsorted(nodes, unplaced)] = np.nan  # as the table leaves a solver's own nodes
+    fewer = candidate_nodes(replace(model, node_coordinates=xyz))
+    assert set(fewer) == set(every) - set(unplaced)
+    assert set(E.PointMass(replace(model, node_coordinates=xyz)).nodes) == set(fewer)
