@@ -12,7 +12,7 @@ kept, at the true factors (the effect, if any, not modelled):
    (three coefficients fitted by least squares); and after every mode in the band is shifted freely (one factor
    per mode). The FRF is the model's exact one, its modes (up to twice the top) taken out and put back shifted:
    ``Z = R + sum_r P_r / (w_r^2 - w^2 + i w (a + b w_r^2))`` with ``R`` what the modes leave (Rayleigh damping,
-   :meth:`fe_core.model.ParametricModel.modal_terms`). Each is tested against the noise the data state
+   :meth:`fe_core.model.ParametricModel.modal_terms`, summed by :meth:`mrgp_core.modal_outputs.ModalLayout.terms`). Each is tested against the noise the data state
    (coherence and averages, :func:`fe_core.inference.residual.analyse_residual`);
 2. **the modes**: identified from the measured FRFs (LSCF/LSFD, :func:`tasks.modal_identify.identify_modes`,
    band 0.5 x the model's first mode to the top line), paired with the model's by MAC at the sensors: the
@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
+from mrgp_core.modal_outputs import ModalLayout
+
 REPO = Path(__file__).resolve().parents[1]
 ROOT = REPO / "data" / "cases" / "held_out"
 
@@ -49,11 +51,6 @@ def _case(case: str) -> tuple[dict, object, object]:
     return truth, model, prepare_data(config, read_measured(config.measured), model)
 
 
-def _modal_sum(omega2, P, w, a, b) -> np.ndarray:
-    den = omega2[None, :] - w[:, None] ** 2 + 1j * w[:, None] * (a + b * omega2)[None, :]
-    return (1.0 / den) @ P
-
-
 def frf_misfit(model, data, alpha) -> dict:
     """The analyses of the log residual as it is, after a smooth warp and after free shifts of the modes."""
     from fe_core.inference.residual import analyse_residual
@@ -62,7 +59,6 @@ def frf_misfit(model, data, alpha) -> dict:
     f, u = data.frequencies_hz[lines], data.amplitude[lines]
     w = 2 * np.pi * f
     Z = model.parameter_frf(alpha, f, data.channels)
-    a, b = model.damping
     n = 12
     while True:  # every mode up to twice the top line
         omega2, P = model.modal_terms(alpha, n, data.channels)
@@ -71,18 +67,24 @@ def frf_misfit(model, data, alpha) -> dict:
         n += 12
     keep = np.sqrt(omega2) < 2.0 * w.max()
     omega2, P = omega2[keep], P[keep]
-    rest = Z - _modal_sum(omega2, P, w, a, b)
+    channels = u.shape[1]  # the modes' part of Z on the (line, channel) grid, as the modal emulation sums it
+    layout = ModalLayout(np.repeat(w, channels), np.tile(np.arange(channels), w.size), channels,
+                         tuple(float(v) for v in model.damping), omega2.size)
+
+    def modal_sum(o2):
+        return layout.terms(o2, P).reshape(u.shape)
+
+    rest = Z - modal_sum(omega2)
     x = np.sqrt(omega2) / w.max()
     in_band = int(np.sum(np.sqrt(omega2) <= w.max()))
 
     def warped(c):
-        return np.log(np.abs(rest + _modal_sum(omega2 * np.exp(-2 * (c[0] + c[1] * x + c[2] * x**2)), P, w, a, b))
-                      / u).ravel()
+        return np.log(np.abs(rest + modal_sum(omega2 * np.exp(-2 * (c[0] + c[1] * x + c[2] * x**2)))) / u).ravel()
 
     def shifted(s):
         o2 = omega2.copy()
         o2[:in_band] *= np.exp(-2 * s)
-        return np.log(np.abs(rest + _modal_sum(o2, P, w, a, b)) / u).ravel()
+        return np.log(np.abs(rest + modal_sum(o2)) / u).ravel()
 
     noise, m = data.noise_spec(), len(alpha)
     warp = least_squares(warped, np.zeros(3), x_scale=0.01)
@@ -98,6 +100,7 @@ def frf_misfit(model, data, alpha) -> dict:
 
 def modes_misfit(model, data, truth, alpha) -> dict:
     """Identified modes against the model's at ``alpha``, paired by MAC at the sensors."""
+    from fe_core.correlation.mac import mac_matrix
     from fe_core.solvers.modal import eigenmodes
     from tasks.io.measured import read_measured
     from tasks.modal_data import match_modes
@@ -110,8 +113,7 @@ def modes_misfit(model, data, truth, alpha) -> dict:
         modes, _ = identify_modes(measured, 0.5 * first, float(truth["lines"]["top_hz"]))
     outputs = match_modes(modes, model).outputs
     f, V = eigenmodes(model.stiffness(alpha), model.mass(), modes.n_modes + 4)
-    S, X = outputs.T @ V, modes.shapes.T
-    mac = np.abs(X.T @ S) ** 2 / (np.sum(X**2, 0)[:, None] * np.sum(S**2, 0)[None, :])
+    mac = mac_matrix(modes.shapes, (outputs.T @ V).T)
     j = np.argmax(mac, axis=1)
     return {"test_hz": modes.frequencies_hz.round(2).tolist(),
             "difference_percent": (100 * (f[j] - modes.frequencies_hz) / modes.frequencies_hz).round(2).tolist(),

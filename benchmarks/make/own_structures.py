@@ -203,12 +203,16 @@ def frf(fem: dict, K, M, damping, freqs_hz) -> np.ndarray:
 
 def static_stiffness(fem: dict, K, node: int, axis: int) -> float:
     """1 / compliance of one DOF of the clamped structure, N/m."""
+    return row_stiffness(K, fem["fixed"], fem["dofs"][axis, node])
+
+
+def row_stiffness(K, fixed, row: int) -> float:
+    """1 / compliance of DOF ``row`` of ``K`` with the DOFs ``fixed`` clamped, N/m (scikit-fem's condense)."""
     from skfem import condense
 
-    row = fem["dofs"][axis, node]
     f = np.zeros(K.shape[0])
     f[row] = 1.0
-    Kc, fc, _, I = condense(K, f, D=fem["fixed"])
+    Kc, fc, _, I = condense(K, f, D=fixed)
     u = np.zeros(K.shape[0])
     u[I] = spla.spsolve(Kc.tocsc(), fc)
     return 1.0 / u[row]

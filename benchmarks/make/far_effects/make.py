@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..own_structures import row_stiffness
 from . import plate as pl
 from . import shell as sh
 from .cases import LINES, STRUCTURES, Case
@@ -47,18 +48,6 @@ def plate_toml(s: pl.PlateSpec, g: dict, mesh_rel: str) -> str:
     return "\n".join(lines)
 
 
-def _static_stiffness(fem, K, row) -> float:
-    import scipy.sparse.linalg as spla
-    from skfem import condense
-
-    f = np.zeros(K.shape[0])
-    f[row] = 1.0
-    Kc, fc, _, I = condense(K, f, D=fem["fixed"])
-    u = np.zeros(K.shape[0])
-    u[I] = spla.spsolve(Kc.tocsc(), fc)
-    return 1.0 / u[row]
-
-
 def plate_case(case: Case, out: Path) -> dict:
     s = STRUCTURES[case.structure]
     path = plate_mesh(case.structure, out.parent)
@@ -76,7 +65,7 @@ def plate_case(case: Case, out: Path) -> dict:
             effect = {"kind": "point_mass", "node": node, "value": value}
         elif e["kind"].startswith("grounded_spring"):
             row = fem["dofs"](node)["xyz".index(e["kind"][-1])]
-            value = e["share"] * _static_stiffness(fem, K, row)
+            value = e["share"] * row_stiffness(K, fem["fixed"], row)
             effect = {"kind": e["kind"], "node": node, "value": value}
         elif e["kind"] == "layer":
             effect = None
