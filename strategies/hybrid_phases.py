@@ -20,7 +20,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import qmc
 
 from fe_core.inference.residual import MAX_NOISE
 
@@ -147,6 +146,7 @@ def _emulator_starts(ledger: Ledger, lower, upper, minima: list[np.ndarray], opt
                      cycle: int) -> list[np.ndarray]:
     """The best distinct candidates by the emulator's composite objective, away from known minima."""
     import mrgp_core
+    from scipy.stats import qmc  # here, not at the top: scipy.stats is 0.7 s of CPU to import, unused by most runs
 
     X = np.array([x for x, _ in ledger.responses])
     Y = np.log(np.abs(np.array([Z for _, Z in ledger.responses])))
@@ -189,6 +189,7 @@ def _warped(X: np.ndarray, options: HybridOptions) -> np.ndarray:
 def _from_unit(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, options: HybridOptions) -> np.ndarray:
     """Points of [0, 1]^m to the box, uniform in the warped coordinates (:func:`_warped`)."""
     if options.warp == "none":
+        from scipy.stats import qmc  # here, not at the top: scipy.stats is 0.7 s of CPU to import, unused by most runs
         return qmc.scale(q, lower, upper)
     a, b = _warped(lower, options), _warped(upper, options)
     return np.clip((a + q * (b - a)) ** 2 - 1.0, lower, upper)
@@ -210,6 +211,7 @@ def global_phase(ledger: Ledger, lower: np.ndarray, upper: np.ndarray, minima: l
 
     The emulator's starts are the step ``emulator`` of ``iteration`` (default ``cycle + 1``) of ``memo``
     (:class:`.base.Memo`; default in memory): its table ``starts``, one row per start."""
+    from scipy.stats import qmc  # here, not at the top: scipy.stats is 0.7 s of CPU to import, unused by most runs
     memo = memo if memo is not None else InMemory()
     iteration = cycle + 1 if iteration is None else iteration
     sobol = qmc.Sobol(lower.size, scramble=True, seed=np.random.default_rng([options.seed, cycle, 0]))

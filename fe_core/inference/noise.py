@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy import stats
 
 from .levels import CLIP, CLIP_FACTOR, _clipped_level, frequency_bands
 
@@ -216,6 +215,7 @@ def _fit(d2: np.ndarray, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np
     of their standard deviation left out and the kept ones' clipped second moment corrected
     (:data:`CLIP_FACTOR`). Starts from the lower quartile's level with no floor, so the iteration rises to the
     noise's fixed point, not to one a misfit at many lines would hold up (as the scalar estimate)."""
+    from scipy import stats  # here, not at the top: 0.7 s of CPU to import, unused by most runs
     q = np.quantile(np.sqrt(d2), 0.25, axis=-1) / stats.norm.ppf(0.625)
     a2 = np.where(q > 0, q**2, np.mean(d2, axis=-1)) / 6.0
     b2 = np.zeros_like(a2)
@@ -415,6 +415,7 @@ def noise_model_test(residual: np.ndarray, noise: NoiseModel, n_fitted: int, amp
     :data:`NULL_DRAWS` draws (fixed seed, cached per model) whose statistic is at least ``T`` (:func:`_tail`;
     the smallest p is ``1 / (NULL_DRAWS + 1)``).
     """
+    from scipy import stats  # here, not at the top: 0.7 s of CPU to import, unused by most runs
     r = np.asarray(residual, float)
     w = r / noise.sigma
     T = float(np.sum(w**2))

@@ -33,7 +33,6 @@ from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from scipy import stats
 
 from .levels import CLIP, CLIP_FACTOR, _clipped_level, estimate_noise, frequency_bands, second_differences
 
@@ -137,6 +136,7 @@ def estimated_noise_test(residual: np.ndarray, freqs_hz, n_fitted: int) -> tuple
 
 def chi_square_test(residual: np.ndarray, sigma: float, n_fitted: int) -> tuple[float, int, float]:
     """``(T, dof, p)``: ``T = sum r^2 / sigma^2`` against chi-square with ``N - n_fitted`` dof."""
+    from scipy import stats  # here, not at the top: 0.7 s of CPU to import, unused by most runs
     r = np.asarray(residual, float).ravel()
     dof = r.size - int(n_fitted)
     if dof < 1:
@@ -153,6 +153,7 @@ def runs_test(residual: np.ndarray, freqs_hz) -> tuple[int, float, float]:
     Each (sensor, band) sequence is a separate series; the expected number of
     runs and its variance (given the counts of each sign) are summed over them.
     """
+    from scipy import stats  # here, not at the top: 0.7 s of CPU to import, unused by most runs
     r = np.asarray(residual, float)
     runs, mean, var = 0, 0.0, 0.0
     for idx in frequency_bands(freqs_hz):

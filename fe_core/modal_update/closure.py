@@ -33,7 +33,6 @@ Every FE run (screens and checks) goes to the residual's ``history`` with its st
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
 from .fit import fit_modes
 from .nelson import eigen_derivatives_at, parameter_matrices
@@ -48,6 +47,7 @@ CHUNK = 600
 
 
 def _chi2_test(chi2: float, n: int, k: int) -> dict:
+    from scipy import stats  # here, not at the top: 0.7 s of CPU to import, unused by most runs
     dof = max(n - k, 1)
     p = float(stats.chi2.sf(chi2, dof))
     return {"chi2": float(chi2), "dof": dof, "p_value": p, "structured": p < LEVEL}
