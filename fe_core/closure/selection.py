@@ -479,8 +479,8 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         if not analysis.structured:
             stopped = "noise"
             break
-    if len(steps) >= 2:  # every effect kept must still stand out beside the others (fe_core.closure.prune)
-        current, dropped, notes = prune(model, freqs, u, current, analysis.sigma, alpha_bounds)
+    if steps:  # every effect kept must stand out beside the others and, at structure, carry over (closure.prune)
+        current, dropped, notes = prune(model, freqs, u, current, analysis.sigma, alpha_bounds, analysis.structured)
         for j in reversed(dropped):
             del steps[j], rivals[j], keys[j]
         move_log += notes

@@ -189,7 +189,10 @@ def test_an_effect_outside_the_library_is_never_called_explained(benchmark_model
     result = closure2(benchmark_model, "outside_library.csv",
                       ["sensor_gain", "point_mass", "sensor_mass", "grounded_spring"])
     assert result.before.structured
-    assert result.verdict == "partly explained" and result.after.structured
+    # the stand-in (a 0.8 kg point mass for a spring tying two plates) takes out 63 % of the residual but, fitted on
+    # one half of the lines, predicts the other half worse: dropped by the backward check (fe_core.closure.crossband)
+    assert result.verdict == "not explained" and result.after.structured and not result.steps
+    assert any("does not carry over" in m for m in result.moves)
 
 
 @pytest.mark.slow
