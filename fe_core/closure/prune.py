@@ -39,6 +39,14 @@ def prune(model, freqs_hz, amplitude, fit: Fit, noise=None, alpha_bounds=ALPHA_B
     """
     kept = list(range(len(fit.applied)))
     dropped, notes = [], []
+
+    def drop(j: int, note: str, refitted: Fit) -> Fit:
+        log.info("backward check: %s", note)
+        notes.append(note)
+        dropped.append(j)
+        kept.remove(j)
+        return refitted
+
     for j in reversed(range(len(fit.applied))):
         if len(kept) < 2:
             break
@@ -54,13 +62,8 @@ def prune(model, freqs_hz, amplitude, fit: Fit, noise=None, alpha_bounds=ALPHA_B
                               linear_rss=fit.rss, linear_explained=0.0, fit=fit)
         if stands_out(refitted, candidate, noise):
             continue
-        note = (f"{own.label()} = {own.values} dropped: with the other effects refitted its gain does not stand "
-                f"out (sum of squares {refitted.rss:.4g} without it, {fit.rss:.4g} with it)")
-        log.info("backward check: %s", note)
-        notes.append(note)
-        dropped.append(j)
-        kept.remove(j)
-        fit = refitted
+        fit = drop(j, f"{own.label()} = {own.values} dropped: with the other effects refitted its gain does not "
+                      f"stand out (sum of squares {refitted.rss:.4g} without it, {fit.rss:.4g} with it)", refitted)
     if across:
         for j in reversed(list(kept)):
             here = kept.index(j)
@@ -69,15 +72,10 @@ def prune(model, freqs_hz, amplitude, fit: Fit, noise=None, alpha_bounds=ALPHA_B
             if carries:
                 log.info("backward check: %s carries over across the band (%s)", applied[here].label(), how)
                 continue
-            own = applied[here]
-            note = (f"{own.label()} = {own.values} dropped: it does not carry over across the band, the model's "
-                    f"own error where it was fitted ({how})")
-            log.info("backward check: %s", note)
-            notes.append(note)
-            dropped.append(j)
-            kept.remove(j)
-            rest = applied[:here] + applied[here + 1:]
-            fit = (fit_update(model, freqs_hz, amplitude, fit.alpha, rest[-1].effect, rest[-1].location, rest[-1].values,
-                              prior=rest[:-1], alpha_bounds=alpha_bounds) if rest
-                   else fit_update(model, freqs_hz, amplitude, fit.alpha, alpha_bounds=alpha_bounds))
+            own, rest = applied[here], applied[:here] + applied[here + 1:]
+            refitted = (fit_update(model, freqs_hz, amplitude, fit.alpha, rest[-1].effect, rest[-1].location,
+                                   rest[-1].values, prior=rest[:-1], alpha_bounds=alpha_bounds) if rest
+                        else fit_update(model, freqs_hz, amplitude, fit.alpha, alpha_bounds=alpha_bounds))
+            fit = drop(j, f"{own.label()} = {own.values} dropped: it does not carry over across the band, the "
+                          f"model's own error where it was fitted ({how})", refitted)
     return fit, sorted(dropped), notes
