@@ -93,8 +93,9 @@ def effect_status(verdict: str) -> str:
     return {"explained": "finding", "ambiguous": "ambiguous"}.get(verdict, "candidate")
 
 
-def decision_text(verdict: str, effects: list[dict], before, analysis_after) -> str:
-    """The closure's headline, from the final effects (their places after every move and swap)."""
+def decision_text(verdict: str, effects: list[dict], before, analysis_after, moves=()) -> str:
+    """The closure's headline, from the final effects (their places after every move and swap); ``moves`` says
+    whether the backward check dropped effects that did not carry over across the band."""
     if effects:
         added = "; ".join(f"{STATUSES[e['status']].split(' (')[0]} {e['type']} at {e['location']}"
                           + (f" (moved from {', '.join(e['moved_from'])})" if e.get("moved_from") else "")
@@ -104,6 +105,10 @@ def decision_text(verdict: str, effects: list[dict], before, analysis_after) -> 
                 f"(p = {analysis_after.p_chi2:.3g}); verdict {verdict}")
     if not before.structured:
         return f"no effect: the residual is noise (chi-square p = {before.p_chi2:.3g} >= {before.significance})"
+    dropped = [m.split(" dropped:")[0] for m in moves if "does not carry over" in m]
+    if dropped:
+        return (f"no effect: {'; '.join(dropped)} did not carry over from one half of the lines to the other (the "
+                "model's own error where fitted) and was dropped")
     return "no effect: no checked candidate lowers the extended BIC"
 
 
@@ -155,7 +160,7 @@ def _closure_json(store, settings, run_info, base, final, before, after, ranked,
         "measured": settings["measured"],
         "settings": dict(settings),
         **verdict_part,
-        "decision": decision_text(verdict_part["verdict"], effects, before, after),
+        "decision": decision_text(verdict_part["verdict"], effects, before, after, verdict_part.get("moves", ())),
         "effect": dict(effects[0]) if effects else None,  # the first effect added, as closure.json's effects[0]
         "error_metric": (f"Eq. (6b) of the relative amplitude residual over the closure's {u.size} values (the lines "
                          "where every channel is kept)"),
