@@ -29,6 +29,15 @@ __all__ = ["prune"]
 log = logging.getLogger(__name__)
 
 
+def _refit(model, freqs_hz, amplitude, alpha, applied, alpha_bounds) -> Fit:
+    """Alpha and the values of ``applied`` refitted from where they are (alpha alone when there are none)."""
+    if not applied:
+        return fit_update(model, freqs_hz, amplitude, alpha, alpha_bounds=alpha_bounds)
+    last = applied[-1]
+    return fit_update(model, freqs_hz, amplitude, alpha, last.effect, last.location, last.values, prior=applied[:-1],
+                      alpha_bounds=alpha_bounds)
+
+
 def prune(model, freqs_hz, amplitude, fit: Fit, noise=None, alpha_bounds=ALPHA_BOUNDS,
           across: bool = False) -> tuple[Fit, list[int], list[str]]:
     """``(fit, dropped, notes)``: ``fit`` without the effects (of at least two) whose gain does not stand out
@@ -52,10 +61,7 @@ def prune(model, freqs_hz, amplitude, fit: Fit, noise=None, alpha_bounds=ALPHA_B
             break
         applied = fit.applied
         here = kept.index(j)
-        others = [a for k, a in enumerate(applied) if k != here]
-        last = others[-1]
-        refitted = fit_update(model, freqs_hz, amplitude, fit.alpha, last.effect, last.location, last.values,
-                              prior=others[:-1], alpha_bounds=alpha_bounds)
+        refitted = _refit(model, freqs_hz, amplitude, fit.alpha, applied[:here] + applied[here + 1:], alpha_bounds)
         own = applied[here]
         candidate = Candidate(effect=own.effect.kind, location=own.location,
                               n_locations=len(own.effect.locations()), linear_values=own.values,
@@ -72,10 +78,8 @@ def prune(model, freqs_hz, amplitude, fit: Fit, noise=None, alpha_bounds=ALPHA_B
             if carries:
                 log.info("backward check: %s carries over across the band (%s)", applied[here].label(), how)
                 continue
-            own, rest = applied[here], applied[:here] + applied[here + 1:]
-            refitted = (fit_update(model, freqs_hz, amplitude, fit.alpha, rest[-1].effect, rest[-1].location,
-                                   rest[-1].values, prior=rest[:-1], alpha_bounds=alpha_bounds) if rest
-                        else fit_update(model, freqs_hz, amplitude, fit.alpha, alpha_bounds=alpha_bounds))
+            own = applied[here]
+            refitted = _refit(model, freqs_hz, amplitude, fit.alpha, applied[:here] + applied[here + 1:], alpha_bounds)
             fit = drop(j, f"{own.label()} = {own.values} dropped: it does not carry over across the band, the "
                           f"model's own error where it was fitted ({how})", refitted)
     return fit, sorted(dropped), notes
