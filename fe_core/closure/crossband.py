@@ -38,17 +38,20 @@ __all__ = ["carries_over", "MIN_LINES"]
 MIN_LINES = 4
 
 
-def _predicted(model, freqs, amplitude, alpha, applied, sigma, train) -> float:
-    """The weighed sum of squares on the lines not in ``train`` after one Gauss-Newton step fitted on ``train``."""
+def _predicted(model, freqs, amplitude, alpha, applied, sigma, splits) -> list[float]:
+    """For each ``train`` of ``splits``: the weighed sum of squares on the other lines after one Gauss-Newton step
+    fitted on ``train`` (one Jacobian for all the splits: the point is the same)."""
     J, Z = extended_log_jacobian(model, alpha, freqs, applied)
     r = (np.log(np.abs(Z) / amplitude) / sigma).reshape(-1)
     Jw = J / sigma.reshape(-1)[:, None]
-    rows = np.repeat(train, amplitude.shape[1])  # rows frequency-major, channels fastest
-    norms = np.linalg.norm(Jw[rows], axis=0)
-    norms[norms == 0] = 1.0
-    step, *_ = np.linalg.lstsq(Jw[rows] / norms, -r[rows], rcond=1e-10)
-    predicted = r[~rows] + (Jw[~rows] / norms) @ step
-    return float(np.sum(predicted**2))
+    out = []
+    for train in splits:
+        rows = np.repeat(train, amplitude.shape[1])  # rows frequency-major, channels fastest
+        norms = np.linalg.norm(Jw[rows], axis=0)
+        norms[norms == 0] = 1.0
+        step, *_ = np.linalg.lstsq(Jw[rows] / norms, -r[rows], rcond=1e-10)
+        out.append(float(np.sum((r[~rows] + (Jw[~rows] / norms) @ step) ** 2)))
+    return out
 
 
 def carries_over(model, freqs_hz, amplitude, alpha, applied: Sequence[Applied], j: int, noise=None) -> tuple[bool, str]:
@@ -65,8 +68,9 @@ def carries_over(model, freqs_hz, amplitude, alpha, applied: Sequence[Applied], 
         return True, "too few lines to split"
     applied = list(applied)
     others = applied[:j] + applied[j + 1:]
-    gains = [(_predicted(model, f, u, alpha, others, sigma, train), _predicted(model, f, u, alpha, applied, sigma, train))
-             for train in (low, ~low)]
+    splits = (low, ~low)
+    gains = list(zip(_predicted(model, f, u, alpha, others, sigma, splits),
+                     _predicted(model, f, u, alpha, applied, sigma, splits)))
     carries = all(w < wo for wo, w in gains)
     (up_wo, up_w), (lo_wo, lo_w) = gains
     note = (f"fitted on the lower lines, the upper's weighed sum of squares {up_wo:.4g} without it, {up_w:.4g} with "
