@@ -37,6 +37,7 @@ import pyarrow.parquet as pq
 from joblib import delayed
 
 from fe_core.inference.residual import overall_error
+from fe_core.solvers import reduced_basis
 from strategies.base import Outcome
 from tasks.faults import kill_point
 from tasks.common import finish
@@ -101,6 +102,7 @@ def _fe_run(model, threads: int, keep_factor: bool):
             if not keep_factor and is_large(model):
                 pardiso.release_idle()
                 recycle.forget(model)
+                reduced_basis.forget(model)
 
 
 # -- in worker processes -------------------------------------------------------------------------------
@@ -187,9 +189,12 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
     n = model.n_sensors if channels is None else len(channels[0])
     references = 1 if channels is None else np.unique(channels[1]).size
     _delay()
-    try:  # one Krylov space for all the channels' references
+    reduced = None  # one Krylov space for all the channels' references; a large model's single FE run in this
+    try:  # process goes through its global reduced basis (reduced: whether it served the run)
         with _fe_run(model, threads, keep_factor):
-            Z, dZ = frf_jacobian(model, theta, freqs_hz, channels=channels)
+            Z, dZ, reduced = (reduced_basis.frf_jacobian(model, theta, freqs_hz, channels=channels)
+                              if keep_factor and is_large(model) else
+                              (*frf_jacobian(model, theta, freqs_hz, channels=channels), None))
         if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(dZ))):
             raise FloatingPointError("the FRF or its derivative has non-finite values")
         status, message = "ok", ""
@@ -198,6 +203,7 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
         status, message = "failed", f"{type(exc).__name__}: {exc}"
     df = _frame(sample_id, freqs_hz, n, Z, status, message, t0)
     df["cost"] = JACOBIAN_COST * references
+    if reduced is not None: df["reduced"] = bool(reduced)  # noqa: E701 - only a large model's runs say
     for i in range(m):
         df[f"dreal_{i + 1}"] = dZ[:, :, i].real.ravel()
         df[f"dimag_{i + 1}"] = dZ[:, :, i].imag.ravel()
@@ -398,6 +404,7 @@ class FEStage:
                 yield func(*args, **{**kwargs, "threads": run_cores(s), "keep_factor": True})
                 return
             pardiso.release_idle()  # the workers need the memory of this process's idle factor
+            reduced_basis.forget(self.problem.ref.load())  # and of its reduced basis
         yield from run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=s.fe_backend,
                                  n_jobs=s.n_jobs, dask_address=s.dask_address,
                                  label=f"iteration {self.iteration}, stage {self.stage}", logger=self.logger)
@@ -446,7 +453,7 @@ class FEStage:
                 modes = (np.array([part[f"omega2_{r + 1}"].iloc[0] for r in range(self.modes)]),
                          np.array([part[f"participation_{r + 1}"].to_numpy()[:self.n] for r in range(self.modes)]))
             out.append(Outcome(Z[line, channel], dZ[line, channel] if jac and dZ is not None else None,
-                               self.cost(df, jac), modes))
+                               self.cost(df, jac), modes, reduced=bool(df.get("reduced", pd.Series([0])).iloc[0])))
         return out
 
     def write(self, info: dict, order: tuple[str, ...] = ()) -> dict:
@@ -480,6 +487,8 @@ class FEStage:
         responses = (pd.concat(parts, ignore_index=True) if parts else
                      pd.DataFrame({c: pd.Series(dtype=float if c in ("frequency_hz", "real", "imag") else np.int64)
                                    for c in keep}))
+        reduced = sum(bool(df.get("reduced", pd.Series([0])).iloc[0]) for df in self.results.values())
+        info = {**info, **({"reduced_evaluations": reduced} if reduced else {})}  # a large model's reduced basis
         info = {"evaluations": int(len(runs)), "jacobians": int(runs["jacobian"].sum()), "rounds": self.rounds,
                 "cost": float(runs["cost"].sum()), "ran_now": self.ran, **info}
         self.store.write_table(self.iteration, self.stage, "runs", runs[[c for c in RUN_COLUMNS if c in runs]
