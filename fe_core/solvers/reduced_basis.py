@@ -111,12 +111,15 @@ class Estimate:
         The largest estimated relative error of the primal and dual fields at each line.
     relative : ndarray, shape (p, n_loads + n_out)
         The estimate of every field (the loads', then the outputs') at every line.
+    residual : ndarray, shape (p, n_loads + n_out)
+        The sketched norms ``||S K0^-1 r||`` of their full-order residuals.
     ok : bool
         ``field_error <= FIELD_TOL`` at every line.
     """
 
     field_error: np.ndarray
     relative: np.ndarray
+    residual: np.ndarray
     ok: bool
 
 
@@ -242,7 +245,7 @@ class ParametricBasis:
         kappa = np.maximum(1.0, np.max(np.abs(mu[None, :] * dvec), axis=1))  # (p,)
         rel = kappa[:, None] * res / np.maximum(field, np.finfo(float).tiny)
         field_error = rel.max(axis=1)
-        return Estimate(field_error, rel, bool(np.all(field_error <= FIELD_TOL)))
+        return Estimate(field_error, rel, res, bool(np.all(field_error <= FIELD_TOL)))
 
 
 def active(model) -> bool:
