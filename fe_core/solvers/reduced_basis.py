@@ -75,9 +75,10 @@ FIELD_TOL = 1e-3
 #: 150k model's Jacobian space) and random signs per column of it; a norm is kept to ~sqrt(2 / 40) = 22 %.
 SKETCH_ROWS = 40
 SKETCH_NONZEROS = 8
-#: The basis is started afresh (from the new full-order space alone) when it would grow beyond this many
-#: columns (n x 720 doubles: 2.9 GB at 500k DOFs).
+#: The basis holds at most this many columns, and at most MAX_BYTES of them (n x 8 bytes a column: 375
+#: columns at 500k DOFs); a full basis takes no more enrichment (a point it does not serve runs at full order).
 MAX_DIMENSION = 720
+MAX_BYTES = 1.5e9
 #: A new space's direction joins V when at least this fraction of it lies outside V (the pivoted QR of the
 #: new columns after orthogonalisation against V): what is dropped changes the fields by less than this, far
 #: below FIELD_TOL, and a nearby point's space, mostly in V already, adds only what is new (n x columns of
@@ -174,8 +175,10 @@ class ParametricBasis:
         self.served: list[np.ndarray] = []  # points evaluated reduced (asked again: full order)
 
     def extend(self, W: np.ndarray) -> int:
-        """Add the part of ``W`` (n x s) not yet in V; returns the columns added (False room: 0)."""
+        """Add the part of ``W`` (n x s) not yet in V; returns the columns added (0 when V is full)."""
         d = self.dim
+        if d >= self.capacity:
+            return 0
         Q = np.array(W, dtype=float, order="F")
         for _ in range(2):  # twice is enough (Giraud et al. 2005): V stays orthonormal to round-off
             if d:
@@ -334,7 +337,7 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
     W = space.get("basis")
     if W is None:
         return Z, dZ, False
-    if basis is None or basis.dim + W.shape[1] > basis.capacity:
+    if basis is None:
         if channels is None:
             loads, responses, column = model.combined_load(), slice(None), 0
         else:
@@ -344,11 +347,13 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
         if sigma != 0.0:  # K is not positive-definite (a free structure): no check, no basis
             return Z, dZ, False
         stiffness, mass = _parts(model)
-        basis = ParametricBasis(stiffness, mass, loads, model.outputs, solve)
+        capacity = int(min(MAX_DIMENSION, MAX_BYTES // (8 * model.n_dofs)))
+        basis = ParametricBasis(stiffness, mass, loads, model.outputs, solve, capacity=capacity)
         del solve
         basis.channels, basis.pick = key, (responses, column)
         model.__dict__[_KEY] = basis
     added = basis.extend(W)
     basis.served = [x for x in basis.served if np.max(np.abs(theta - x), initial=0.0) > SAME_POINT]
-    log.info("reduced basis: %d columns added from the full-order run, %d in all", added, basis.dim)
+    log.info("reduced basis: %d of the full-order run's %d columns added, %d in all (at most %d)", added,
+             W.shape[1], basis.dim, basis.capacity)
     return Z, dZ, False
