@@ -343,7 +343,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
             stopped = "time limit"
             break
         if steps:  # after an effect, plausible in size: shifts a mode by half a per cent (the model's own error)
-            mark_negligible(model, freqs, current, checked)
+            mark_negligible(model, freqs, current, checked, sigma=analysis.sigma)
         if baseline is not None and steps:  # at the model's own misfit a further effect must take out most of it
             mark_polish(baseline.residual, current.residual, checked, analysis.sigma)
         chosen = decide(current, analysis, checked)
