@@ -192,7 +192,7 @@ def _distance_mm(model, truth: dict, location: str) -> str:
 
 def _found_text(model, result, truth_effects: list) -> str:
     """Effects in the order added with final values, evidence, distance to a true effect of the same kind."""
-    from fe_core.closure.selection import spread_mm
+    from fe_core.closure.identify import spread_mm
 
     parts = []
     for c, a, w, sp, at in zip(result.steps, result.final.applied, result.weights, result.spreads, result.located):

@@ -131,10 +131,12 @@ def diagnose_flow(run_id: str, closure_root: str, settings: dict, run_info: dict
     """The closure of one run as four tasks; returns the content of ``closure.json``. ``problem``: the run's model
     and measured data (resolved once, :class:`tasks.problem.Problem`; the data as :func:`closure_data`)."""
     t0 = time.perf_counter()
+    limit = settings.get("max_minutes")
+    deadline = None if limit is None else time.time() + 60.0 * float(limit)
     ct.baseline_task(closure_root, problem, settings)
     ct.screen_task(closure_root, problem, settings)
     ct.check_task(closure_root, problem, settings)
-    summary = ct.decide_task(closure_root, problem, settings, run_info)
+    summary = ct.decide_task(closure_root, problem, settings, run_info, deadline)
     summary["wall_seconds"] = round(time.perf_counter() - t0, 3)
     atomic_write_json(Path(closure_root) / "closure.json", summary)  # the record is what the command returns
     return summary
@@ -185,6 +187,8 @@ def diagnose(run_id: str, runs_dir: str | Path = "runs", name: str = "closure", 
         raise DiagnoseError(f"--noise must be positive, got {settings['noise']}")
     if not 0 < settings["significance"] < 1:
         raise DiagnoseError(f"--significance must lie in (0, 1), got {settings['significance']}")
+    if settings["max_minutes"] is not None and not settings["max_minutes"] >= 0:
+        raise DiagnoseError(f"--closure-minutes must be zero or positive, got {settings['max_minutes']}")
     closure_root = root / name
     ct.ClosureStore(closure_root).write_settings(dict(settings))
     entry = manifest.get("measured_data", {})
@@ -299,6 +303,9 @@ def add_closure_arguments(p: argparse.ArgumentParser, noise: bool = True) -> Non
     p.add_argument("--per-type", type=int, help="candidates per effect type given a full FE check (default 1)")
     p.add_argument("--restarts", type=int, help="extra Sobol starts of the alpha-only baseline fit (default 8)")
     p.add_argument("--closure-name", metavar="NAME", help="sub-folder of the run for the closure (default closure)")
+    p.add_argument("--closure-minutes", type=float, metavar="MIN",
+                   help="time limit of the closure: no further effect, check or swap is started after it; what was "
+                        "found by then is reported (default 15)")
     p.add_argument("--closure-emulator", action="store_true",
                    help="where the baseline is far off, also search a point mass globally with the MRGP over "
                         "(alpha, position, log size) and check its fit (docs/guide/closure-emulator.md)")
@@ -306,6 +313,7 @@ def add_closure_arguments(p: argparse.ArgumentParser, noise: bool = True) -> Non
 
 def closure_options(args) -> dict:
     return dict(noise=args.noise, significance=args.significance, per_type=args.per_type, restarts=args.restarts,
+                max_minutes=args.closure_minutes,
                 emulator=True if getattr(args, "closure_emulator", False) else None,
                 effects=None if args.effects is None else [e.strip() for e in args.effects.split(",") if e.strip()])
 

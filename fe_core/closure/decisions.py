@@ -57,20 +57,23 @@ class ClosureResult:
     implausible: list[Candidate] = field(default_factory=list)
     rounds: list[list[Candidate]] = field(default_factory=list)
     #: Per added effect: its kind's share of the evidence among the kinds checked in its place, and
-    #: the rivals (:class:`fe_core.closure.selection.Rival`) holding at least 1 % of it.
+    #: the rivals (:class:`fe_core.closure.identify.Rival`) holding at least 1 % of it.
     weights: list[float] = field(default_factory=list)
     rivals: list[list] = field(default_factory=list)
     #: Swaps made by the swap passes and moves of earlier effects (joint relocation), as text.
     swaps: list[str] = field(default_factory=list)
     moves: list[str] = field(default_factory=list)
     #: Per added effect: the locations of its kind holding 95 % of the linearised evidence, with weights,
-    #: and whether they lie close together (:func:`fe_core.closure.selection.located`).
+    #: and whether they lie close together (:func:`fe_core.closure.identify.located`).
     spreads: list[list[tuple[str, float]]] = field(default_factory=list)
     located: list[bool] = field(default_factory=list)
     #: What is left beyond the noise and whether it is the model's own (:class:`fe_core.closure.far.misfit.Misfit`),
     #: and the records of the exact searches made far off.
     misfit: object = None
     searches: list = field(default_factory=list)
+    #: Why the forward selection stopped (:attr:`fe_core.closure.selection.Selection.stopped`): "noise",
+    #: "nothing stands out", "most effects" or "time limit".
+    stopped: str = ""
 
 
 def at_bound(effect: Effect, location: str, values, rtol: float = 1e-2) -> bool:

@@ -30,7 +30,7 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
                noise: float | None = None, significance: float = 0.01, per_type: int = 2,
                max_moves: int = 6, restarts: int = 0, seed: int = 0, check_noise: bool = False,
                alpha_bounds: tuple[float, float] = ALPHA_BOUNDS, max_effects: int = 3,
-               swaps: bool = True, emulator=None) -> ClosureResult:
+               swaps: bool = True, emulator=None, max_minutes: float | None = None) -> ClosureResult:
     """Baseline fit, residual analysis, then forward selection: screening, checks and a decision per step.
 
     Parameters
@@ -72,9 +72,14 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
         alpha_bounds=)``, which also checks a global search (the MRGP's over alpha, point mass position and log
         size: :func:`strategies.closure_emulator.first_round`, handed in since this package knows no MRGP);
         an explicit option, off by default.
+    max_minutes : float, optional
+        Time limit of the closure from this call: the forward selection starts no further round, check or swap
+        after it (:func:`fe_core.closure.selection.forward_select`'s ``out_of_time``); the baseline and a
+        round's check under way finish first.
     """
     times = {"baseline": 0.0, "screen": 0.0, "check": 0.0}
     t = time.perf_counter()
+    deadline = None if max_minutes is None else t + 60.0 * max_minutes
     library = build_library(model) if library is None else list(library)
     freqs = np.asarray(freqs_hz, float)
     u = np.asarray(amplitude, float)
@@ -92,7 +97,7 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     sel = forward_select(model, freqs, u, handed.pop("start", base), handed.pop("analysis", before), library,
                          significance=significance, per_type=per_type, max_moves=max_moves, check_noise=check_noise,
                          alpha_bounds=alpha_bounds, max_effects=max_effects, times=times, swaps=swaps, baseline=base,
-                         **handed)
+                         out_of_time=None if deadline is None else (lambda: time.perf_counter() > deadline), **handed)
     for c in (handed.get("rounds") or [[]])[0]:  # the implausible fits of a first round made with the emulator
         if c.fit is not None and c.implausible and all(c is not d for d in sel.implausible):
             sel.implausible.insert(0, c)
@@ -101,5 +106,5 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
                            sel.final, sel.after, times, sel.steps,
                            verdict(before, sel.after, len(sel.steps), sel.identified, misfit.own), sel.implausible,
                            sel.rounds, sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads, sel.located)
-    result.misfit, result.searches = misfit, sel.searches
+    result.misfit, result.searches, result.stopped = misfit, sel.searches, sel.stopped
     return result

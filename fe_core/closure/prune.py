@@ -12,7 +12,8 @@ drops the effect when its gain over that refit does not stand out (:func:`.decis
 on the residual's effectively independent values, the rule that admitted it). With ``across`` (the residual left is
 structure: the model's own error remains) each effect must also carry over from one half of the lines to the other
 (:func:`.crossband.carries_over`): an effect that only fits the model's own error where it was fitted is dropped
-(dev10 again: a segment mass factor of -0.041 on the web's tip beside the true mass).
+(dev10 again: a segment mass factor of -0.041 on the web's tip beside the true mass); after a drop the effects left
+are judged again without it.
 """
 
 from __future__ import annotations
@@ -70,7 +71,9 @@ def prune(model, freqs_hz, amplitude, fit: Fit, noise=None, alpha_bounds=ALPHA_B
             continue
         fit = drop(j, f"{own.label()} = {own.values} dropped: with the other effects refitted its gain does not "
                       f"stand out (sum of squares {refitted.rss:.4g} without it, {fit.rss:.4g} with it)", refitted)
-    if across:
+    # After a drop every effect left is judged again: one that carried over beside the dropped effect may not without
+    # it (each effect kept carries over among the effects finally kept).
+    while across and kept:
         for j in reversed(list(kept)):
             here = kept.index(j)
             applied = fit.applied
@@ -82,4 +85,7 @@ def prune(model, freqs_hz, amplitude, fit: Fit, noise=None, alpha_bounds=ALPHA_B
             refitted = _refit(model, freqs_hz, amplitude, fit.alpha, applied[:here] + applied[here + 1:], alpha_bounds)
             fit = drop(j, f"{own.label()} = {own.values} dropped: it does not carry over across the band, the "
                           f"model's own error where it was fitted ({how})", refitted)
+            break
+        else:
+            break
     return fit, sorted(dropped), notes

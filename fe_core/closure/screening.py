@@ -212,14 +212,18 @@ def second_wave(rest: Sequence[Candidate], first_rss: Iterable[float], base_rss:
 
 
 def check_in_waves(model: ParametricModel, freqs_hz, amplitude, base: Fit, by_kind: dict, first, rest,
-                   max_moves: int, alpha_bounds: tuple[float, float], max_evaluations: int) -> list[Candidate]:
-    """:func:`check` of the candidates of ``first``, then of those :func:`second_wave` takes from ``rest``."""
-    def run(c):
-        return check(model, freqs_hz, amplitude, base, by_kind[c.effect], c, max_moves, alpha_bounds,
-                     max_evaluations=max_evaluations)
-
-    checked = [run(c) for c in first]
-    return checked + [run(c) for c in second_wave(rest, [c.fit.rss for c in checked], base.rss)]
+                   max_moves: int, alpha_bounds: tuple[float, float], max_evaluations: int,
+                   out_of_time=None) -> list[Candidate]:
+    """:func:`check` of the candidates of ``first``, then of those :func:`second_wave` takes from ``rest``;
+    no further check is started once ``out_of_time()`` is true (the checks made so far are returned)."""
+    checked: list[Candidate] = []
+    for wave in (first, None):
+        for c in (wave if wave is not None else second_wave(rest, [c.fit.rss for c in checked], base.rss)):
+            if out_of_time is not None and out_of_time():
+                return checked
+            checked.append(check(model, freqs_hz, amplitude, base, by_kind[c.effect], c, max_moves, alpha_bounds,
+                                 max_evaluations=max_evaluations))
+    return checked
 
 
 def _start_value(effect: Effect, location: str, linear: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Forward selection of effects with swaps, and how strongly the data single each one out.
+"""Forward selection of effects with swaps.
 
 Greedy forward selection (add the effect that lowers the extended BIC most,
 refit everything, repeat) can lock in a wrong first choice: on data with a
@@ -13,39 +13,28 @@ until none changes (Miller's replacement algorithm for subset selection).
 
 A pass that changes nothing leaves, for every effect, the full fits of the
 alternatives checked in its place with the same other effects: its
-**rivals**. Their extended BICs weigh the kinds (:func:`evidence`):
-``w_k = exp(-EBIC_k / 2) / sum_j exp(-EBIC_j / 2)`` over the best location of
-each plausible kind, an approximation of the posterior probability of the
-kind given the data (Schwarz; Kass & Raftery 1995), with the extended BIC's
-``2 ln L`` charging each kind for the ``L`` locations it was searched over.
-An effect whose kind holds less than :data:`IDENTIFIED` of the weight is not
-identified: "a point mass or a stiffer patch, the data cannot tell" is the
-honest verdict (``ambiguous``), not a finding. Nor is one whose location is
-not pinned down: the effect moved (linearised) to every location of its kind
-gives the locations holding 95 % of the evidence (:func:`location_spread`);
-spread over more than :data:`LOCATION_SHARE` of the structure, the node and
-the size found are one of many that fit (a point mass of 0.064 kg 50 mm from
-a true one of 0.15 kg fits as well).
+**rivals**, whose extended BICs weigh the kinds (:mod:`.identify`).
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .decisions import decide, dedupe, merge, rank, score
 from .fits import ALPHA_BOUNDS, Fit, checks_per_type, far_off, fit_update
-from .screening import (Candidate, _relocation_fits, _relocation_target, _start_value, check, check_in_waves,
+from .screening import (Candidate, _relocation_target, _start_value, check, check_in_waves,
                         pick_for_check, pick_in_waves, screen)
 from .effects import Effect
 from ..inference.residual import ResidualAnalysis, analyse_residual
 from .far.picks import search_candidates
 from .far.misfit import mark_polish, worth_checking
 from .far.plausible import mark_negligible
+from .identify import IDENTIFIED, Rival, evidence, located, location_spread, searched
 from .prune import prune
 
 __all__ = [
@@ -53,26 +42,10 @@ __all__ = [
     "forward_select",
     "swap_pass",
     "refine",
-    "evidence",
-    "location_spread",
-    "spread_mm",
-    "located",
-    "IDENTIFIED",
-    "LOCATION_SHARE",
-    "Rival",
 ]
 
 log = logging.getLogger(__name__)
 
-#: Share of the evidence an effect's kind must hold among the kinds checked in its place to count as
-#: identified: 0.95, i.e. ``2 ln B > 6`` against a single rival ("strong" on Kass & Raftery's scale).
-IDENTIFIED = 0.95
-#: Rivals listed per effect (those holding at least 1 % of the evidence, best first).
-RIVAL_SHARE = 0.01
-#: An effect is located when the locations of its kind holding 95 % of the evidence lie within this share
-#: of the structure's size (the diagonal of the mesh's bounding box: 32 mm on the 641 mm benchmark, two
-#: elements); a kind with several locations and no positions is located only when one location holds it.
-LOCATION_SHARE = 0.05
 #: Most swaps after an addition (the passes end earlier when every effect has been tried against the
 #: current others without a change).
 MAX_SWAPS = 4
@@ -85,23 +58,12 @@ CHECK_EVALUATIONS = 100
 
 
 @dataclass
-class Rival:
-    """An alternative checked in an added effect's place (the other effects refitted with it)."""
-
-    effect: str
-    location: str
-    values: np.ndarray
-    delta_ebic: float
-    weight: float
-
-
-@dataclass
 class Selection:
     """What :func:`forward_select` added (in order), each round's ranking and the final fit.
 
     ``weights[j]`` is the share of the evidence held by the kind of ``steps[j]``
     among the kinds checked in its place, ``rivals[j]`` the alternatives
-    (other kinds) holding at least :data:`RIVAL_SHARE` of it.
+    (other kinds) holding at least :data:`.identify.RIVAL_SHARE` of it.
     """
 
     steps: list[Candidate]
@@ -118,7 +80,8 @@ class Selection:
     #: Records of the exact searches made (far off), in order.
     searches: list[dict] = field(default_factory=list)
     #: Why the selection stopped: "noise" (the residual left is noise), "nothing stands out" (no checked candidate
-    #: lowers the extended BIC with its gain standing out from the misfit) or "most effects" (``max_effects``).
+    #: lowers the extended BIC with its gain standing out from the misfit), "most effects" (``max_effects``) or
+    #: "time limit" (``out_of_time``).
     stopped: str = ""
 
     @property
@@ -128,78 +91,6 @@ class Selection:
         return all(w >= IDENTIFIED for w in self.weights) and all(self.located)
 
 
-def evidence(incumbent: Candidate, rivals: Sequence[Candidate]) -> tuple[float, list[Rival]]:
-    """The incumbent kind's share of ``exp(-EBIC / 2)`` among the plausible checked kinds, and the rivals.
-
-    ``rivals`` are scored candidates (``ebic`` set) checked in the incumbent's
-    place against the same other effects; the incumbent may be among them.
-    Each kind counts once, with its best location.
-    """
-    best: dict[str, Candidate] = {}
-    for c in list(rivals) + [incumbent]:
-        if c.fit is None or c.ebic is None or (c.implausible and c is not incumbent):
-            continue
-        if c.effect not in best or c.ebic < best[c.effect].ebic:
-            best[c.effect] = c
-    if incumbent.effect in best and best[incumbent.effect].ebic > incumbent.ebic:
-        best[incumbent.effect] = incumbent
-    e0 = min(c.ebic for c in best.values())
-    w = {k: float(np.exp(-(c.ebic - e0) / 2.0)) for k, c in best.items()}
-    total = sum(w.values())
-    share = {k: v / total for k, v in w.items()}
-    listed = sorted((c for k, c in best.items() if k != incumbent.effect and share[k] >= RIVAL_SHARE),
-                    key=lambda c: c.ebic)
-    rivals_out = [Rival(c.effect, c.location, np.asarray(c.fit.values, float), float(c.ebic - incumbent.ebic),
-                        share[c.effect]) for c in listed]
-    return share[incumbent.effect], rivals_out
-
-
-def location_spread(model, freqs_hz, fit: Fit, index: int, share: float = IDENTIFIED) -> list[tuple[str, float]]:
-    """The locations of one fitted effect's kind that hold ``share`` of the evidence, best first.
-
-    The effect is moved, in the linearisation at the fitted point (alpha and
-    the other effects refitted), to every location of its kind not taken by
-    another effect of that kind; each location is weighed by
-    ``exp(-N ln(RSS) / 2)`` (same parameters, same search: the extended BIC's
-    differences), and the smallest set holding ``share`` of the weight is
-    returned with the weights. A kind with one location gives itself.
-    """
-    a = fit.applied[index]
-    if not _searched(a.effect):
-        return [(a.location, 1.0)]
-    taken = {b.location for i, b in enumerate(fit.applied) if i != index and b.effect.kind == a.effect.kind}
-    locations = [loc for loc in a.effect.locations() if loc not in taken]
-    _, rss = _relocation_fits(model, freqs_hz, fit, a.effect, locations, index=index)
-    n = fit.residual.size
-    e = n * np.log(np.maximum(rss, 1e-300))
-    w = np.exp(-(e - e.min()) / 2.0)
-    w /= w.sum()
-    order = np.argsort(-w)
-    keep = order[: int(np.searchsorted(np.cumsum(w[order]), share)) + 1]
-    return [(locations[k], float(w[k])) for k in keep]
-
-
-def spread_mm(effect: Effect, location: str, spread: Sequence[tuple[str, float]]) -> float | None:
-    """Largest distance, mm, from ``location`` to the locations of a spread (None without positions)."""
-    here = effect.position(location)
-    where = [effect.position(loc) for loc, _ in spread]
-    if here is None or any(p is None for p in where):
-        return None
-    return float(1e3 * max((np.linalg.norm(p - here) for p in where), default=0.0))
-
-
-def located(model, effect: Effect, location: str, spread: Sequence[tuple[str, float]]) -> bool:
-    """The spread of an effect's location is small: ``location`` alone, or all within :data:`LOCATION_SHARE`
-    of the structure's size of ``location``."""
-    if all(loc == location for loc, _ in spread):
-        return True
-    far = spread_mm(effect, location, spread)
-    size_m = getattr(model, "size_m", None)
-    if far is None or size_m is None:
-        return False
-    return far <= LOCATION_SHARE * 1e3 * size_m
-
-
 def _reordered(fit: Fit, order: Sequence[int]) -> Fit:
     """The same fit with its effects in another order (the last one becomes ``added``)."""
     applied = [fit.applied[i] for i in order]
@@ -207,10 +98,6 @@ def _reordered(fit: Fit, order: Sequence[int]) -> Fit:
     return Fit(alpha=fit.alpha, effect=last.effect.kind, location=last.location, values=last.values,
                model_amplitude=fit.model_amplitude, residual=fit.residual, evaluations=fit.evaluations,
                seconds=fit.seconds, message=fit.message, prior=applied[:-1], added=last)
-
-
-def _searched(effect: Effect) -> bool:
-    return effect.n_parameters == 1 and len(effect.locations()) > 1
 
 
 def refine(model, freqs_hz, amplitude, fit: Fit, *, max_moves: int = 6, alpha_bounds=ALPHA_BOUNDS,
@@ -233,7 +120,7 @@ def refine(model, freqs_hz, amplitude, fit: Fit, *, max_moves: int = 6, alpha_bo
     while changed and len(moves) < max_moves:
         changed = False
         for i, a in enumerate(fit.applied):
-            if i in fixed or not _searched(a.effect) or len(moves) >= max_moves:
+            if i in fixed or not searched(a.effect) or len(moves) >= max_moves:
                 continue
             taken = {b.location for b in fit.applied if b.effect.kind == a.effect.kind}
             others = [loc for loc in a.effect.locations() if loc not in taken and (i, loc) not in tried]
@@ -360,7 +247,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
                    max_effects: int = 3, times: dict | None = None, steps: Sequence[Candidate] = (),
                    rounds: Sequence[list[Candidate]] = (), swaps: bool = True,
                    always: Sequence[str] = ("sensor_mass",), search: bool = True,
-                   baseline: Fit | None = None) -> Selection:
+                   baseline: Fit | None = None, out_of_time: Callable[[], bool] | None = None) -> Selection:
     """Add effects one at a time from ``start`` (a fit with or without effects, ``analysis`` its residual).
 
     Each round screens every candidate with the effects so far in the model,
@@ -386,8 +273,13 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
 
     ``baseline``: the alpha-only fit; once the misfit left is the model's own level, a further effect must take out
     most of it (:func:`fe_core.closure.far.misfit.mark_polish`).
+
+    ``out_of_time``: once it returns True no further round, check or swap is started; a round cut short is not
+    decided on part of its checks (its ranking is kept). The effects added so far go through the backward check
+    as usual and ``Selection.stopped`` is ``"time limit"``.
     """
     times = {} if times is None else times
+    late = out_of_time if out_of_time is not None else (lambda: False)
     searches: list[dict] = []
     freqs = np.asarray(freqs_hz, float)
     u = np.asarray(amplitude, float)
@@ -413,6 +305,10 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         implausible.extend(c for c in cands if c.implausible and id(c) not in seen)
 
     while len(steps) < max_effects:
+        if analysis.structured and late():  # at noise the round below only screens, and stops at "noise"
+            log.info("the closure's time limit: no further round after %d effect(s)", len(steps))
+            stopped = "time limit"
+            break
         t = time.perf_counter()
         screened = screen(model, freqs, current, library)
         times["screen"] = times.get("screen", 0.0) + time.perf_counter() - t
@@ -435,13 +331,19 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
                 times["search"] = times.get("search", 0.0) + time.perf_counter() - t_search
                 first, rest = found, first + rest
             checked = check_in_waves(model, freqs, u, current, by_kind, first, rest, max_moves, alpha_bounds,
-                                     CHECK_EVALUATIONS)
+                                     CHECK_EVALUATIONS, out_of_time=late)
         checked = dedupe(checked)
-        if steps and analysis.structured:
+        if steps and analysis.structured and not late():
             move_log += _refine_contenders(model, freqs, u, current, checked, max_moves, alpha_bounds)
         times["check"] = times.get("check", 0.0) + time.perf_counter() - t
+        if late():  # cut short: not decided on part of the round's checks
+            log.info("the closure's time limit: round %d stopped after %d checks, not decided", len(rounds) + 1,
+                     len(checked))
+            rounds.append(rank(merge(checked, screened)))
+            stopped = "time limit"
+            break
         if steps:  # after an effect, plausible in size: shifts a mode by half a per cent (the model's own error)
-            mark_negligible(model, freqs, current, checked)
+            mark_negligible(model, freqs, current, checked, sigma=analysis.sigma)
         if baseline is not None and steps:  # at the model's own misfit a further effect must take out most of it
             mark_polish(baseline.residual, current.residual, checked, analysis.sigma)
         chosen = decide(current, analysis, checked)
@@ -461,7 +363,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
             t = time.perf_counter()
             for _ in range(MAX_SWAPS * len(steps)):
                 stale = [j for j in range(len(steps)) if keys[j] != _key(current, j)]
-                if not stale:
+                if not stale or late():
                     break
                 current, steps, tried, made, moved = swap_pass(model, freqs, u, current, steps, library,
                                                                per_type=per_type, max_moves=max_moves,

@@ -58,12 +58,14 @@ class ClosureSettings(dict):
     None = estimated), ``significance``, ``per_type``, ``max_moves``,
     ``restarts``, ``seed``, ``effects`` (list of registered names or None),
     ``alpha_bounds`` (pair), ``n_jobs``, ``max_effects`` (forward selection), ``emulator`` (the emulated
-    search's point mass among the checks where the baseline is far off: :func:`emulated_check`).
+    search's point mass among the checks where the baseline is far off: :func:`emulated_check`),
+    ``max_minutes`` (the closure's time limit: no forward-selection round, check or swap starts after it,
+    counted from the closure's start in this process; like ``n_jobs`` it may change on a resume).
     """
 
     DEFAULTS = dict(noise=None, significance=0.01, per_type=1, max_moves=6, restarts=8, seed=0, effects=None,
                     alpha_bounds=list(fits.ALPHA_BOUNDS), n_jobs=1, check_noise=False,
-                    max_effects=3, emulator=False)
+                    max_effects=3, emulator=False, max_minutes=15.0)
 
     @classmethod
     def make(cls, **kwargs) -> "ClosureSettings":
@@ -324,8 +326,10 @@ def _indexed(k, *args):
 
 @task(name="closure-decide", cache_policy=NO_CACHE)
 @beating("closure decision (forward selection, moves, swaps, intervals)")
-def decide_task(root: str, problem, settings: dict, run_info: dict) -> dict:
+def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: float | None = None) -> dict:
     """Scores, the decision, the updated model, residual tables and ``closure.json``.
+
+    ``deadline`` (``time.time()`` seconds): the forward selection starts nothing after it (``max_minutes``).
 
     Returns ``closure.json`` as written; a finished decision (its stage and the file) is read back, not
     decided again (the forward selection and the intervals are the closure's costliest step after the checks).
@@ -374,7 +378,8 @@ def decide_task(root: str, problem, settings: dict, run_info: dict) -> dict:
                              significance=settings["significance"], per_type=settings["per_type"],
                              max_moves=settings["max_moves"], alpha_bounds=tuple(settings["alpha_bounds"]),
                              max_effects=settings.get("max_effects", 3), steps=[chosen], rounds=[ranked],
-                             baseline=base)
+                             baseline=base, out_of_time=None if deadline is None else
+                             (lambda: time.time() > deadline))
         steps = sel.steps
         implausible += [c for c in sel.implausible if all(c is not d for d in implausible)]
         final, after = sel.final, sel.after
@@ -404,6 +409,11 @@ def decide_task(root: str, problem, settings: dict, run_info: dict) -> dict:
     summary.update(misfit.to_dict())
     if steps and after.structured:
         summary["decision"] += f"; {misfit.reason}"
+    summary["selection_stopped"] = sel.stopped if sel is not None else None
+    summary["max_minutes"] = settings.get("max_minutes")
+    if sel is not None and sel.stopped == "time limit":
+        summary["decision"] += (f"; the closure's time limit ({settings['max_minutes']:g} min) stopped the forward "
+                                f"selection before it finished (--closure-minutes)")
     search = store.root / "step=check" / "search.json"
     if search.is_file():
         record = json.loads(search.read_text())

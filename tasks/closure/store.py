@@ -90,7 +90,8 @@ class ClosureStore:
         path = self.root / "settings.json"
         if path.exists():
             old = json.loads(path.read_text())
-            changed = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k) and k != "n_jobs")
+            changed = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k)
+                             and k not in ("n_jobs", "max_minutes"))
             if changed:
                 raise ValueError(f"{path}: this closure was started with other settings ({', '.join(changed)}); "
                                  f"use the same settings to resume, or another --name")

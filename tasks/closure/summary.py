@@ -10,7 +10,7 @@ import pandas as pd
 
 from fe_core.closure import fits, screening
 from fe_core.closure.decisions import bound_hit
-from fe_core.closure.selection import IDENTIFIED, spread_mm
+from fe_core.closure.identify import IDENTIFIED, spread_mm
 from fe_core.inference.residual import overall_error, per_sensor_error
 
 __all__ = ["CANDIDATES_IN_JSON", "LOCATIONS_IN_JSON"]

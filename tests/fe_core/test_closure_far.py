@@ -207,3 +207,31 @@ def test_a_polish_of_the_models_own_misfit_is_not_added():  # and not checked in
     rss = [float(np.sum((noise + k * own) ** 2)) for k in (np.sqrt(0.9), np.sqrt(0.4))]
     assert not worth_checking(baseline, current, rss[:1], sigma) and worth_checking(baseline, current, rss, sigma)
     assert worth_checking(noise + 2 * own, current, rss[:1], sigma)
+
+
+def test_a_sensor_gain_within_its_channels_misfit_is_not_plausible_one_beyond_it_is(benchmark_model):
+    """Channel 2 carries a smooth misfit of 3 % rms (a model's own error: a slow oscillation along frequency) over
+    0.5 % noise, the other channels noise alone. A gain of 1.4 % there is within the misfit; 8 % is beyond it; a
+    1.4 % gain on a channel with noise alone is beyond that channel's (zero) misfit."""
+    from fe_core.closure.effects import SensorGain
+    from fe_core.closure.far.plausible import gain_within_misfit, mark_negligible
+
+    rng = np.random.default_rng(7)
+    p, n = 200, benchmark_model.n_sensors
+    r = 0.005 * rng.standard_normal((p, n))
+    r[:, 1] += 0.03 * np.sqrt(2) * np.sin(np.linspace(0, 12 * np.pi, p))
+    base = fits.Fit(alpha=np.zeros(6), effect=None, location=None, values=np.zeros(0), model_amplitude=None,
+                    residual=r, evaluations=0)
+    gain = SensorGain(benchmark_model)
+
+    def candidate(location, g):
+        c = Candidate(effect="sensor_gain", location=location, n_locations=n, linear_values=np.array([g]),
+                      linear_rss=0.0, linear_explained=0.0)
+        c.fit = fits.Fit(alpha=np.zeros(6), effect="sensor_gain", location=location, values=np.array([g]),
+                         model_amplitude=None, residual=r, evaluations=0, added=Applied(gain, location, np.array([g])))
+        return c
+
+    cands = [candidate("sensor 2", 0.014), candidate("sensor 2", 0.08), candidate("sensor 1", 0.014)]
+    mark_negligible(benchmark_model, np.linspace(20, 300, p), base, cands, sigma=0.005)
+    assert [c.negligible for c in cands] == [True, False, False]
+    assert not gain_within_misfit(base, Applied(PointMass(benchmark_model), "node 337", np.array([0.1])), 0.005)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from fe_core.closure.effects import PointMass
-from fe_core.closure.selection import LOCATION_SHARE, located, spread_mm
+from fe_core.closure.identify import LOCATION_SHARE, located, spread_mm
 from fe_core.io import ModelFileError, read_model
 from fe_core.io.matrices import MatrixFileError, read_node_table
 from flows.config import REPO

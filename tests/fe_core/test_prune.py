@@ -40,3 +40,34 @@ def test_two_effects_the_data_carry_are_both_kept(benchmark_model):
     both = fit_update(benchmark_model, F, u, ALPHA_ACTUAL, gs, "node 919", [4e5], prior=truth[:1])
     fit, dropped, notes = prune(benchmark_model, F, u, both, NOISE)
     assert dropped == [] and notes == [] and fit is both
+
+
+def test_after_a_drop_the_effects_left_are_judged_again_without_it(benchmark_model, monkeypatch):
+    """An effect that carries over only beside another one that does not: judged first (it is the newer), it is
+    kept while the other is in; once the other is dropped it is judged again and dropped too. The cross-band
+    check and the refits are stand-ins here (the check's arithmetic is tests/fe_core/test_crossband.py's): the
+    point is the order of judgement."""
+    from fe_core.closure import prune as pr
+    from fe_core.closure.fits import Fit
+
+    pm, gs = PointMass(benchmark_model), GroundedSpring(benchmark_model)
+    spurious, leaning = Applied(pm, "node 457", np.array([0.002])), Applied(gs, "node 919", np.array([1e3]))
+
+    def fit_with(applied):
+        return Fit(alpha=np.zeros(6), effect=None, location=None, values=np.zeros(0), model_amplitude=None,
+                   residual=np.zeros((1, 1)), evaluations=0, prior=list(applied))
+
+    judged = []
+
+    def carries(model, f, u, alpha, applied, j, noise):
+        judged.append((applied[j].location, len(applied)))
+        here = applied[j]
+        return (here is leaning and any(a is spurious for a in applied)), "stand-in"
+
+    monkeypatch.setattr(pr, "carries_over", carries)
+    monkeypatch.setattr(pr, "stands_out", lambda refitted, candidate, noise: True)  # the first rule passes both
+    monkeypatch.setattr(pr, "_refit", lambda model, f, u, alpha, applied, bounds: fit_with(applied))
+    fit, dropped, notes = prune(benchmark_model, F, np.ones((len(F), 1)), fit_with([spurious, leaning]), NOISE,
+                                across=True)
+    assert judged == [("node 919", 2), ("node 457", 2), ("node 919", 1)]
+    assert dropped == [0, 1] and fit.applied == [] and len(notes) == 2

@@ -17,7 +17,8 @@ from fe_core.closure.fits import Fit, fit_update
 from fe_core.closure.loop import close_loop
 from fe_core.closure.screening import Candidate
 from fe_core.closure.effects import Applied, GroundedSpring, PointMass, build_library, extended_frf
-from fe_core.closure.selection import IDENTIFIED, evidence, refine
+from fe_core.closure.identify import IDENTIFIED, evidence
+from fe_core.closure.selection import refine
 from tasks.io.measured import read_measured
 
 DATA2 = Path(__file__).resolve().parents[2] / "data" / "cases" / "three_plate_closure_table"
@@ -105,7 +106,7 @@ def test_a_point_mass_or_a_stiffer_patch_the_data_cannot_tell_is_ambiguous(bench
 def test_the_location_spread_says_how_far_the_evidence_reaches(benchmark_model):
     """A damaged patch is pinned to two overlapping patches; a point mass far from the sensors' strong
     points spreads over tens of nodes (data/cases/three_plate_closure_table, fitted at the true location from the true alpha)."""
-    from fe_core.closure.selection import location_spread, spread_mm
+    from fe_core.closure.identify import location_spread, spread_mm
 
     lib = {e.kind: e for e in build_library(benchmark_model, ["patch", "point_mass"])}
     spans = {}
@@ -124,7 +125,7 @@ def test_the_location_spread_says_how_far_the_evidence_reaches(benchmark_model):
 
 
 def test_an_effect_is_located_when_the_evidence_stays_within_five_percent_of_the_structure(benchmark_model):
-    from fe_core.closure.selection import located
+    from fe_core.closure.identify import located
 
     pm = PointMass(benchmark_model)
     size = 1e3 * np.linalg.norm(np.ptp(benchmark_model.mesh.nodes, axis=0))  # 641 mm: 32 mm allowed
@@ -156,3 +157,40 @@ def test_two_effects_at_once_the_mass_at_its_node_and_the_spring_or_a_soft_patch
     assert np.linalg.norm(nodes[int(spring.location.split()[1])] - nodes[truth[1]["node"]]) < 0.02
     assert [r.effect for r in result.rivals[1]] == ["patch"] and result.weights[1] < IDENTIFIED
     assert result.verdict == "ambiguous" and not result.after.structured
+
+
+def test_the_time_limit_stops_the_selection_between_checks_and_leaves_the_round_undecided(benchmark_model,
+                                                                                           monkeypatch):
+    """far_point_mass.csv (0.15 kg at node 201) from the true alpha: out of time after two full checks, the
+    round is not decided on part of its checks; its two fits are kept in its ranking and nothing is added."""
+    from fe_core.closure import screening
+    from fe_core.closure.fits import baseline
+    from fe_core.closure.selection import forward_select
+
+    truth = json.loads((DATA2 / "truth.json").read_text())["data"]["far_point_mass.csv"]
+    m = read_measured(DATA2 / "far_point_mass.csv")
+    library = build_library(benchmark_model, ["point_mass", "grounded_spring"])
+    base, before = baseline(benchmark_model, m.frequencies_hz, m.amplitude, truth["alpha"], noise=0.005)
+    assert before.structured
+    made = []
+    real = screening.check
+    monkeypatch.setattr(screening, "check", lambda *a, **k: made.append(a[5]) or real(*a, **k))
+    sel = forward_select(benchmark_model, m.frequencies_hz, m.amplitude, base, before, library, per_type=2,
+                         out_of_time=lambda: len(made) >= 2, search=False)
+    assert len(made) == 2 and sel.stopped == "time limit" and not sel.steps
+    kept = {id(c) for c in sel.rounds[-1] if c.fit is not None}  # the two fits (one, if they met at one node)
+    assert kept and kept <= {id(c) for c in made} and all(c.fit is not None for c in made)
+    assert sel.final is base and sel.after.structured
+    # Without the limit the same round adds the mass (at its node or next to it: the check's moves).
+    made.clear()
+    free = forward_select(benchmark_model, m.frequencies_hz, m.amplitude, base, before, library, per_type=2,
+                          max_effects=1, search=False)
+    assert len(made) > 2 and free.stopped != "time limit" and free.steps[0].effect == "point_mass"
+
+
+def test_a_closure_out_of_time_before_its_first_round_adds_nothing_and_says_why(benchmark_model):
+    m = read_measured(DATA2 / "far_point_mass.csv")
+    truth = json.loads((DATA2 / "truth.json").read_text())["data"]["far_point_mass.csv"]
+    result = close_loop(benchmark_model, m.frequencies_hz, m.amplitude, truth["alpha"],
+                        build_library(benchmark_model, ["point_mass"]), noise=0.005, max_minutes=0.0)
+    assert result.stopped == "time limit" and not result.steps and result.verdict == "not explained"

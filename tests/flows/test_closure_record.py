@@ -97,3 +97,26 @@ def test_the_printout_says_what_closure_json_says(closure):
     assert f"(the run reported {c['error_run']:.3%}: {c['error_run_metric']})" in text
     for name, value in c["parameters_after"].items():
         assert any(x.startswith(name) and x.rstrip().endswith(f"{value:.4g}") for x in lines), name
+
+
+@pytest.mark.slow
+def test_a_closure_out_of_time_starts_no_second_round_and_says_the_limit_stopped_it(closure, tmp_path,
+                                                                                    prefect_harness):
+    """The same closure decided again with its time limit already spent (--closure-minutes 0): the first effect
+    is decided from the stored checks, no round, swap or move follows (only the backward check, which here drops
+    that first effect, a patch, as not carrying over), and the record says the limit stopped it."""
+    import shutil
+    from pathlib import Path
+
+    _, record, _, _ = closure
+    assert len(record["effects"]) >= 2 and record["selection_stopped"] != "time limit" and record["swaps"]
+    run = tmp_path / "far"
+    shutil.copytree(Path(record["run_folder"]), run)
+    shutil.rmtree(run / "closure" / "step=decide")
+    (run / "closure" / "closure.json").unlink()
+    late = dg.diagnose("far", tmp_path, significance=0.05, max_minutes=0.0)
+    assert late["selection_stopped"] == "time limit" and late["max_minutes"] == 0.0
+    assert all(e["step"] == 1 for e in late["effects"]) and len(late["effects"]) <= 1
+    assert not late["swaps"] and all(" dropped: " in m for m in late["moves"])
+    assert "time limit (0 min) stopped the forward selection" in late["decision"]
+    assert late["verdict"] in ("partly explained", "not explained")

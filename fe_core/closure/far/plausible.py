@@ -15,8 +15,13 @@ that shift its modes far less (the three-plate benchmark's 0.15 kg point mass fa
 
 The shift is first order in the effect's terms, on the modes of the reduced model at the fit
 (:class:`.reduced.ReducedModel`, M-orthonormal): ``d lambda_k = q_k^T (dK - lambda_k dM) q_k`` and
-``df_k / f_k = d lambda_k / (2 lambda_k)``. Effects without stiffness or mass terms (damping, a sensor's gain) are
-not judged so.
+``df_k / f_k = d lambda_k / (2 lambda_k)``. Damping, without stiffness or mass terms, is not judged so.
+
+A sensor's gain changes no frequency; what the model's own error does to a channel is its misfit there. So a gain
+added after the first effect must change its channel's log amplitude by more than that channel's misfit beyond the
+noise (:func:`fe_core.closure.far.misfit.smooth_misfit` of the fit without it): ``|ln(1 + g)|`` above it. On issue
+40's dev12 (a clean channel deck, its model's own error 2-5 % rms) a gain of +1.4 % on one channel was kept as
+a finding (a gain scales every line alike, so it carries over across the band, :mod:`fe_core.closure.crossband`).
 """
 
 from __future__ import annotations
@@ -26,9 +31,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .misfit import smooth_misfit
 from .reduced import ReducedModel
 
-__all__ = ["MIN_SHIFT", "frequency_shifts", "mark_negligible"]
+__all__ = ["MIN_SHIFT", "frequency_shifts", "mark_negligible", "gain_within_misfit"]
 
 log = logging.getLogger(__name__)
 
@@ -59,15 +65,21 @@ def frequency_shifts(rm: ReducedModel, alpha, item) -> np.ndarray | None:
     return dlam / (2.0 * lam)
 
 
-def mark_negligible(model, freqs_hz, base, checked: Sequence, min_shift: float = MIN_SHIFT) -> None:
+def mark_negligible(model, freqs_hz, base, checked: Sequence, min_shift: float = MIN_SHIFT, sigma=None) -> None:
     """Set ``negligible`` and ``largest_shift`` on each checked candidate (:class:`fe_core.closure.screening.Candidate`
     with its fit): negligible when its own effect, at its fitted values, shifts no natural frequency in the band by
-    ``min_shift`` (on the reduced model at ``base``, the fit without it: one full FE evaluation for all)."""
+    ``min_shift`` (on the reduced model at ``base``, the fit without it: one full FE evaluation for all); with
+    ``sigma`` (the noise: a level or per-value levels), a sensor's gain when it changes its channel's log amplitude
+    by less than ``base``'s misfit beyond the noise on that channel (:func:`gain_within_misfit`)."""
     todo = [c for c in checked if c.fit is not None and _own(c) is not None]
     if not todo:
         return
-    rm = ReducedModel(model, freqs_hz, base.alpha, base.applied)
+    rm = None
     for c in todo:
+        if sigma is not None and gain_within_misfit(base, _own(c), sigma, c):
+            continue
+        if rm is None:
+            rm = ReducedModel(model, freqs_hz, base.alpha, base.applied)
         shifts = frequency_shifts(rm, base.alpha, _own(c))
         if shifts is None or shifts.size == 0:
             continue
@@ -77,6 +89,26 @@ def mark_negligible(model, freqs_hz, base, checked: Sequence, min_shift: float =
             log.info("%s at %s = %s: shifts no natural frequency in the band by %.1f %% or more (at most %.3f %%): "
                      "not plausible in size", c.effect, c.location, np.round(_own(c).values, 6), 100 * min_shift,
                      100 * c.largest_shift)
+
+
+def gain_within_misfit(base, item, sigma, candidate=None) -> bool:
+    """Whether ``item`` (an applied effect) is a sensor's gain; if so, and ``candidate`` is given, its ``negligible``
+    is set: ``|ln(1 + g)|`` at most the misfit beyond the noise ``sigma`` of ``base``'s residual on that channel."""
+    terms = item.effect.terms(base.alpha, item.location, item.values)
+    if terms.gain is None or terms.stiffness is not None or terms.mass is not None:
+        return False
+    if candidate is not None:
+        s = int(np.argmax(np.abs(terms.gain)))
+        r = np.asarray(base.residual, float)
+        level = np.broadcast_to(np.asarray(sigma, float), r.shape)[:, s]
+        misfit = smooth_misfit(r[:, s], level)
+        change = abs(float(np.log1p(terms.gain[s])))
+        candidate.negligible = change <= misfit
+        if candidate.negligible:
+            log.info("%s at %s = %s: changes its channel by %.2f %%, within the model's misfit there (%.2f %% rms "
+                     "beyond the noise): not plausible in size", candidate.effect, candidate.location,
+                     np.round(item.values, 6), 100 * change, 100 * misfit)
+    return True
 
 
 def _own(c):
