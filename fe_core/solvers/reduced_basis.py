@@ -75,8 +75,9 @@ FIELD_TOL = 1e-3
 #: 150k model's Jacobian space) and random signs per column of it; a norm is kept to ~sqrt(2 / 40) = 22 %.
 SKETCH_ROWS = 40
 SKETCH_NONZEROS = 8
-#: The basis holds at most this many columns, and at most MAX_BYTES of them (n x 8 bytes a column: 375
-#: columns at 500k DOFs); a full basis takes no more enrichment (a point it does not serve runs at full order).
+#: The basis holds at most this many columns, and at most MAX_BYTES of them (n x 8 bytes a column: 373
+#: columns at 500k DOFs); a full-order space that does not fit restarts V from that space alone (kept full, the
+#: 500k update's basis of its first three points refused every later round: docs/results/scaling.md).
 MAX_DIMENSION = 720
 MAX_BYTES = 1.5e9
 #: A new space's direction joins V when at least this fraction of it lies outside V (the pivoted QR of the
@@ -173,6 +174,12 @@ class ParametricBasis:
         self.SAV = np.zeros((len(self.parts), self.sketch.shape[0], capacity))  # S A_t V
         self.Vrhs = np.zeros((capacity, self.rhs.shape[1]))  # V^T [B, L]
         self.served: list[np.ndarray] = []  # points evaluated reduced (asked again: full order)
+
+    def restart(self) -> None:
+        """Empty V (its memory is reused); the sketch ``Y = K0^-1 S^T`` stays (any fixed K0 preconditions the
+        check). The newest spaces are the ones near where Gauss-Newton goes on."""
+        self.dim = 0
+        self.served = []
 
     def extend(self, W: np.ndarray) -> int:
         """Add the part of ``W`` (n x s) not yet in V; returns the columns added (0 when V is full)."""
@@ -337,6 +344,8 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
     W = space.get("basis")
     if W is None:
         return Z, dZ, False
+    if basis is not None and basis.dim + W.shape[1] > basis.capacity:
+        basis.restart()  # full: V starts again from this space (the sketch and its solves kept)
     if basis is None:
         if channels is None:
             loads, responses, column = model.combined_load(), slice(None), 0

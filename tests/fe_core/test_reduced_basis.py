@@ -119,3 +119,16 @@ def test_enrichment_when_the_parameters_move_far_and_the_same_point_again(model)
     assert not again  # asked again: a full-order run (the confirmation), its space added
     Zk, dZk = frf_jacobian(model, near, FREQS)
     assert np.array_equal(Z2, Zk) and np.array_equal(dZ2, dZk)  # exactly the full-order run
+
+
+def test_a_full_basis_restarts_from_the_newest_space(model):
+    basis = rb.basis_of(model)
+    basis.capacity = basis.dim + 5  # the next full-order space does not fit
+    sketch = basis.sketch
+    far = np.clip(START + 0.3 * np.sign(DIRECTION), -0.9, 1.0)
+    _, _, reduced = rb.frf_jacobian(model, far, FREQS)
+    assert not reduced and rb.basis_of(model) is basis and basis.sketch is sketch  # the sketch's solves kept
+    _, _, est = reduced_at(model, far)
+    assert est.ok  # V is the new point's space
+    _, _, est = reduced_at(model, START)
+    assert not est.ok  # and no longer the first point's
