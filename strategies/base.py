@@ -70,13 +70,16 @@ class Outcome(NamedTuple):
     weighted residual's real values); ``dZ`` (k, m) or None; ``cost`` in FE-run equivalents (None: 1, or the
     strategy's Jacobian cost with a derivative); ``modes`` = (omega2 (r,), participation (r, n))
     when the run gave its lowest modes; ``at`` (m,): where the evaluation ended when it moved from the point
-    asked (local steps from it, as the closure's emulated search takes), None: at the point asked."""
+    asked (local steps from it, as the closure's emulated search takes), None: at the point asked; ``reduced``:
+    the result came from a large model's reduced basis, not a full-order run (:mod:`fe_core.solvers.reduced_basis`:
+    asked again at the same point, the run is made at full order)."""
 
     Z: np.ndarray
     dZ: np.ndarray | None = None
     cost: float | None = None
     modes: tuple | None = None
     at: np.ndarray | None = None
+    reduced: bool = False
 
 
 @dataclass(frozen=True)

@@ -279,6 +279,8 @@ class Hybrid:
                       "(--close-loop, python -m flows.diagnose)")
             return Report(reason, False, [sid], fields, k, intervals=True)
         ok = [i for i, run in enumerate(self.runs) if run[2] is not None]
+        full = [i for i in ok if not self.ledger.reduced[i]]  # a reduced basis's results stand in until confirmed
+        ok = full or ok
         if not ok:
             raise ValueError("no successful FE run")
         sid = min(ok, key=lambda i: self.runs[i][3])

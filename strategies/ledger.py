@@ -49,6 +49,7 @@ class Ledger:
     improve_rtol: float = 0.05
     phase_start: int = 0
     extended: int = 0
+    reduced: list = field(default_factory=list)  # per history entry: the result came from a reduced basis
 
     @property
     def cost(self) -> float:
@@ -98,11 +99,17 @@ class Ledger:
             ok = bool(np.all(np.isfinite(Z)))
             error = self.residual.error(Z) if ok else np.inf
             self.history.append((self.rounds, np.asarray(x, float).copy(), error, j, phase))
+            self.reduced.append(bool(getattr(result, "reduced", False)))
             if ok:
                 self.responses.append((np.asarray(x, float).copy(), Z))
             out.append((Z, None if dZ is None else np.asarray(dZ, complex)))
         return out
 
     def best(self) -> tuple[np.ndarray, float]:
-        i = int(np.argmin([h[2] for h in self.history]))
+        """The best result's point and error; a full-order one when there is any (a reduced basis's result is
+        a stand-in until a full-order run confirms it)."""
+        errors = np.array([h[2] for h in self.history], float)
+        if any(self.reduced) and not all(self.reduced):
+            errors = np.where(self.reduced, np.inf, errors)
+        i = int(np.argmin(errors))
         return self.history[i][1], self.history[i][2]

@@ -26,7 +26,6 @@ factor, and each worker frees its own (and its kept space) after each run.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import time
 from pathlib import Path
@@ -37,8 +36,10 @@ import pyarrow.parquet as pq
 from joblib import delayed
 
 from fe_core.inference.residual import overall_error
+from fe_core.solvers import reduced_basis
 from strategies.base import Outcome
 from tasks.faults import kill_point
+from tasks.fe_log import FE_LOG, append_log, read_fe_log
 from tasks.common import finish
 from tasks.fe_backends import run_unordered
 from tasks.record import RESPONSE_COLUMNS, RUN_COLUMNS, grid
@@ -51,7 +52,6 @@ __all__ = ["evaluate_sample", "evaluate_sample_jacobian", "FEStage", "JACOBIAN_C
 
 #: Environment variable: seconds each FE run sleeps (only for interruption tests).
 FE_DELAY_ENV = "MRGP_FE_DELAY_SECONDS"
-FE_LOG = "fe_evaluations.jsonl"
 #: Columns of one FE result as the worker returns it (the parameters are added by the stage).
 RESULT_COLUMNS = ("sample_id", "sensor", "frequency_hz", "real", "imag", "status", "message", "seconds", "pid")
 #: Cost of an FE run with its exact Jacobian, in FE runs: the CPU time ratio of
@@ -101,6 +101,7 @@ def _fe_run(model, threads: int, keep_factor: bool):
             if not keep_factor and is_large(model):
                 pardiso.release_idle()
                 recycle.forget(model)
+                reduced_basis.forget(model)
 
 
 # -- in worker processes -------------------------------------------------------------------------------
@@ -171,12 +172,14 @@ def evaluate_sample(ref, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray
 
 
 def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: np.ndarray,
-                             channels=None, threads: int = 1, keep_factor: bool = False) -> pd.DataFrame:
+                             channels=None, threads: int = 1, keep_factor: bool = False,
+                             reduce: bool = False) -> pd.DataFrame:
     """One FE run with the exact derivative of the receptance (:func:`fe_core.solvers.sensitivity.frf_jacobian`).
 
     Columns of :func:`evaluate_sample` plus ``dreal_<i>``, ``dimag_<i>`` (i = 1..m, the parameter vector's
     order) and ``cost`` (FE-run equivalents: :data:`JACOBIAN_COST` per reference of the channels). A failed
-    run has NaN everywhere. ``threads``, ``keep_factor``: as in :func:`evaluate_sample`.
+    run has NaN everywhere. ``threads``, ``keep_factor``: as in :func:`evaluate_sample`; ``reduce``: through the
+    model's global reduced basis (:mod:`fe_core.solvers.reduced_basis`: a large model's local Gauss-Newton round).
     """
     from fe_core.solvers.sensitivity import frf_jacobian
 
@@ -187,9 +190,12 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
     n = model.n_sensors if channels is None else len(channels[0])
     references = 1 if channels is None else np.unique(channels[1]).size
     _delay()
+    reduced = None  # whether the reduced basis served the run (None: not asked)
     try:  # one Krylov space for all the channels' references
         with _fe_run(model, threads, keep_factor):
-            Z, dZ = frf_jacobian(model, theta, freqs_hz, channels=channels)
+            Z, dZ, reduced = (reduced_basis.frf_jacobian(model, theta, freqs_hz, channels=channels)
+                              if reduce and keep_factor and is_large(model) else
+                              (*frf_jacobian(model, theta, freqs_hz, channels=channels), None))
         if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(dZ))):
             raise FloatingPointError("the FRF or its derivative has non-finite values")
         status, message = "ok", ""
@@ -198,6 +204,7 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
         status, message = "failed", f"{type(exc).__name__}: {exc}"
     df = _frame(sample_id, freqs_hz, n, Z, status, message, t0)
     df["cost"] = JACOBIAN_COST * references
+    if reduced is not None: df["reduced"] = bool(reduced)  # noqa: E701 - only a large model's runs say
     for i in range(m):
         df[f"dreal_{i + 1}"] = dZ[:, :, i].real.ravel()
         df[f"dimag_{i + 1}"] = dZ[:, :, i].imag.ravel()
@@ -226,42 +233,6 @@ def fd_frame(sid: int, frames: list[pd.DataFrame], steps) -> pd.DataFrame:
 def modal_columns(modes: int) -> tuple[str, ...]:
     """The FE result columns of ``modes`` emulated modes (:func:`evaluate_sample`)."""
     return tuple(f"{name}_{r + 1}" for r in range(modes) for name in ("omega2", "participation"))
-
-
-# -- the log of FE runs --------------------------------------------------------------------------------
-def append_log(store: RunStore, entry: dict) -> None:
-    """Append one line to ``fe_evaluations.jsonl`` with a single write (a kill cannot split it)."""
-    path = store.root / FE_LOG
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-    try:
-        lead = b""
-        if os.fstat(fd).st_size:  # a line cut short by a crash of the filesystem: start a new line
-            with open(path, "rb") as fh:
-                fh.seek(-1, os.SEEK_END)
-                lead = b"" if fh.read(1) == b"\n" else b"\n"
-        os.write(fd, lead + (json.dumps(entry) + "\n").encode())
-    finally:
-        os.close(fd)
-
-
-def read_fe_log(root: Path | str) -> list[dict]:
-    """The entries of a run's ``fe_evaluations.jsonl`` (unparsable lines are skipped).
-
-    Each entry has ``iteration``, ``stage``, ``sample_id`` and ``event``: ``evaluated`` (an FE run whose
-    result was written), ``recovered`` (a result found on disk without its log line, written back on resume:
-    still one FE run) or ``discarded`` (a result file set aside; that point is evaluated again).
-    """
-    path = Path(root) / FE_LOG
-    out = []
-    if path.exists():
-        for line in path.read_text().splitlines():
-            try:
-                entry = json.loads(line)
-            except ValueError:
-                continue
-            entry.setdefault("event", "evaluated")
-            out.append(entry)
-    return out
 
 
 # -- one stage's FE runs ---------------------------------------------------------------------------------
@@ -395,9 +366,12 @@ class FEStage:
         if is_large(self.problem.model) and s.fe_backend == "loky":
             if len(jobs) == 1:
                 (func, args, kwargs), = jobs.values()
-                yield func(*args, **{**kwargs, "threads": run_cores(s), "keep_factor": True})
+                local = self.stage == "local" and func is evaluate_sample_jacobian  # the hybrid's local phase: it
+                yield func(*args, **{**kwargs, "threads": run_cores(s), "keep_factor": True,  # confirms its centre
+                                     **({"reduce": True} if local else {})})
                 return
             pardiso.release_idle()  # the workers need the memory of this process's idle factor
+            reduced_basis.forget(self.problem.ref.load())  # and of its reduced basis
         yield from run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=s.fe_backend,
                                  n_jobs=s.n_jobs, dask_address=s.dask_address,
                                  label=f"iteration {self.iteration}, stage {self.stage}", logger=self.logger)
@@ -446,7 +420,7 @@ class FEStage:
                 modes = (np.array([part[f"omega2_{r + 1}"].iloc[0] for r in range(self.modes)]),
                          np.array([part[f"participation_{r + 1}"].to_numpy()[:self.n] for r in range(self.modes)]))
             out.append(Outcome(Z[line, channel], dZ[line, channel] if jac and dZ is not None else None,
-                               self.cost(df, jac), modes))
+                               self.cost(df, jac), modes, reduced=bool(df.get("reduced", pd.Series([0])).iloc[0])))
         return out
 
     def write(self, info: dict, order: tuple[str, ...] = ()) -> dict:
@@ -480,6 +454,8 @@ class FEStage:
         responses = (pd.concat(parts, ignore_index=True) if parts else
                      pd.DataFrame({c: pd.Series(dtype=float if c in ("frequency_hz", "real", "imag") else np.int64)
                                    for c in keep}))
+        reduced = sum(bool(df.get("reduced", pd.Series([0])).iloc[0]) for df in self.results.values())
+        info = {**info, **({"reduced_evaluations": reduced} if reduced else {})}  # a large model's reduced basis
         info = {"evaluations": int(len(runs)), "jacobians": int(runs["jacobian"].sum()), "rounds": self.rounds,
                 "cost": float(runs["cost"].sum()), "ran_now": self.ran, **info}
         self.store.write_table(self.iteration, self.stage, "runs", runs[[c for c in RUN_COLUMNS if c in runs]

@@ -51,7 +51,7 @@ import scipy.sparse.linalg as spla
 
 from .frf import STAGNATION_RTOL, BlockKrylov, _as_load_matrix, _relative_change, _shifted_solver, _symmetric
 
-__all__ = ["Direction", "krylov_frf_derivatives", "direct_frf_derivatives", "DerivativeInfo"]
+__all__ = ["Direction", "krylov_frf_derivatives", "direct_frf_derivatives", "DerivativeInfo", "projected_response"]
 
 log = logging.getLogger(__name__)
 
@@ -261,9 +261,20 @@ def krylov_frf_derivatives(
 
 def _reduced_response(V, R, F, Ld, L_sparse, k_index, m_index, da, db, m, omegas, a, b, lam, scale):
     """``(Z (p, n_out, n_loads), dZ (p, n_out, n_loads, m))`` of the Galerkin-reduced model."""
+    VL = (L_sparse.T @ V).T if L_sparse is not None else V.T @ Ld
+    Z, dZ, _ = projected_response(R, V.T @ F, VL, k_index, m_index, da, db, m, omegas, a, b, lam, scale)
+    return Z, dZ
+
+
+def projected_response(R, VF, VL, k_index, m_index, da, db, m, omegas, a, b, lam, scale):
+    """The reduced model's responses from its matrices alone: ``R`` (2 + extras, r, r) = ``V^T A V`` for K, M
+    and the directions (``k_index``, ``m_index``: direction -> its entry of R), ``VF = V^T F`` (r, n_loads),
+    ``VL = V^T L`` (r, n_out). Returns ``Z (p, n_out, n_loads)``, ``dZ (p, n_out, n_loads, m)`` and the reduced
+    eigenpairs ``(mu (r,), phi (r, r))`` (``phi^T Mr phi = I``). What :func:`krylov_frf_derivatives` evaluates
+    on its space, and :mod:`fe_core.solvers.reduced_basis` on a global basis."""
     mu, phi = sla.eigh(_symmetric(R[0]), _symmetric(R[1]))  # phi^T Mr phi = I, phi^T Kr phi = diag(mu)
-    Fh = phi.T @ (V.T @ F)  # (r, n_loads)
-    Lh = phi.T @ ((L_sparse.T @ V).T if L_sparse is not None else V.T @ Ld)  # (r, n_out)
+    Fh = phi.T @ VF  # (r, n_loads)
+    Lh = phi.T @ VL  # (r, n_out)
     dvec = 1.0 / (mu[None, :] - lam[:, None])  # (p, r)
     X = Lh[None, :, :] * dvec[:, :, None]  # (p, r, n_out)
     Y = Fh[None, :, :] * dvec[:, :, None]  # (p, r, n_loads)
@@ -283,7 +294,7 @@ def _reduced_response(V, R, F, Ld, L_sparse, k_index, m_index, da, db, m, omegas
         if da[i] or db[i]:  # da M + db K is diagonal in the eigenbasis: da + db mu
             S += (1j * w)[:, None, None] * (Xt @ ((da[i] + db[i] * mu)[None, :, None] * Y))
         dZ[..., i] = -(scale**2)[:, None, None] * S
-    return Z, dZ
+    return Z, dZ, (mu, phi)
 
 
 def _derivative_change(current, previous) -> float:

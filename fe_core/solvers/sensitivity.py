@@ -122,7 +122,7 @@ def segment_directions(model: ParametricModel) -> list:
 
 
 def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov",
-                 return_info: bool = False, channels=None):
+                 return_info: bool = False, channels=None, space: dict | None = None):
     """The receptance at the sensors and its exact derivative with respect to the parameters.
 
     The dynamic stiffness ``D(w) = K(alpha) - w^2 M(gamma) + j w (a M(gamma) + b K(alpha))``
@@ -155,6 +155,9 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
     channels : (responses, references), optional
         As in :meth:`ParametricModel.parameter_frf`: the (sensor, excitation) channels, one space
         for all their references' loads; None = every sensor under the model's load.
+    space : dict, optional
+        Receives the converged Krylov space of a ``"krylov"`` evaluation (``basis``, n x d, and ``seeded``), for
+        a global reduced basis (:mod:`fe_core.solvers.reduced_basis`).
 
     Returns
     -------
@@ -182,10 +185,12 @@ def frf_jacobian(model: ParametricModel, alpha, freqs_hz, method: str = "krylov"
     args = (K, M, a, b, loads, model.outputs, segment_directions(model), hz_to_rad(freqs))
     info = None
     if method == "krylov":  # a large model's space starts from its last FE run's (fe_core.solvers.recycle)
-        keep = {} if recycle.active(model) else None
+        keep = {} if recycle.active(model) or space is not None else None
         point = np.concatenate([np.ravel(alpha), np.ravel(gamma if gamma is not None else [])])
         Z, dZ, info = krylov_frf_derivatives(*args, return_info=True, seed=recycle.take(model, point), keep=keep)
         if keep is not None:
+            if space is not None:
+                space.update(keep)
             recycle.store(model, keep, point)
     else:
         Z, dZ = direct_frf_derivatives(*args)

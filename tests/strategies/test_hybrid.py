@@ -128,3 +128,41 @@ def test_a_noise_level_estimated_from_a_structured_residual_is_labelled_an_upper
     right, _ = _toy(TRUTH, noise)  # at the truth: what is left is the noise
     verdict = check(right, DATA, 2, HybridOptions())
     assert verdict.at_floor and verdict.sigma_source == "estimated"
+
+
+def _reduced_evaluate(bias, log):
+    """Results as a large model's reduced basis gives them (only in the local phase, tasks/fe_runs.py): the first
+    run and a point asked again at full order (exact), every other point 'reduced' and flagged, wrong by ``bias``
+    times its distance from the nearest full-order run (whose space the basis holds) over 0.1."""
+    from strategies.base import Outcome
+
+    seen, exact = [], []
+
+    def evaluate(batch):
+        out = []
+        for x, j in zip(batch.points, batch.jacobian):
+            Z, dZ = _toy(x)
+            full = batch.stage != "local" or not seen or any(np.array_equal(x, s) for s in seen)
+            seen.append(np.array(x))
+            log.append((np.array(x), full))
+            if full:
+                exact.append(np.array(x))
+            else:
+                Z = Z * (1 + bias * min(np.max(np.abs(x - e)) for e in exact) / 0.1)
+            out.append(Outcome(Z, dZ if j else None, reduced=not full))
+        return out
+    return evaluate
+
+
+@pytest.mark.parametrize("bias", [1e-6, 3e-3])
+def test_a_reduced_centre_is_confirmed_at_full_order(bias):
+    log = []
+    res = hybrid(_reduced_evaluate(bias, log), np.array([-0.6, 0.0]), DATA, LOWER, UPPER, OPTIONS)
+    assert any(not full for _, full in log)  # reduced results were used ...
+    assert any(full and np.array_equal(x, res.x) for x, full in log)  # ... the reported point is a full-order run's
+    Z, _ = _toy(res.x)
+    assert res.minima[0].Z == pytest.approx(Z, rel=1e-14)  # the minimum holds the full-order responses
+    assert res.error == pytest.approx(DATA.error(Z), rel=1e-12)
+    assert np.max(np.abs(res.x - TRUTH)) < 1e-3
+    if bias > 1e-3:  # the reduced centre disagreed with its confirmation: Gauss-Newton went on from it
+        assert sum(full for _, full in log) >= 3

@@ -1,0 +1,368 @@
+"""A global parametric reduced basis for the Gauss-Newton rounds of a large model (issue 41).
+
+An FE run with its Jacobian builds a block Krylov space of ``K(alpha)^-1 M`` from the load and the sensors'
+output vectors (:func:`fe_core.solvers.frf_derivatives.krylov_frf_derivatives`): ~143 vectors at 150k DOFs,
+grown with a factorisation of ``K(alpha)``. The model is affine in its parameters,
+
+    K(alpha) = K_0 + sum_i (1 + alpha_i) K_i,    M(gamma) = M_0 + sum_j (1 + gamma_j) M_j,
+
+so once every segment matrix is projected on a basis V (n x r), ``V^T K(alpha) V`` at any other point is a
+sum of r x r matrices: the Galerkin-reduced model, its FRFs and its exact Jacobian (the same formula as the
+full-order run's, :func:`fe_core.solvers.frf_derivatives.projected_response`) cost r x r work, with no
+factorisation (a global parametric basis: Benner, Gugercin & Willcox, SIAM Review 57, 2015, section 4; the
+bases of several parameter points are concatenated, "greedy" enrichment where the reduced model is not good
+enough: Quarteroni, Manzoni & Negri, Reduced Basis Methods, 2016, ch. 7).
+
+**The check.** Whether the reduced model is good at a point is decided from the full-order residual of its
+solutions, ``r(w) = D(w) V y(w) - b`` for the load (primal) and every sensor (dual, ``b = l_s``), at every
+line, preconditioned by the factor of K at the point the basis was started from: ``z = K0^-1 r``, the error
+``e = D^-1 r`` up to ``mu / (mu - lambda)`` in each mode (about 1 off resonance, the quality factor at one),
+the measure :mod:`fe_core.solvers.nearby` stops its iterations on. Its norm is taken through a random sketch:
+``S z = Y^T r`` with ``Y = K0^-1 S^T`` (:data:`SKETCH_ROWS` solves, once), ``S`` a sparse sign embedding
+(:data:`SKETCH_NONZEROS` random signs per column: the norm of any fixed vector kept to ~sqrt(2/k); Balabanov &
+Nouy, Adv. Comput. Math. 45, 2019, "Randomized linear algebra for model reduction. Part I", their sketched
+residual-based error indicator). ``Y^T K_t V`` and ``Y^T M_t V`` are kept (k x r per segment), so a line costs
+k x r work, never n. The estimate of each field's relative error is
+``kappa(w) ||S z|| / ||V y||`` with ``kappa = max(1, max_i |mu_i / (mu_i - lambda(w))|)`` over the reduced
+pencil's eigenvalues (``lambda = (w^2 - j w a) / (1 + j w b)``; the modes of the band are in the space); a
+point is served when it is at most :data:`FIELD_TOL` at every line. Measured (tests/fe_core/test_reduced_basis.py,
+docs/results/scaling.md): on the tet10 bracket the largest estimate is within 0.8-1.2 of the largest true
+Jacobian error; on the benchmark's hex8 plates it is low by up to 40 (the Euclidean norm of z weighs the
+fields' stiff, small-scale errors less than the Jacobian, an energy product, does; the energy norm of z would
+need half-solves with the factor, and its bound by diag(K) was 6-130 times too high). That is why a
+reduced point is never the last word:
+
+A point not served is run at full order: a full-order FE run (the usual one: the held factor
+preconditions it, :mod:`fe_core.solvers.nearby`) whose converged Krylov space is then added to V (enrichment:
+orthogonalised against V twice, every segment matrix projected on the new columns). A point the basis served
+reduced is run at full order when asked again: that is how a strategy confirms its final point
+(:func:`strategies.hybrid_phases.local_phase`).
+
+Only for models of at least :data:`MIN_DOFS` free DOFs (small models keep their arithmetic bit for bit), only
+in the process that runs a large model's single FE runs (``tasks/fe_runs.py``); ``MRGP_REDUCED_BASIS=0`` turns
+it off. Plain numpy/scipy.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from .frf import _shifted_solver, hz_to_rad
+from .frf_derivatives import projected_response
+from .sensitivity import frf_jacobian as full_frf_jacobian, segment_directions
+
+__all__ = ["MIN_DOFS", "ENABLED", "FIELD_TOL", "SKETCH_ROWS", "SKETCH_NONZEROS", "MAX_DIMENSION",
+           "ParametricBasis", "Estimate", "sparse_sign_sketch", "active", "frf_jacobian", "forget", "basis_of"]
+
+log = logging.getLogger(__name__)
+
+#: Models with at least this many free DOFs use a global basis (tests lower it on the model: ``_reduced_min``).
+MIN_DOFS = 50_000
+#: ``MRGP_REDUCED_BASIS=0`` turns the global basis off.
+ENABLED = os.environ.get("MRGP_REDUCED_BASIS", "1") != "0"
+#: Largest estimated relative error of each primal and dual field at any line. The Jacobian's error is first
+#: order in it, the responses' second order (both sides are in the space): 1e-3 gives a Jacobian good to ~1e-3
+#: (Gauss-Newton then converges at that rate) and responses to ~1e-5 of each line's largest, 1e-3 of the 1 %
+#: noise of measured data (measured on the bracket: 8 x the square; the final point is confirmed at full order).
+FIELD_TOL = 1e-3
+#: Rows of the sketch (each costs one solve with the factor when the basis is built: 40, against the 143 of a
+#: 150k model's Jacobian space) and random signs per column of it; a norm is kept to ~sqrt(2 / 40) = 22 %.
+SKETCH_ROWS = 40
+SKETCH_NONZEROS = 8
+#: The basis holds at most this many columns, and at most MAX_BYTES of them (n x 8 bytes a column: 373
+#: columns at 500k DOFs); a full-order space that does not fit restarts V from that space alone (kept full, the
+#: 500k update's basis of its first three points refused every later round: docs/results/scaling.md).
+MAX_DIMENSION = 720
+MAX_BYTES = 1.5e9
+#: A new space's direction joins V when at least this fraction of it lies outside V (the pivoted QR of the
+#: new columns after orthogonalisation against V): what is dropped changes the fields by less than this, far
+#: below FIELD_TOL, and a nearby point's space, mostly in V already, adds only what is new (n x columns of
+#: memory, and each column costs a product with every segment matrix and with V).
+ENRICH_TOL = 1e-6
+#: A point the basis served within this max-norm distance counts as asked again (module docstring).
+SAME_POINT = 1e-12
+
+_KEY = "_reduced_basis"
+
+
+def sparse_sign_sketch(n: int, rows: int = SKETCH_ROWS, nonzeros: int = SKETCH_NONZEROS,
+                       seed: int = 41) -> sp.csr_matrix:
+    """A sparse sign embedding ``S`` (rows x n): each column has ``nonzeros`` entries ``+-1/sqrt(nonzeros)`` in
+    distinct random rows, so ``E ||S x||^2 = ||x||^2`` for every x, and applying S costs ``nonzeros`` per entry."""
+    rng = np.random.default_rng(seed)
+    s = min(nonzeros, rows)
+    row = np.argsort(rng.random((n, rows)), axis=1)[:, :s] if rows <= 64 else _distinct_rows(rng, n, rows, s)
+    sign = rng.choice([-1.0, 1.0], size=(n, s)) / np.sqrt(s)
+    col = np.repeat(np.arange(n), s)
+    return sp.csr_matrix((sign.ravel(), (row.ravel(), col)), shape=(rows, n))
+
+
+def _distinct_rows(rng, n: int, rows: int, s: int) -> np.ndarray:
+    """``s`` distinct row indices per column, without an n x rows table (redrawn where two collide)."""
+    out = rng.integers(0, rows, size=(n, s))
+    while True:
+        srt = np.sort(out, axis=1)
+        bad = np.any(srt[:, 1:] == srt[:, :-1], axis=1)
+        if not bad.any():
+            return out
+        out[bad] = rng.integers(0, rows, size=(int(bad.sum()), s))
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The check of one reduced evaluation.
+
+    field_error : ndarray, shape (p,)
+        The largest estimated relative error of the primal and dual fields at each line.
+    relative : ndarray, shape (p, n_loads + n_out)
+        The estimate of every field (the loads', then the outputs') at every line.
+    residual : ndarray, shape (p, n_loads + n_out)
+        The sketched norms ``||S K0^-1 r||`` of their full-order residuals.
+    ok : bool
+        ``field_error <= FIELD_TOL`` at every line.
+    """
+
+    field_error: np.ndarray
+    relative: np.ndarray
+    residual: np.ndarray
+    ok: bool
+
+
+class ParametricBasis:
+    """An orthonormal basis V with every segment matrix, the loads and the outputs projected on it.
+
+    Parameters
+    ----------
+    stiffness, mass : list of sparse (n, n)
+        The affine parts: ``K = sum_t w_t stiffness[t]``, ``M = sum_t v_t mass[t]`` (the weights are given
+        at evaluation: ``1 + alpha_i`` for a segment, 1 for a fixed part).
+    loads : ndarray, shape (n, n_loads)
+    outputs : sparse or ndarray, shape (n, n_out)
+    sketch : sparse, shape (k, n), optional
+        :func:`sparse_sign_sketch` by default.
+    capacity : int
+        Columns allocated (column-major: only the columns written take memory).
+
+    Attributes
+    ----------
+    dim : int
+        Columns in V.
+    """
+
+    def __init__(self, stiffness, mass, loads, outputs, precondition, sketch=None, capacity: int = MAX_DIMENSION):
+        self.stiffness, self.mass = list(stiffness), list(mass)
+        self.parts = self.stiffness + self.mass
+        n = self.parts[0].shape[0]
+        S = sparse_sign_sketch(n) if sketch is None else sketch
+        # The sketch of the preconditioned residual: S K0^-1 r = Y^T r with Y = K0^-1 S^T (k solves, once).
+        self.sketch = np.ascontiguousarray(np.asarray(precondition(S.T.toarray()), dtype=float).T)  # (k, n)
+        B = np.asarray(loads, dtype=float).reshape(n, -1)
+        L = outputs.toarray() if sp.issparse(outputs) else np.asarray(outputs, dtype=float).reshape(n, -1)
+        self.n_loads = B.shape[1]
+        self.rhs = np.hstack([B, L])  # (n, c): the primal loads, then the dual ones
+        self.S_rhs = self.sketch @ self.rhs  # (k, c)
+        self.capacity = capacity
+        self.V = np.empty((n, capacity), order="F")
+        self.dim = 0
+        self.R = np.zeros((len(self.parts), capacity, capacity))  # V^T A_t V
+        self.SAV = np.zeros((len(self.parts), self.sketch.shape[0], capacity))  # S A_t V
+        self.Vrhs = np.zeros((capacity, self.rhs.shape[1]))  # V^T [B, L]
+        self.served: list[np.ndarray] = []  # points evaluated reduced (asked again: full order)
+
+    def restart(self) -> None:
+        """Empty V (its memory is reused); the sketch ``Y = K0^-1 S^T`` stays (any fixed K0 preconditions the
+        check). The newest spaces are the ones near where Gauss-Newton goes on."""
+        self.dim = 0
+        self.served = []
+
+    def extend(self, W: np.ndarray) -> int:
+        """Add the part of ``W`` (n x s) not yet in V; returns the columns added (0 when V is full)."""
+        d = self.dim
+        if d >= self.capacity:
+            return 0
+        Q = np.array(W, dtype=float, order="F")
+        for _ in range(2):  # twice is enough (Giraud et al. 2005): V stays orthonormal to round-off
+            if d:
+                Q -= self.V[:, :d] @ (self.V[:, :d].T @ Q)
+        q, r, _ = sla.qr(Q, mode="economic", pivoting=True)
+        size = np.abs(np.diag(r))
+        scale = max(1.0, float(np.linalg.norm(W, axis=0).max(initial=0.0)))
+        k = min(int(np.sum(size > ENRICH_TOL * scale)), self.capacity - d)
+        if k <= 0:
+            return 0
+        q = q[:, :k]
+        self.V[:, d:d + k] = q
+        V = self.V[:, :d + k]
+        for t, A in enumerate(self.parts):
+            P = A @ q
+            col = V.T @ P
+            self.R[t, :d + k, d:d + k] = col
+            self.R[t, d:d + k, :d] = col[:d].T
+            self.SAV[t, :, d:d + k] = self.sketch @ P
+        self.Vrhs[d:d + k] = q.T @ self.rhs
+        self.dim = d + k
+        return k
+
+    def evaluate(self, w_stiff, w_mass, a: float, b: float, omegas, k_dirs, m_dirs):
+        """The reduced responses at every line and the check (:class:`Estimate`).
+
+        Parameters
+        ----------
+        w_stiff, w_mass : ndarray
+            Weights of the stiffness and mass parts.
+        a, b : float
+            Rayleigh coefficients.
+        omegas : ndarray, shape (p,), rad/s
+        k_dirs, m_dirs : list of int
+            The parameters' parts: direction i is ``stiffness[k_dirs[i]]`` for the stiffness factors, then
+            ``mass[m_dirs[j]]`` for the updated masses.
+
+        Returns
+        -------
+        Z : ndarray, shape (p, n_out, n_loads)
+        dZ : ndarray, shape (p, n_out, n_loads, len(k_dirs) + len(m_dirs))
+        Estimate
+        """
+        d, nk = self.dim, len(self.stiffness)
+        R = self.R[:, :d, :d]
+        Kr = np.tensordot(np.asarray(w_stiff, float), R[:nk], axes=1)
+        Mr = np.tensordot(np.asarray(w_mass, float), R[nk:], axes=1)
+        stack = np.stack([Kr, Mr, *(R[t] for t in k_dirs), *(R[nk + t] for t in m_dirs)])
+        n_k = len(k_dirs)
+        m = n_k + len(m_dirs)
+        k_index = {i: 2 + i for i in range(n_k)}
+        m_index = {n_k + j: 2 + n_k + j for j in range(len(m_dirs))}
+        omegas = np.asarray(omegas, dtype=float)
+        lam = (omegas**2 - 1j * omegas * a) / (1.0 + 1j * omegas * b)
+        scale = 1.0 / (1.0 + 1j * omegas * b)
+        VF, VL = self.Vrhs[:d, :self.n_loads], self.Vrhs[:d, self.n_loads:]
+        Z, dZ, (mu, phi) = projected_response(stack, VF, VL, k_index, m_index, np.zeros(m), np.zeros(m), m,
+                                              omegas, a, b, lam, scale)
+        return Z, dZ, self._estimate(Z, mu, phi, w_stiff, w_mass, lam, scale)
+
+    def _estimate(self, Z, mu, phi, w_stiff, w_mass, lam, scale) -> Estimate:
+        d, nk = self.dim, len(self.stiffness)
+        SAV = self.SAV[:, :, :d]
+        SK = np.tensordot(np.asarray(w_stiff, float), SAV[:nk], axes=1) @ phi  # (k, r)
+        SM = np.tensordot(np.asarray(w_mass, float), SAV[nk:], axes=1) @ phi
+        Bh = phi.T @ self.Vrhs[:d]  # (r, c)
+        dvec = 1.0 / (mu[None, :] - lam[:, None])  # (p, r)
+        X = dvec[:, :, None] * Bh[None, :, :]  # (p, r, c): phi^-1 y / scale
+        # S r = (S K V phi - lambda S M V phi) X - S b: one (k, r) x (r, c) product per line.
+        Sr = SK @ X - lam[:, None, None] * (SM @ X) - self.S_rhs[None, :, :]
+        res = np.linalg.norm(Sr, axis=1)  # (p, c): ||K0^-1 r|| of every column at every line
+        field = np.abs(scale)[:, None] * np.linalg.norm(phi @ X, axis=1)  # ||V y|| = ||y||
+        # K0^-1 r is the error e = D^-1 r up to mu / (mu - lambda) in each mode: at most ~1 off resonance, the
+        # quality factor at one; the reduced pencil's eigenvalues stand in for the model's (the modes of the band
+        # are in the space).
+        kappa = np.maximum(1.0, np.max(np.abs(mu[None, :] * dvec), axis=1))  # (p,)
+        rel = kappa[:, None] * res / np.maximum(field, np.finfo(float).tiny)
+        field_error = rel.max(axis=1)
+        return Estimate(field_error, rel, res, bool(np.all(field_error <= FIELD_TOL)))
+
+
+def active(model) -> bool:
+    """Whether a large model's single FE runs may use a global basis."""
+    return ENABLED and getattr(model, "n_dofs", 0) >= model.__dict__.get("_reduced_min", MIN_DOFS)
+
+
+def basis_of(model):
+    """The model's global basis (None before its first full-order run)."""
+    return model.__dict__.get(_KEY)
+
+
+def forget(model) -> None:
+    """Drop the model's basis (its memory: n x dim)."""
+    model.__dict__.pop(_KEY, None)
+
+
+def _parts(model):
+    """The affine stiffness and mass parts and the parameters' positions among them."""
+    dirs = segment_directions(model)
+    ns = model.n_segments
+    stiffness = [d.stiffness for d in dirs[:ns]]
+    if model.stiffness_segments.has_fixed:
+        stiffness.append(model.stiffness_segments.own(ns))
+    if model.mass_parameters.size:
+        mass = [model.mass_segments.own(i) for i in range(ns)]
+        if model.mass_segments.has_fixed:
+            mass.append(model.mass_segments.own(ns))
+    else:  # no updated mass: M is one fixed part
+        mass = [model.mass(None)]
+    return stiffness, mass
+
+
+def _weights(model, alpha, gamma):
+    ws = 1.0 + np.asarray(alpha, float)
+    if model.stiffness_segments.has_fixed:
+        ws = np.append(ws, 1.0)
+    if not model.mass_parameters.size:
+        return ws, np.ones(1)
+    wm = 1.0 + np.asarray(gamma, float)
+    return ws, (np.append(wm, 1.0) if model.mass_segments.has_fixed else wm)
+
+
+def frf_jacobian(model, theta, freqs_hz, channels=None):
+    """:func:`fe_core.solvers.sensitivity.frf_jacobian` through the model's global basis where its check allows.
+
+    Returns ``(Z, dZ, reduced)``: the receptance and its derivative as the full-order function returns them,
+    and whether they came from the reduced model (False: a full-order run, whose space enriched the basis).
+    A model that is not :func:`active` always runs full order.
+    """
+    if not active(model):
+        Z, dZ = full_frf_jacobian(model, theta, freqs_hz, channels=channels)
+        return Z, dZ, False
+    theta = np.asarray(theta, dtype=float)
+    alpha, gamma = model.factors(theta)
+    key = None if channels is None else (tuple(np.ravel(channels[0])), tuple(np.ravel(channels[1])))
+    basis = basis_of(model)
+    if basis is not None and basis.channels != key:  # other loads: another basis
+        forget(model)
+        basis = None
+    if basis is not None and not any(np.max(np.abs(theta - x), initial=0.0) <= SAME_POINT for x in basis.served):
+        freqs = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
+        ws, wm = _weights(model, alpha, gamma)
+        ns = model.n_segments
+        m_dirs = [int(j) for j in model.mass_parameters]
+        Z, dZ, est = basis.evaluate(ws, wm, *model.damping, hz_to_rad(freqs), list(range(ns)), m_dirs)
+        if est.ok:
+            basis.served.append(theta.copy())
+            responses, column = basis.pick
+            log.info("reduced basis (%d columns): served (estimated field error %.1e)", basis.dim,
+                     float(est.field_error.max()))
+            return Z[:, responses, column], dZ[:, responses, column, :], True
+        log.info("reduced basis (%d columns): refused (estimated field error %.1e); a full-order run enriches it",
+                 basis.dim, float(est.field_error.max()))
+    space: dict = {}
+    Z, dZ = full_frf_jacobian(model, theta, freqs_hz, channels=channels, space=space)
+    W = space.get("basis")
+    if W is None:
+        return Z, dZ, False
+    if basis is not None and basis.dim + W.shape[1] > basis.capacity:
+        basis.restart()  # full: V starts again from this space (the sketch and its solves kept)
+    if basis is None:
+        if channels is None:
+            loads, responses, column = model.combined_load(), slice(None), 0
+        else:
+            loads, responses, column = model.channel_loads(*channels)
+        # The preconditioner of the check: K at this point, factored (or held) by the run just made.
+        solve, sigma = _shifted_solver(model.stiffness(alpha), model.mass(gamma), None, 1.0)
+        if sigma != 0.0:  # K is not positive-definite (a free structure): no check, no basis
+            return Z, dZ, False
+        stiffness, mass = _parts(model)
+        capacity = int(min(MAX_DIMENSION, MAX_BYTES // (8 * model.n_dofs)))
+        basis = ParametricBasis(stiffness, mass, loads, model.outputs, solve, capacity=capacity)
+        del solve
+        basis.channels, basis.pick = key, (responses, column)
+        model.__dict__[_KEY] = basis
+    added = basis.extend(W)
+    basis.served = [x for x in basis.served if np.max(np.abs(theta - x), initial=0.0) > SAME_POINT]
+    log.info("reduced basis: %d of the full-order run's %d columns added, %d in all (at most %d)", added,
+             W.shape[1], basis.dim, basis.capacity)
+    return Z, dZ, False
