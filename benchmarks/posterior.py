@@ -67,8 +67,7 @@ def one_dataset(name: str, k: int, sigma: float, seed: int, budget: int) -> list
     fit = fit_log_amplitudes(model, freqs, u, start, LOWER, UPPER, max_fe_runs=50)
     iv = laplace_intervals(fit.residual, fit.jacobian, fit.alpha, noise=sigma, lower=LOWER, upper=UPPER)
     refined = SimpleNamespace(intervals=iv, residual=fit.residual)
-    config = SimpleNamespace(posterior_fe=budget, seed=seed * 1000 + k)
-    fields, check, post = _check_and_sample(model, freqs, u, refined, LOWER, UPPER, config)
+    fields, check, post = _check_and_sample(model, freqs, u, refined, LOWER, UPPER, budget, seed * 1000 + k)
     cpu = time.process_time() - t0
     rows = []
     for i, n in enumerate(iv.names):

@@ -46,7 +46,8 @@ POSTERIOR_TABLE = "posterior"
 
 @task(name="intervals", task_run_name="iteration-{iteration}-intervals", cache_policy=NO_CACHE)
 @beating("intervals (Gauss-Newton to the least-squares optimum, checks, the sampled posterior)")
-def intervals_task(root: str, problem, config, iteration: int, start, output_stage: str = INTERVALS_STAGE) -> dict:
+def intervals_task(root: str, problem, config, iteration: int, start, output_stage: str = INTERVALS_STAGE,
+                   not_sampled: str = "") -> dict:
     """Intervals near ``start`` (shape (n_parameters,), the run's best parameters); returns the stage record's info.
 
     The info holds the ``summary.json`` fields (``intervals``, ``covariance``,
@@ -59,11 +60,12 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     data is not used here (the intervals' error model is the relative amplitude noise). Data with several
     references (roving hammer, MIMO) stack their channels in one residual (the same relative amplitude noise on
     every channel; one Krylov space per point carries every reference's load). ``output_stage``: another
-    folder (a rerun).
+    folder (a rerun). ``not_sampled``: why the posterior is not sampled even where the linearity check would ask
+    for it (the Laplace intervals are reported with that reason); empty: sampled as ``config.posterior_fe`` says.
     """
     store = RunStore(root)
     logger = run_logger()
-    settings = {"noise_config": config.noise, "posterior_fe_config": config.posterior_fe}
+    settings = {"noise_config": config.noise, "posterior_fe_config": 0 if not_sampled else config.posterior_fe}
     if store.is_finished(iteration, output_stage):
         info = store.stage_info(iteration, output_stage)
         old = {k: info.get(k) for k in settings}  # a record from before the sampled posterior: computed again
@@ -89,8 +91,10 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
                                       noise=noise, channels=channels)
         jacobian_seconds = time.perf_counter() - t0
         iv = refined.intervals
-        fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config,
-                                                channels)
+        fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper,
+                                                settings["posterior_fe_config"], config.seed, channels)
+    if not_sampled:
+        fields["interval_details"]["method_reason"] = f"laplace, not sampled: {not_sampled}"
     if refined.noise_model is not None:  # weighted by the noise per line and channel: say which
         fields["noise_model"] = refined.noise_model.to_dict()
         fields["interval_details"]["noise"] = refined.noise_model.describe()
@@ -162,7 +166,8 @@ def residual_check(residual, freqs_hz, n_fitted: int, noise) -> dict | None:
             "p_chi2": a.p_chi2, "text": a.summary()}
 
 
-def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, config, channels=None):
+def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper, posterior_fe: int, seed=0,
+                      channels=None):
     """The Laplace fields, or the sampled posterior's where the linearity check fails; also (check, posterior).
 
     The check (two FE runs per parameter) looks at the parameters the Laplace flags (an interval wider
@@ -172,7 +177,7 @@ def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper
     fields = iv.to_summary()
     flagged = iv.unpinned | iv.near_bound
     check = post = None
-    if config.posterior_fe > 0 and flagged.any() and np.isfinite(iv.covariance).all():
+    if posterior_fe > 0 and flagged.any() and np.isfinite(iv.covariance).all():
         log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
         weights = 1.0 if refined.weights is None else refined.weights  # as the intervals saw it
 
@@ -182,20 +187,20 @@ def _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper
         check = linearity_check(residual, iv, refined.residual, lower, upper, which=flagged)
         if check.poor.any():
             try:
-                post = importance_posterior(residual, iv, lower, upper, np.random.default_rng([config.seed, 19]),
-                                            budget=config.posterior_fe)
+                post = importance_posterior(residual, iv, lower, upper, np.random.default_rng([seed, 19]),
+                                            budget=posterior_fe)
             except (ValueError, np.linalg.LinAlgError) as exc:  # keep the Laplace intervals, say why
                 fields["interval_details"]["method_reason"] = (f"laplace, though its check failed "
                                                                f"({'; '.join(check.reasons())}): sampling failed: {exc}")
                 fields["interval_details"]["linearity"] = check.to_dict()
                 return fields, check, None
-            return sampled_summary(iv, check, post, config.posterior_fe), check, post
+            return sampled_summary(iv, check, post, posterior_fe), check, post
     fields["interval_details"]["method_reason"] = laplace_reason(iv, check)
     if check is not None:
         fields["interval_details"]["linearity"] = check.to_dict()
     elif flagged.any():
         fields["interval_details"]["method_reason"] = (
-            "laplace: posterior_fe = 0 (no sampling)" if config.posterior_fe == 0 else
+            "laplace: posterior_fe = 0 (no sampling)" if posterior_fe == 0 else
             "laplace: a parameter the data do not see (infinite variance) cannot be sampled")
     return fields, check, post
 

@@ -86,6 +86,23 @@ def test_the_strategy_in_memory_weighs_the_same_evidence_after_the_same_fe_runs(
         np.testing.assert_allclose(x, h["x"], rtol=0, atol=1e-12)
 
 
+def test_the_intervals_of_a_run_stopped_on_the_evidence_are_laplace_not_sampled(point_mass_run, prefect_harness):
+    """The run's model lacks the effect the evidence names: the intervals stage reports the Laplace intervals and
+    why, and spends no FE run on sampling a posterior of that model (400 by default, minutes on a 25k-DOF model:
+    issue 40's held-out ho07)."""
+    from flows.rerun import run_problem
+    from flows.summary import _interval_fields
+
+    summary, store = point_mass_run
+    config = UpdateConfig(run_id="pm", runs_dir=str(store.root.parent), measured=str(DATA / "measured_point_mass.csv"),
+                          **{**SETTINGS, "intervals": True})
+    assert config.posterior_fe > 0 and summary["evidence"]["choice"] == "closure"
+    fields = _interval_fields(run_problem(config), config, store, summary["iterations"], summary)
+    assert fields["interval_details"]["method_reason"].startswith(
+        "laplace, not sampled: the run stopped on the evidence of a missing effect")
+    assert fields["interval_cost"]["posterior_fe_runs"] == 0 and fields["interval_method"].startswith("laplace")
+
+
 def test_without_an_effect_the_global_round_reaches_the_floor_and_nothing_is_weighed(tmp_path, prefect_harness):
     from tasks.io.measured import MeasuredFRF, read_measured, write_measured
 
