@@ -15,8 +15,9 @@ from fe_core.inference.residual import STRUCTURED_ESTIMATE
 from tasks.closure.summary import STATUSES
 
 #: data/cases/three_plate_closure_table's far point mass: the forward selection makes moves and swaps, with the noise
-#: estimated (no --noise). The library is the five kinds its record involves (with all eleven registered kinds the
-#: record is the same: the same effects, swaps and verdict; the fixture was the suite's slowest, 107 s in CI).
+#: estimated (no --noise). The library is the five kinds its record involves (with all eleven registered kinds, on
+#: 3649e6e, the record was the same: the same effects, swaps and verdict; the fixture was the suite's slowest, 107 s
+#: in CI).
 EFFECTS = ["segment_mass", "point_mass", "damping", "sensor_gain", "patch"]
 DATA = REPO / "data" / "cases" / "three_plate_closure_table" / "far_point_mass.csv"
 
