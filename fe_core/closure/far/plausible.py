@@ -74,13 +74,11 @@ def mark_negligible(model, freqs_hz, base, checked: Sequence, min_shift: float =
     todo = [c for c in checked if c.fit is not None and _own(c) is not None]
     if not todo:
         return
-    rm = None
+    rm = ReducedModel(model, freqs_hz, base.alpha, base.applied)
     for c in todo:
-        if sigma is not None and gain_within_misfit(base, _own(c), sigma, c):
-            continue
-        if rm is None:
-            rm = ReducedModel(model, freqs_hz, base.alpha, base.applied)
         shifts = frequency_shifts(rm, base.alpha, _own(c))
+        if shifts is None and sigma is not None:  # no stiffness or mass terms: a sensor's gain is judged on its channel
+            gain_within_misfit(base, _own(c), sigma, c)
         if shifts is None or shifts.size == 0:
             continue
         c.largest_shift = float(np.max(np.abs(shifts)))
