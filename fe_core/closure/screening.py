@@ -217,12 +217,16 @@ def check_in_waves(model: ParametricModel, freqs_hz, amplitude, base: Fit, by_ki
     """:func:`check` of the candidates of ``first``, then of those :func:`second_wave` takes from ``rest``;
     no further check is started once ``out_of_time()`` is true (the checks made so far are returned)."""
     checked: list[Candidate] = []
-    for wave in (first, None):
-        for c in (wave if wave is not None else second_wave(rest, [c.fit.rss for c in checked], base.rss)):
-            if out_of_time is not None and out_of_time():
-                return checked
-            checked.append(check(model, freqs_hz, amplitude, base, by_kind[c.effect], c, max_moves, alpha_bounds,
-                                 max_evaluations=max_evaluations))
+
+    def waves():
+        yield from first
+        yield from second_wave(rest, [c.fit.rss for c in checked], base.rss)  # drawn once the first is checked
+
+    for c in waves():
+        if out_of_time is not None and out_of_time():
+            break
+        checked.append(check(model, freqs_hz, amplitude, base, by_kind[c.effect], c, max_moves, alpha_bounds,
+                             max_evaluations=max_evaluations))
     return checked
 
 
