@@ -316,6 +316,7 @@ def update(model_file: Path, measured: Path, code: Path, run_id: str, extra: lis
     cmd = [sys.executable, "-m", "flows.update", "--model", str(model_file), "--measured", str(measured),
            "--run-id", run_id, "--runs-dir", str(runs), *extra]
     shutil.rmtree(runs / run_id, ignore_errors=True)
+    OUT.mkdir(parents=True, exist_ok=True)  # a fresh checkout has no runs/ yet
     load0 = _load()
     log = OUT / f"{run_id}.log"
     with _dask_cluster(dask_workers, code) as address, open(log, "w") as fh:
