@@ -132,3 +132,21 @@ def test_a_full_basis_restarts_from_the_newest_space(model):
     assert est.ok  # V is the new point's space
     _, _, est = reduced_at(model, START)
     assert not est.ok  # and no longer the first point's
+
+
+def test_enrichment_keeps_v_orthonormal_and_its_projections_exact(model):
+    """The enrichment works in blocks of BLOCK columns (its memory): V stays orthonormal and every kept
+    projection equals the plain product with the whole V (V^T A V, S A V, V^T [B, L])."""
+    basis = rb.basis_of(model)
+    far = np.clip(START + 0.3 * np.sign(DIRECTION), -0.9, 1.0)
+    rb.frf_jacobian(model, far, FREQS)  # a second space, orthogonalised against the first
+    d = basis.dim
+    assert d > 2 * rb.BLOCK  # several blocks in each space
+    V = basis.V[:, :d]
+    assert np.abs(V.T @ V - np.eye(d)).max() <= 1e-12 * d
+    for t, A in enumerate(basis.parts):
+        AV = A @ V
+        scale = np.abs(V.T @ AV).max()
+        assert np.abs(basis.R[t, :d, :d] - V.T @ AV).max() <= 1e-12 * scale
+        assert np.abs(basis.SAV[t, :, :d] - basis.sketch @ AV).max() <= 1e-12 * np.abs(basis.sketch @ AV).max()
+    assert np.abs(basis.Vrhs[:d] - V.T @ basis.rhs).max() <= 1e-12 * np.abs(V.T @ basis.rhs).max()
