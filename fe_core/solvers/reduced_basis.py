@@ -38,9 +38,10 @@ orthogonalised against V twice, every segment matrix projected on the new column
 reduced is run at full order when asked again: that is how a strategy confirms its final point
 (:func:`strategies.hybrid_phases.local_phase`).
 
-Only for models of at least :data:`MIN_DOFS` free DOFs (small models keep their arithmetic bit for bit), only
-in the process that runs a large model's single FE runs (``tasks/fe_runs.py``); ``MRGP_REDUCED_BASIS=0`` turns
-it off. Plain numpy/scipy.
+Only for models of :data:`MIN_DOFS` to :data:`MAX_DOFS` free DOFs (small models keep their arithmetic bit for bit; larger
+ones, where the basis holds under three spaces, gained no time and cost memory at 500k), only in the process that
+runs a large model's single FE runs (``tasks/fe_runs.py``); ``MRGP_REDUCED_BASIS=0`` turns it off. Plain
+numpy/scipy.
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ from .frf import _shifted_solver, hz_to_rad
 from .frf_derivatives import projected_response
 from .sensitivity import frf_jacobian as full_frf_jacobian, segment_directions
 
-__all__ = ["MIN_DOFS", "ENABLED", "FIELD_TOL", "SKETCH_ROWS", "SKETCH_NONZEROS", "MAX_DIMENSION",
+__all__ = ["MIN_DOFS", "MAX_DOFS", "ENABLED", "FIELD_TOL", "SKETCH_ROWS", "SKETCH_NONZEROS", "MAX_DIMENSION",
            "ParametricBasis", "Estimate", "sparse_sign_sketch", "active", "frf_jacobian", "forget", "basis_of"]
 
 log = logging.getLogger(__name__)
@@ -80,6 +81,11 @@ SKETCH_NONZEROS = 8
 #: 500k update's basis of its first three points refused every later round: docs/results/scaling.md).
 MAX_DIMENSION = 720
 MAX_BYTES = 1.5e9
+#: Larger models run every round at full order. Measured on the 500k panel (docs/results/scaling.md): a basis of
+#: 373 columns (2.6 spaces) served only the end-game's rounds, after as many full-order rounds as without it (the
+#: local phase 18.8 min against 17.9), and the process tree peaked at 10.8 GB against 7.0 GB; at 150k, with room
+#: for five spaces, it served 5 of 11 rounds and the update took 391 s against 508 s.
+MAX_DOFS = int(MAX_BYTES // (8 * MAX_DIMENSION))
 #: A new space's direction joins V when at least this fraction of it lies outside V (the pivoted QR of the
 #: new columns after orthogonalisation against V): what is dropped changes the fields by less than this, far
 #: below FIELD_TOL, and a nearby point's space, mostly in V already, adds only what is new (n x columns of
@@ -281,8 +287,10 @@ class ParametricBasis:
 
 
 def active(model) -> bool:
-    """Whether a large model's single FE runs may use a global basis."""
-    return ENABLED and getattr(model, "n_dofs", 0) >= model.__dict__.get("_reduced_min", MIN_DOFS)
+    """Whether a large model's single FE runs may use a global basis: from :data:`MIN_DOFS` free DOFs up to the
+    size at which :data:`MAX_DIMENSION` columns still fit in :data:`MAX_BYTES` (260k DOFs)."""
+    n = getattr(model, "n_dofs", 0)
+    return ENABLED and model.__dict__.get("_reduced_min", MIN_DOFS) <= n <= MAX_DOFS
 
 
 def basis_of(model):
