@@ -38,10 +38,10 @@ orthogonalised against V twice, every segment matrix projected on the new column
 reduced is run at full order when asked again: that is how a strategy confirms its final point
 (:func:`strategies.hybrid_phases.local_phase`).
 
-Only for models of :data:`MIN_DOFS` to :data:`MAX_DOFS` free DOFs (small models keep their arithmetic bit for bit; larger
-ones, where the basis holds under three spaces, gained no time and cost memory at 500k), only in the process that
-runs a large model's single FE runs (``tasks/fe_runs.py``); ``MRGP_REDUCED_BASIS=0`` turns it off. Plain
-numpy/scipy.
+Only for models of :data:`MIN_DOFS` to :data:`MAX_DOFS` free DOFs (small models keep their arithmetic bit for
+bit; in larger ones the basis holds under three spaces, and at 500k it gained no time and cost memory), only in
+the process that runs a large model's single FE runs (``tasks/fe_runs.py``); ``MRGP_REDUCED_BASIS=0`` turns it
+off. Plain numpy/scipy.
 """
 
 from __future__ import annotations
