@@ -168,10 +168,8 @@ def verdict(before: ResidualAnalysis, after: ResidualAnalysis, n_added: int, ide
 
 
 def rank(candidates: Sequence[Candidate]) -> list[Candidate]:
-    """Checked candidates by extended BIC, then the rest by their linearised extended BIC. A checked candidate not
-    scored yet (a round the closure's time limit cut short) follows the scored ones, by its fit's sum of squares."""
-    checked = sorted((c for c in candidates if c.fit is not None),
-                     key=lambda c: (c.ebic is None, c.ebic if c.ebic is not None else c.fit.rss))
+    """Checked candidates by extended BIC, then the rest by their linearised extended BIC."""
+    checked = sorted((c for c in candidates if c.fit is not None), key=lambda c: c.ebic)
     rest = sorted((c for c in candidates if c.fit is None), key=lambda c: c.linear_delta_ebic)
     return checked + rest
 

@@ -339,6 +339,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         if late():  # cut short: not decided on part of the round's checks
             log.info("the closure's time limit: round %d stopped after %d checks, not decided", len(rounds) + 1,
                      len(checked))
+            score(current, checked)  # scored as a decided round's are, for its ranking and record
             rounds.append(rank(merge(checked, screened)))
             stopped = "time limit"
             break

@@ -180,6 +180,7 @@ def test_the_time_limit_stops_the_selection_between_checks_and_leaves_the_round_
     assert len(made) == 2 and sel.stopped == "time limit" and not sel.steps
     kept = {id(c) for c in sel.rounds[-1] if c.fit is not None}  # the two fits (one, if they met at one node)
     assert kept and kept <= {id(c) for c in made} and all(c.fit is not None for c in made)
+    assert all(c.ebic is not None for c in sel.rounds[-1] if c.fit is not None)  # scored (ho23: unscored, unranked)
     assert sel.final is base and sel.after.structured
     # Without the limit the same round adds the mass (at its node or next to it: the check's moves).
     made.clear()
@@ -195,22 +196,3 @@ def test_a_closure_out_of_time_before_its_first_round_adds_nothing_and_says_why(
                         build_library(benchmark_model, ["point_mass"]), noise=0.005, max_minutes=0.0)
     assert result.stopped == "time limit" and not result.steps and result.verdict == "not explained"
 
-
-def test_rank_puts_checked_candidates_not_yet_scored_after_the_scored_ones():
-    """A round cut short by the time limit is ranked before its checks are scored (held-out ho23 stopped with a
-    TypeError comparing two unscored candidates)."""
-    from types import SimpleNamespace
-
-    from fe_core.closure.decisions import rank
-    from fe_core.closure.screening import Candidate
-
-    def cand(name, ebic=None, rss=None, linear=0.0):
-        c = Candidate(effect="point_mass", location=name, n_locations=1, linear_values=np.zeros(1), linear_rss=1.0,
-                      linear_explained=0.0, linear_delta_ebic=linear)
-        c.fit = None if rss is None else SimpleNamespace(rss=rss)
-        c.ebic = ebic
-        return c
-
-    order = rank([cand("u2", rss=5.0), cand("s2", ebic=-1.0, rss=9.0), cand("l", linear=-3.0),
-                  cand("u1", rss=2.0), cand("s1", ebic=-7.0, rss=8.0)])
-    assert [c.location for c in order] == ["s1", "s2", "u1", "u2", "l"]
