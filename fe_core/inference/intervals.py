@@ -161,11 +161,12 @@ class RefinedIntervals:
         optimum as far as the intervals can tell.
     at_optimum : bool
     fe_runs : int
-        FRF evaluations besides the Jacobians (0: each Jacobian brings its FRF).
+        FRF evaluations besides the Jacobians (each Jacobian brings its FRF): the chord steps' (:data:`CHORD_STD`).
     jacobians : int
         Exact Jacobians (with their FRF) the intervals cost.
     jacobian : ndarray, shape (p * n, m)
-        ``d residual / d alpha`` at the estimate.
+        ``d residual / d alpha`` at ``jacobian_at``: the estimate, or after a chord step the point a step of at
+        most :data:`CHORD_STD` standard deviations before it.
     weights : ndarray, shape (p * n,), or None
         With a noise per line and channel (``noise_model``): ``residual`` and ``jacobian`` are divided by it
         (whitened, unit noise); None: one relative level.
@@ -183,11 +184,14 @@ class RefinedIntervals:
     jacobian: np.ndarray | None = None
     weights: np.ndarray | None = None
     noise_model: object = None
+    #: Where ``jacobian`` was computed: the estimate, or the point one chord step before it (:data:`CHORD_STD`).
+    jacobian_at: np.ndarray | None = None
 
 
 def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, upper, noise: float | None = None,
                         level: float = 0.95, width_threshold: float = WIDTH_THRESHOLD, max_jacobians: int = 3,
-                        step_tolerance: float = 0.1, channels=None) -> RefinedIntervals:
+                        step_tolerance: float = 0.1, channels=None, chord_std: float | None = None
+                        ) -> RefinedIntervals:
     """Laplace intervals at the log-amplitude least-squares optimum near an update's result.
 
     The update's result (the polish's best FE run) is within a fraction of
@@ -201,7 +205,8 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     residual at the final estimate. Each point costs one Jacobian, whose
     Krylov space gives the FRF (hence the residual) too: one Jacobian (about
     2 FE runs of time on the benchmark) when the start is already at the
-    optimum, one more per step.
+    optimum, one more per step; a step within ``chord_std`` standard deviations costs an FRF instead (a chord
+    step: the Jacobian of the point before it kept, see :data:`CHORD_STD`).
 
     Parameters
     ----------
@@ -223,6 +228,9 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
         several references (roving hammer, MIMO) are stacked in one residual, every (line, channel) amplitude
         with the same relative noise; one Krylov space per point carries all their loads. None = the model's
         sensors under its load.
+    chord_std : float, optional
+        Largest step (in standard deviations) taken as a chord step; by default :data:`CHORD_STD` for a model of
+        at least :data:`CHORD_MIN_DOFS` free DOFs, else 0 (every point gets its Jacobian).
 
     Returns
     -------
@@ -237,9 +245,14 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
         J, Z = log_amplitude_jacobian(model, alpha, freqs, return_frf=True, channels=channels)
         return np.log(np.abs(Z)).ravel() - log_u, J
 
+    def frf_only(alpha):  # the residual alone: one FRF, no Jacobian
+        return np.log(np.abs(model.parameter_frf(alpha, freqs, channels))).ravel() - log_u
+
     at, noise, weights, noise_model = _weighted(at, alpha0, lo, hi, freqs, noise)
+    residual_at = frf_only if weights is None else (lambda alpha: frf_only(alpha) / weights)
     refined = _gauss_newton_intervals(at, alpha0, lo, hi, model.parameter_names, noise, level, width_threshold,
-                                      max_jacobians, step_tolerance)
+                                      max_jacobians, step_tolerance, residual_at=residual_at,
+                                      chord_std=_chord_default(model) if chord_std is None else chord_std)
     return replace(refined, weights=weights, noise_model=noise_model)
 
 
@@ -270,17 +283,35 @@ def _weighted(at, start, lo, hi, freqs, noise):
 
 #: A Gauss-Newton step (in the parameters) below which the point counts as the optimum: the FRF's own accuracy.
 RESOLVABLE_STEP = 1e-8
+#: A step of at most this many standard deviations is a **chord step**: taken with the Jacobian of the point before
+#: it, the new point costs an FRF, not a Jacobian, and it is the optimum when the next step with that same Jacobian
+#: is below the step tolerance. The intervals take the model as linear over their width (the linearity check of
+#: :mod:`.posterior` looks two standard deviations out), so within one the Jacobian moves by less than they can
+#: tell. The usual case: an update's result lies a fraction of a standard deviation from the log-amplitude optimum
+#: (it minimised another residual); on the 500k-DOF panel the second Jacobian took 4.4 min, an FRF 1.4.
+CHORD_STD = 1.0
+#: Chord steps only for models of at least this many free DOFs (those whose Krylov spaces are recycled,
+#: :data:`fe_core.solvers.recycle.MIN_DOFS`): a smaller model's Jacobian costs seconds, and its intervals stay those
+#: of the Jacobian at the estimate (on the benchmark at 1 % noise, one taken half a standard deviation away makes
+#: them 2.4 % wider or narrower).
+CHORD_MIN_DOFS = 50_000
+
+
+def _chord_default(model) -> float:
+    return CHORD_STD if getattr(model, "n_dofs", 0) >= CHORD_MIN_DOFS else 0.0
 
 
 def _gauss_newton_intervals(at, start, lo, hi, names, noise, level, width_threshold, max_jacobians, step_tolerance,
-                            absent_at_zero=None) -> RefinedIntervals:
-    """Gauss-Newton steps from ``start`` (``at(theta) -> (residual, jacobian)``), then Laplace intervals."""
+                            absent_at_zero=None, residual_at=None, chord_std: float = 0.0) -> RefinedIntervals:
+    """Gauss-Newton steps from ``start`` (``at(theta) -> (residual, jacobian)``), then Laplace intervals; with
+    ``residual_at(theta) -> residual`` (one FRF) a step within ``chord_std`` standard deviations is a chord step
+    (:data:`CHORD_STD`)."""
     if max_jacobians < 1:
         raise ValueError(f"max_jacobians must be at least 1, got {max_jacobians}")
     start = np.clip(np.asarray(start, float), lo, hi)
     a = start
     r, J = at(a)
-    jacobians = 1
+    a_J, jacobians, fe_runs = a, 1, 0
 
     def intervals(r, J, a):
         iv = laplace_intervals(r, J, a, names=names, noise=noise, level=level, lower=lo, upper=hi,
@@ -293,23 +324,49 @@ def _gauss_newton_intervals(at, start, lo, hi, names, noise, level, width_thresh
 
     while True:
         iv = intervals(r, J, a)
-        step = np.linalg.lstsq(J, -r, rcond=None)[0]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            in_std = float(np.nanmax(np.abs(step) / iv.std)) if np.isfinite(iv.std).any() else float("inf")
-        # A step beneath what the FRF resolves (the FE core's 1e-9 between methods) is the optimum as far as
-        # the model can tell: on noise-free data the standard deviations are round-off and so is the step.
-        settled = in_std <= step_tolerance or float(np.max(np.abs(step))) <= RESOLVABLE_STEP
+        step, in_std, settled = _gauss_newton_step(J, r, iv, step_tolerance)
         if settled or jacobians >= max_jacobians:
             break
         a_new = np.clip(a + step, lo, hi)
+        if residual_at is not None and in_std <= chord_std:
+            chord = _chord_step(residual_at, intervals, a_new, r, J, step_tolerance)
+            fe_runs += 1
+            if chord is not None:  # the optimum, with the Jacobian of the point before
+                a, r, iv, in_std = a_new, *chord
+                settled = True
+                break
         r_new, J_new = at(a_new)
         jacobians += 1
         if not r_new @ r_new < r @ r:
             log.warning("intervals: a Gauss-Newton step of %.3g standard deviations did not lower the residual; "
                         "the linearisation is poor here", in_std)
             break
-        a, r, J = a_new, r_new, J_new
-    log.info("intervals: %d Jacobians (each with its FRF), last Gauss-Newton step %.3g standard deviations",
-             jacobians, in_std)
+        a, r, J, a_J = a_new, r_new, J_new, a_new
+    log.info("intervals: %d Jacobians (each with its FRF) and %d FRFs, last Gauss-Newton step %.3g standard "
+             "deviations%s", jacobians, fe_runs, in_std, " (a chord step)" if a_J is not a else "")
     return RefinedIntervals(intervals=iv, start=start, residual=r, last_step_in_std=in_std,
-                            at_optimum=bool(settled), fe_runs=0, jacobians=jacobians, jacobian=J)
+                            at_optimum=bool(settled), fe_runs=fe_runs, jacobians=jacobians, jacobian=J,
+                            jacobian_at=np.array(a_J, float))
+
+
+def _chord_step(residual_at, intervals, a_new, r, J, step_tolerance):
+    """The residual at ``a_new`` (one FRF) and, with the Jacobian ``J`` of the point before, the intervals there
+    and the next step in standard deviations: ``(r_new, intervals, step)`` when the residual fell and that step
+    is below ``step_tolerance`` (``a_new`` is the optimum), else None (the caller takes the Jacobian at
+    ``a_new``)."""
+    r_new = residual_at(a_new)
+    if not r_new @ r_new < r @ r:
+        return None
+    iv = intervals(r_new, J, a_new)
+    _, in_std, settled = _gauss_newton_step(J, r_new, iv, step_tolerance)
+    return (r_new, iv, in_std) if settled else None
+
+
+def _gauss_newton_step(J, r, iv, step_tolerance):
+    """``(step, its largest size in standard deviations, settled)``: the step ``-(J^T J)^-1 J^T r`` and whether
+    it is below ``step_tolerance`` standard deviations or beneath what the FRF resolves (the FE core's 1e-9
+    between methods: on noise-free data the standard deviations are round-off and so is the step)."""
+    step = np.linalg.lstsq(J, -r, rcond=None)[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        in_std = float(np.nanmax(np.abs(step) / iv.std)) if np.isfinite(iv.std).any() else float("inf")
+    return step, in_std, in_std <= step_tolerance or float(np.max(np.abs(step))) <= RESOLVABLE_STEP

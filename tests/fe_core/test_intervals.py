@@ -123,8 +123,10 @@ def test_gauss_newton_steps_from_a_nearby_start_reach_the_truth_of_noise_free_da
     refined = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=1e-4, max_jacobians=4)
     iv = refined.intervals
     np.testing.assert_allclose(iv.estimate, ALPHA_ACTUAL, atol=1e-5)
-    # each point costs one Jacobian, whose Krylov space gives the residual too: no separate FE run
+    # each point costs one Jacobian, whose Krylov space gives the residual too: no separate FE run (a model this
+    # small takes no chord steps)
     assert refined.at_optimum and refined.jacobians >= 2 and refined.fe_runs == 0
+    np.testing.assert_array_equal(refined.jacobian_at, iv.estimate)
     assert iv.contains(ALPHA_ACTUAL).all() and np.max(iv.high - iv.low) < 2e-3 and not iv.unpinned.any()
     # one step was not enough from this start with a budget of one Jacobian
     once = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=1e-4, max_jacobians=1)
@@ -132,6 +134,42 @@ def test_gauss_newton_steps_from_a_nearby_start_reach_the_truth_of_noise_free_da
     np.testing.assert_allclose(refined.jacobian, log_amplitude_jacobian(benchmark_model, iv.estimate, freqs,
                                                                         method="direct"),
                                atol=1e-7 * np.abs(refined.jacobian).max())
+
+
+@pytest.mark.slow
+def test_a_chord_step_within_a_standard_deviation_costs_an_frf_and_takes_the_same_step(benchmark_model, rng):
+    """A start half a standard deviation from the optimum: the chord step (the start's Jacobian kept, one FRF at
+    the new point) ends where the step with a new Jacobian ends; the intervals differ only by the Jacobian's move
+    over half a standard deviation. From three standard deviations no chord is tried. On a model this small the
+    default takes no chord steps at all."""
+    freqs = MEASUREMENT_FREQUENCIES_HZ
+    u = np.abs(benchmark_model.frf(ALPHA_ACTUAL, freqs, method="direct")) * np.exp(
+        0.01 * rng.normal(size=(freqs.size, 6)))
+    opt = parameter_intervals(benchmark_model, freqs, u, ALPHA_ACTUAL, -0.999, 1.0, noise=0.01, max_jacobians=5,
+                              chord_std=0.0)
+    assert opt.at_optimum
+    sd = opt.intervals.std
+    signs = np.array([1, -1, 1, -1, 1, -1.0])
+    start = opt.intervals.estimate + 0.5 * signs * sd
+    exact = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=0.01, chord_std=0.0)
+    chord = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=0.01, chord_std=1.0)
+    assert (exact.jacobians, exact.fe_runs) == (2, 0) and (chord.jacobians, chord.fe_runs) == (1, 1)
+    assert chord.at_optimum and chord.last_step_in_std <= 0.1
+    np.testing.assert_array_equal(chord.jacobian_at, start)
+    # the same step from the same Jacobian: the same estimate (to the FRF's digits, far below a standard deviation)
+    np.testing.assert_allclose(chord.intervals.estimate, exact.intervals.estimate, rtol=0, atol=1e-6 * sd.min())
+    np.testing.assert_allclose(chord.residual, exact.residual, atol=1e-8)
+    # the widths: the Jacobian half a standard deviation away (a few per cent here, at 1 % noise on 60 values)
+    np.testing.assert_allclose(chord.intervals.std, exact.intervals.std, rtol=0.05)
+    # three standard deviations away the first step gets a new Jacobian; both end at the optimum
+    far = opt.intervals.estimate + 3.0 * signs * sd
+    a = parameter_intervals(benchmark_model, freqs, u, far, -0.999, 1.0, noise=0.01, chord_std=1.0)
+    assert a.jacobians >= 2 and a.at_optimum
+    assert np.max(np.abs(a.intervals.estimate - opt.intervals.estimate) / sd) < 0.2
+    # the default on this 3,510-DOF model: no chord (its Jacobian costs seconds)
+    default = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=0.01)
+    assert (default.jacobians, default.fe_runs) == (2, 0)
+    np.testing.assert_array_equal(default.intervals.std, exact.intervals.std)
 
 
 # -- the closure's extended model: alpha and the added effects' values ------------------------------------
