@@ -187,6 +187,22 @@ class TrustRegionGN:
         self.trace.append(self.f)
         return accepted
 
+    def step_in_std(self) -> float:
+        """The Gauss-Newton step from the centre (the linear model, kept in the box) measured in standard
+        deviations along itself: ``||J s|| / sigma``, with ``sigma^2 = r^T r / (N - m)`` the residual's own
+        variance, the Mahalanobis length of ``s`` under the covariance ``sigma^2 (J^T J)^-1`` (no less than the
+        step of any one parameter in its own standard deviations). Infinite where that says nothing (a zero or
+        non-finite residual, no more values than parameters)."""
+        r = self.residuals
+        J = residual_jacobian(self.Z, self.dZ, self.residual)
+        n, m = J.shape
+        rss = float(r @ r)
+        if n <= m or not (np.isfinite(rss) and rss > 0) or not np.all(np.isfinite(J)):
+            return float("inf")
+        s = np.linalg.lstsq(J, -r, rcond=None)[0]
+        s = np.clip(self.x + s, self.lower, self.upper) - self.x
+        return float(np.linalg.norm(J @ s) / np.sqrt(rss / (n - m)))
+
     def stalled(self, window: int, rtol: float) -> bool:
         """The objective improved by less than ``rtol`` (relative) over the last ``window`` tells,
         or the radius has collapsed."""

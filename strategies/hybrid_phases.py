@@ -54,8 +54,11 @@ class HybridOptions:
         cap is ``CAP_FACTOR`` times its budget (:mod:`.hybrid`; measured in docs/guide/closure-far-off.md);
     radius : first trust-region radius (max-norm); shrink, expand : its factors after a rejected and a good
         step (:class:`TrustRegionGN`); model : Gauss-Newton local model;
-    stall_window, stall_rtol : a run has converged when its objective improved by less than
-        ``stall_rtol`` (relative) over ``stall_window`` trial points;
+    optimum_std : a run has converged when the Gauss-Newton step from its centre is below this many standard
+        deviations (:meth:`TrustRegionGN.step_in_std`; the intervals' test of the optimum): further rounds would
+        move the parameters by less than the data can tell;
+    stall_window, stall_rtol : ... or when its objective improved by less than ``stall_rtol`` (relative) over
+        ``stall_window`` trial points;
     space_filling : FE runs of a global round (Sobol); candidates : emulator predictions per cycle;
     starts : parallel Gauss-Newton runs of a cycle; start_distance : their smallest max-norm distance;
     basin_radius : starts keep at least this max-norm distance from every minimum found;
@@ -84,6 +87,7 @@ class HybridOptions:
     shrink: float = 0.5
     expand: float = 2.0
     model: str = "inverse"
+    optimum_std: float = 0.1
     stall_window: int = 4
     stall_rtol: float = 1e-2
     space_filling: int = uses("s", 20)
@@ -112,7 +116,7 @@ class Minimum:
 def _settled(gn: TrustRegionGN, options: HybridOptions, last_step: float) -> str | None:
     if gn.error <= options.target and last_step <= options.step_tol:
         return "target"
-    if gn.stalled(options.stall_window, options.stall_rtol):
+    if gn.step_in_std() <= options.optimum_std or gn.stalled(options.stall_window, options.stall_rtol):
         return "converged"
     return None
 

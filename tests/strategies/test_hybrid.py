@@ -95,6 +95,46 @@ def test_noisy_data_stop_at_the_floor():
     assert np.max(np.abs(res.x - TRUTH)) < 0.05
 
 
+def test_the_step_in_standard_deviations_is_that_of_linear_least_squares():
+    """On a residual linear in x (``|Z| / u - 1 = A x - b``) the Gauss-Newton step from x reaches the least-squares
+    optimum, and ``||J s||^2 = rss(x) - rss(optimum)``: its length in standard deviations is
+    ``sqrt((rss(x) - rss_opt) / (rss(x) / (n - m)))``, rss_opt from numpy's lstsq."""
+    rng = np.random.default_rng(11)
+    n, m = W.size, 2
+    A = np.column_stack([np.sin(W), 0.1 * W])
+    b = A @ np.array([0.2, -0.1]) + 0.01 * rng.standard_normal(n)
+    rss_opt = float(np.sum((A @ np.linalg.lstsq(A, b, rcond=None)[0] - b) ** 2))
+    for x in (np.array([0.2, -0.1]), np.array([0.25, -0.12]), np.array([0.5, 0.3])):
+        Z, dZ = U * (1.0 + A @ x - b) + 0j, U[:, None] * A + 0j
+        gn = TrustRegionGN(x, Z, dZ, DATA, LOWER, UPPER)
+        rss = float(np.sum((A @ x - b) ** 2))
+        assert gn.step_in_std() == pytest.approx(np.sqrt((rss - rss_opt) / (rss / (n - m))), rel=1e-8)
+    # at the optimum the step is nothing; a zero residual says nothing
+    x = np.linalg.lstsq(A, b, rcond=None)[0]
+    gn = TrustRegionGN(x, U * (1.0 + A @ x - b) + 0j, U[:, None] * A + 0j, DATA, LOWER, UPPER)
+    assert gn.step_in_std() < 1e-6
+    gn = TrustRegionGN(x, U + 0j, U[:, None] * A + 0j, DATA, LOWER, UPPER)
+    assert gn.step_in_std() == float("inf")
+
+
+def test_noisy_data_stop_once_the_step_is_within_a_tenth_of_a_standard_deviation():
+    """The local phase ends when the next step would move the parameters by less than a tenth of a standard
+    deviation: fewer rounds than the stall rule alone (four trial points without 1 % of improvement), and an end
+    point within that tenth of the stall rule's."""
+    noise = 0.01 * np.random.default_rng(3).standard_normal(W.size)
+    start = np.array([-0.6, 0.0])
+    res = hybrid(_evaluate(noise), start, DATA, LOWER, UPPER, OPTIONS)
+    stall = hybrid(_evaluate(noise), start, DATA, LOWER, UPPER, HybridOptions(
+        candidates=2000, starts=4, space_filling=12, max_cost=200.0, optimum_std=0.0))
+    assert res.status == stall.status == "floor"
+    assert res.evaluations < stall.evaluations
+    Z, dZ = _toy(stall.x, noise)
+    J = np.real(dZ / U[:, None])  # d(|Z| / u - 1) / dx (Z real and positive here)
+    r = np.abs(Z) / U - 1.0
+    sd = np.sqrt(np.diag(np.linalg.inv(J.T @ J)) * (r @ r) / (W.size - 2))
+    assert np.max(np.abs(res.x - stall.x) / sd) < 0.1
+
+
 def test_the_budget_is_never_exceeded():
     options = HybridOptions(candidates=500, starts=4, space_filling=12, max_cost=40.0)
     res = hybrid(_evaluate(), np.zeros(2), DATA, LOWER, UPPER, options)
