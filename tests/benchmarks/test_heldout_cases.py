@@ -132,3 +132,23 @@ def test_clean_and_outside_cases_of_the_tiny_bar(made):
     assert layer["effect"]["value"] == pytest.approx(layer["effect"]["share_of_mass"] * layer["structure_mass_kg"])
     assert layer["effect"]["segments"] == ["root", "tip"] and layer["effect_rms_log_amplitude_change"] > 0.01
     assert json.loads((root / "t" / "tiny-none" / "truth.json").read_text())["expected"] == "x"
+
+
+def test_the_data_at_the_tools_points_are_the_data_at_its_nodes_where_the_meshes_share_them(made):
+    """``benchmarks.heldout_points`` evaluates the data at the points of the tool's sensor and hammer nodes. On the
+    tiny bar (Q2 on the tool's own hexahedra: every tool node is a data vertex) those rows are the generator's own
+    nodal rows; inside a cell the interpolation reproduces a linear field (u = (x, 2 y - z, 3 z)) exactly."""
+    from benchmarks.heldout_points import point_row, tool_points
+    from fe_core.io import read_model
+
+    root, _, _, _ = made
+    s, d = _data_model()
+    model = read_model(root / "structures" / "tiny_bar" / "model.toml")
+    sensors, hammer = tool_points(model)
+    rows = np.array([point_row(d["basis"], p, dirn) for p, (_, _, dirn) in zip(sensors, s["sensors"])])
+    np.testing.assert_allclose(rows, d["outputs"], atol=1e-12)
+    np.testing.assert_allclose(point_row(d["basis"], hammer, s["excitation"][2]), d["load"], atol=1e-12)
+    u = d["basis"].project(lambda x: np.array([x[0], 2 * x[1] - x[2], 3 * x[2]]))   # exact: linear is in Q2
+    p = np.array([0.1234, 0.0037, 0.0061])
+    for direction, value in (((1, 0, 0), p[0]), ((0, 1, 0), 2 * p[1] - p[2]), ((0, 0, 1), 3 * p[2])):
+        assert point_row(d["basis"], p, direction) @ u == pytest.approx(value, rel=1e-12)
