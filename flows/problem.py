@@ -100,6 +100,7 @@ def resolve(config: UpdateConfig, measured=None) -> Problem:
     cache_root = config.resolve(config.runs_dir) / MODEL_CACHE_FOLDER
     preflight.check_memory(config, cache_root)  # a model too big says so before it is assembled
     model, ref = load_model(config.model, cache_root)
+    check_first_training(config, model.n_parameters)
     data = prepare_data(config, measured, model)
     preflight.check_inputs(config, data, model)
     root = config.resolve(config.runs_dir) / config.run_id
@@ -122,6 +123,23 @@ def resolve(config: UpdateConfig, measured=None) -> Problem:
     lower, upper = search_box(model, config.lower, config.upper)
     modes = n_modes(model, data.frequencies_hz) if emulates_modes(config) else 0
     return Problem(model, ref, data, lower, upper, modes, inputs)
+
+
+def check_first_training(config: UpdateConfig, n_parameters: int) -> None:
+    """The paper's loop fits its first MRGP on the initial samples (``q``; the conventional baseline on all of its
+    ``conventional_samples``), with the paper's linear mean ``[1, x]``: n_parameters + 1 columns, so it needs at least
+    n_parameters + 2 runs. A ConfigError naming the key, before any FE run (a 150k-DOF run with ``-q 4`` on 9
+    parameters failed in its first training after 6 minutes)."""
+    if config.strategy not in ("adaptive", "conventional"):
+        return
+    key = "conventional_samples" if config.strategy == "conventional" else "q"
+    n = getattr(config, key)
+    if (key == "q" and config.max_iterations < 2) or n >= n_parameters + 2:
+        return  # one iteration only: the loop stops before it trains
+    flag = "-q" if key == "q" else "--conventional-samples"
+    raise ConfigError(f"config: key '{key}': the MRGP's linear mean [1, x] has {n_parameters + 1} columns for this "
+                      f"model's {n_parameters} parameters, so its first fit needs at least {n_parameters + 2} runs; "
+                      f"got {n} (raise {flag})")
 
 
 def stored_problem(config: UpdateConfig, manifest: dict | None = None, where=None) -> Problem:

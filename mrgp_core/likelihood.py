@@ -363,6 +363,9 @@ class ProfileLikelihood:
         self.kernel = kernel
         self.mean = mean
         self.H = mean_basis(self.X, mean)
+        if r <= self.H.shape[1]:  # the GLS mean leaves no residual (and Q no estimate) with no more runs than columns
+            raise ValueError(f"the {mean} mean has {self.H.shape[1]} columns on {d} inputs: its fit needs more than "
+                             f"{self.H.shape[1]} training runs, got {r}")
         self.fit_nugget = isinstance(nugget, str)
         if self.fit_nugget and nugget != "fit":
             raise ValueError(f"nugget must be 'fit' or a number >= 0, got {nugget!r}")

@@ -199,3 +199,15 @@ def test_shrinkage_weight_rule_and_validation():
 def test_unknown_mean_is_refused():
     with pytest.raises(ValueError, match="valid means are zero, constant, linear"):
         lk.mean_basis(np.zeros((3, 2)), "quadratic")
+
+
+def test_a_mean_with_as_many_columns_as_runs_is_refused_by_name(rng):
+    """The linear mean [1, x] on 9 inputs has 10 columns: 10 runs leave its GLS fit no residual (the paper's loop with
+    -q 4 on a 9-segment model failed inside scipy with 'expected square matrix'); 11 runs are enough."""
+    Y = rng.normal(size=(11, 3))
+    X = rng.uniform(size=(11, 9))
+    with pytest.raises(ValueError, match="the linear mean has 10 columns on 9 inputs: its fit needs more than 10 "
+                                         "training runs, got 10"):
+        lk.ProfileLikelihood(X[:10], Y[:10], mean="linear")
+    lk.ProfileLikelihood(X, Y, mean="linear")
+    lk.ProfileLikelihood(X[:2], Y[:2], mean="constant")
