@@ -179,8 +179,10 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
+    from benchmarks.make.cases import sets
+
     p = argparse.ArgumentParser(prog="python -m benchmarks.heldout", description=__doc__.split("\n\n")[0])
-    p.add_argument("--set", choices=("dev", "heldout"), required=True)
+    p.add_argument("--set", choices=tuple(sets.SETS), required=True)
     p.add_argument("--only", nargs="+", metavar="ID")
     p.add_argument("--keep", type=Path, help="the run folders and results go here (default runs/heldout-<set>)")
     p.add_argument("--root", type=Path, default=ROOT, help="the cases' root (default data/cases/held_out)")

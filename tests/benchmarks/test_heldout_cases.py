@@ -152,3 +152,30 @@ def test_the_data_at_the_tools_points_are_the_data_at_its_nodes_where_the_meshes
     p = np.array([0.1234, 0.0037, 0.0061])
     for direction, value in (((1, 0, 0), p[0]), ((0, 1, 0), 2 * p[1] - p[2]), ((0, 0, 1), 3 * p[2])):
         assert point_row(d["basis"], p, direction) @ u == pytest.approx(value, rel=1e-12)
+
+
+def test_the_second_held_out_set_takes_the_data_at_the_tools_node_points():
+    """``points = "model"`` (the set heldout2): each sensor's row and the load are the data basis's shape functions
+    at the point of the tool's node nearest the structure's point. With the tool's nodes moved off the data's
+    vertices (shrunk by 0.9 about the bar's centre: all inside it) a linear field is read there exactly; the set's
+    cases carry the flag, the other sets the nearest vertex."""
+    from benchmarks.make.cases import sets
+
+    s, _ = _data_model()
+    centre = np.array([0.15, 0.005, 0.005])
+    moved = centre + 0.9 * (s["model_nodes"] - centre)
+    d = fem_data.data_model({**s, "model_nodes": moved, "points": "model"}, cache=False)
+    u = d["basis"].project(lambda x: np.array([x[0], 2 * x[1] - x[2], 3 * x[2]]))
+
+    def field(p, direction):
+        v = np.array([p[0], 2 * p[1] - p[2], 3 * p[2]])
+        return float(np.asarray(direction, float) / np.linalg.norm(direction) @ v)
+    for row, (_, point, direction) in zip(d["outputs"], s["sensors"]):
+        at = moved[np.argmin(np.linalg.norm(moved - np.asarray(point), axis=1))]
+        assert row @ u == pytest.approx(field(at, direction), rel=1e-12, abs=1e-15)
+    point, direction = s["excitation"][1:]
+    at = moved[np.argmin(np.linalg.norm(moved - np.asarray(point), axis=1))]
+    assert d["load"] @ u == pytest.approx(field(at, direction), rel=1e-12)
+    assert {c["points"] for c in sets.cases("heldout2")} == {"model"}
+    assert {c["points"] for c in sets.cases("heldout") + sets.cases("dev")} == {"vertex"}
+    assert not {c["seed"] for c in sets.cases("heldout2")} & {c["seed"] for c in sets.cases("heldout")}

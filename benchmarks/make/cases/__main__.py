@@ -1,4 +1,4 @@
-"""python -m benchmarks.make.cases --set dev|heldout [--only ID ...] [--structures] [--out DIR]"""
+"""python -m benchmarks.make.cases --set dev|heldout|heldout2 [--only ID ...] [--structures] [--out DIR]"""
 
 from __future__ import annotations
 
@@ -21,14 +21,14 @@ from benchmarks.make.cases import build, case, sets  # noqa: E402
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.make.cases", description=DOC.split("\n\n")[0])
-    p.add_argument("--set", choices=("dev", "heldout"), help="the development or the held-out set")
+    p.add_argument("--set", choices=tuple(sets.SETS), help="the development set or a held-out set")
     p.add_argument("--only", nargs="+", metavar="ID", help="these cases of the set (default: all)")
     p.add_argument("--structures", action="store_true",
                    help="(re)build the structures' model files and structure.json (before the cases)")
     p.add_argument("--out", type=Path, default=case.ROOT, help=f"root folder (default {case.ROOT})")
     args = p.parse_args(argv)
     if not args.set and not args.structures:
-        p.error("give --set dev|heldout and/or --structures")
+        p.error("give --set dev|heldout|heldout2 and/or --structures")
     if args.structures:
         names = sorted({c["structure"] for c in sets.cases("dev") + sets.cases("heldout")})
         for name in names:

@@ -102,7 +102,7 @@ def make_case(spec: dict, root: Path = cs.ROOT) -> dict:
         src = cs._deck(spec, dr)
         systems = {"with": src["with"], "without": src["base"]}
     else:
-        s = load_structure(spec["structure"])
+        s = {**load_structure(spec["structure"]), "points": spec.get("points", "vertex")}
         if _mesh_hash(s) != info["mesh_hash"]:
             raise RuntimeError(f"{spec['structure']}: gmsh made another mesh than the committed model's "
                                "(rebuild the structures and every case with --structures)")
@@ -147,6 +147,7 @@ def make_case(spec: dict, root: Path = cs.ROOT) -> dict:
     shift = (sp_with["f"][:n_cmp] - sp_without["f"][:n_cmp])
     truth = {
         "case": spec["id"], "set": spec["set"], "seed": spec["seed"], "structure": spec["structure"],
+        "points": spec.get("points", "vertex"),
         "model": info["model"], "measured": _rel(folder / "measured.csv"), "measured_sha256": sha,
         "expected": spec["expected"], "in_library": spec["kind"] in ("point_mass", "mount", "patch"),
         "segments": info["segments"], "factors": np.round(src["alpha"], 6).tolist(),

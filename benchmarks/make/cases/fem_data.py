@@ -74,7 +74,8 @@ def _key(s: dict) -> str:
 
 def data_model(s: dict, cache: bool = True) -> dict:
     """scikit-fem's model of the data mesh: per-segment K and M (cached in ``runs/held_out_cache``), the held DOFs,
-    the sensors' output rows and the load (each at the data mesh's vertex nearest its point)."""
+    the sensors' output rows and the load: each at the data mesh's vertex nearest its point, or with ``s["points"]
+    == "model"`` at the point of the tool's node nearest it (the data basis's shape functions there)."""
     from skfem import Basis, asm
 
     mesh, element = _mesh(s), _element(s)
@@ -127,10 +128,14 @@ def _finish(s, basis, K, M, seg) -> dict:
     fixed = np.union1d(fixed, basis.nodal_dofs[:, held_vertices].ravel())
 
     def row(point, direction):
+        d = np.asarray(direction, float) / np.linalg.norm(direction)
+        if s.get("points", "vertex") == "model":  # at the tool's node nearest the point (its shape functions there)
+            at = s["model_nodes"][int(np.argmin(np.linalg.norm(s["model_nodes"] - np.asarray(point, float), axis=1)))]
+            v = int(np.argmin(np.linalg.norm(nodes - at, axis=1)))
+            return d @ basis.probes(at.reshape(3, 1)).toarray(), v
         v = int(np.argmin(np.linalg.norm(nodes - np.asarray(point, float), axis=1)))
         r = np.zeros(basis.N)
-        d = np.asarray(direction, float)
-        r[basis.nodal_dofs[:, v]] = d / np.linalg.norm(d)
+        r[basis.nodal_dofs[:, v]] = d
         return r, v
 
     outputs, sensor_vertices = [], []
