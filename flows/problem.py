@@ -128,17 +128,17 @@ def resolve(config: UpdateConfig, measured=None) -> Problem:
 def check_first_training(config: UpdateConfig, n_parameters: int) -> None:
     """The paper's loop fits its first MRGP on the initial samples (``q``; the conventional baseline on all of its
     ``conventional_samples``), with the paper's linear mean ``[1, x]``: n_parameters + 1 columns, so it needs at least
-    n_parameters + 2 runs. A ConfigError naming the key, before any FE run (a 150k-DOF run with ``-q 4`` on 9
-    parameters failed in its first training after 6 minutes)."""
+    that many runs (:class:`mrgp_core.likelihood.ProfileLikelihood`). A ConfigError naming the key, before any FE
+    run (a 150k-DOF run with ``-q 4`` on 9 parameters failed in its first training after 6 minutes)."""
     if config.strategy not in ("adaptive", "conventional"):
         return
     key = "conventional_samples" if config.strategy == "conventional" else "q"
     n = getattr(config, key)
-    if (key == "q" and config.max_iterations < 2) or n >= n_parameters + 2:
+    if (key == "q" and config.max_iterations < 2) or n >= n_parameters + 1:
         return  # one iteration only: the loop stops before it trains
     flag = "-q" if key == "q" else "--conventional-samples"
     raise ConfigError(f"config: key '{key}': the MRGP's linear mean [1, x] has {n_parameters + 1} columns for this "
-                      f"model's {n_parameters} parameters, so its first fit needs at least {n_parameters + 2} runs; "
+                      f"model's {n_parameters} parameters, so its first fit needs at least {n_parameters + 1} runs; "
                       f"got {n} (raise {flag})")
 
 

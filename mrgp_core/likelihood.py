@@ -363,8 +363,8 @@ class ProfileLikelihood:
         self.kernel = kernel
         self.mean = mean
         self.H = mean_basis(self.X, mean)
-        if r <= self.H.shape[1]:  # the GLS mean leaves no residual (and Q no estimate) with no more runs than columns
-            raise ValueError(f"the {mean} mean has {self.H.shape[1]} columns on {d} inputs: its fit needs more than "
+        if r < self.H.shape[1]:  # fewer runs than the GLS mean's columns: no fit (as many leave Q to the shrinkage)
+            raise ValueError(f"the {mean} mean has {self.H.shape[1]} columns on {d} inputs: its fit needs at least "
                              f"{self.H.shape[1]} training runs, got {r}")
         self.fit_nugget = isinstance(nugget, str)
         if self.fit_nugget and nugget != "fit":

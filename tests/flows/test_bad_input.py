@@ -220,8 +220,8 @@ BAD_INPUTS = [
     ("config key that is gone", None, None, 'loop = "paper"', [], ["{config}", "key 'loop'", "removed"]),
     ("config unknown emulation", None, None, 'emulate = "frf"', [], ["{config}", "key 'emulate'", "modes, errors"]),
     # the paper's loop fits its first MRGP (linear mean [1, x]: 7 columns on the benchmark's 6 factors) on q runs
-    ("command line q below the first MRGP's columns", None, None, "", ["--strategy", "adaptive", "-q", "7"],
-     ["key 'q'", "7 columns", "at least 8 runs", "got 7", "raise -q"]),
+    ("command line q below the first MRGP's columns", None, None, "", ["--strategy", "adaptive", "-q", "6"],
+     ["key 'q'", "7 columns", "at least 7 runs", "got 6", "raise -q"]),
 ]
 
 
