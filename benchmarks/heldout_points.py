@@ -46,17 +46,10 @@ def tool_points(model) -> tuple[np.ndarray, np.ndarray]:
     return sensors, nodes[node_of(np.flatnonzero(np.asarray(model.load)))]
 
 
-def point_row(basis, point, direction) -> np.ndarray:
-    """The data basis's row giving the displacement at ``point`` along ``direction`` (a unit force there along it is
-    the same vector): the shape functions of the cell holding the point (``probes``, rows component-major)."""
-    P = basis.probes(np.asarray(point, float).reshape(3, 1)).toarray()   # (3, N)
-    d = np.asarray(direction, float)
-    return (d / np.linalg.norm(d)) @ P
-
-
 def compare(case: str, root: Path = ROOT) -> dict:
     """The two misfits of one case (module docstring)."""
     from benchmarks.make.cases import fem_data as fd, solids
+    from benchmarks.make.cases.fem_data import point_row
     from fe_core.io import read_model
 
     where = "dev" if case.startswith("dev") else "heldout"

@@ -138,7 +138,8 @@ def test_the_data_at_the_tools_points_are_the_data_at_its_nodes_where_the_meshes
     """``benchmarks.heldout_points`` evaluates the data at the points of the tool's sensor and hammer nodes. On the
     tiny bar (Q2 on the tool's own hexahedra: every tool node is a data vertex) those rows are the generator's own
     nodal rows; inside a cell the interpolation reproduces a linear field (u = (x, 2 y - z, 3 z)) exactly."""
-    from benchmarks.heldout_points import point_row, tool_points
+    from benchmarks.heldout_points import tool_points
+    from benchmarks.make.cases.fem_data import point_row
     from fe_core.io import read_model
 
     root, _, _, _ = made

@@ -131,8 +131,7 @@ def _finish(s, basis, K, M, seg) -> dict:
         d = np.asarray(direction, float) / np.linalg.norm(direction)
         if s.get("points", "vertex") == "model":  # at the tool's node nearest the point (its shape functions there)
             at = s["model_nodes"][int(np.argmin(np.linalg.norm(s["model_nodes"] - np.asarray(point, float), axis=1)))]
-            v = int(np.argmin(np.linalg.norm(nodes - at, axis=1)))
-            return d @ basis.probes(at.reshape(3, 1)).toarray(), v
+            return point_row(basis, at, d), int(np.argmin(np.linalg.norm(nodes - at, axis=1)))
         v = int(np.argmin(np.linalg.norm(nodes - np.asarray(point, float), axis=1)))
         r = np.zeros(basis.N)
         r[basis.nodal_dofs[:, v]] = d
@@ -148,6 +147,13 @@ def _finish(s, basis, K, M, seg) -> dict:
     return {"basis": basis, "K": K, "M": M, "segment": seg, "fixed": fixed, "free": free,
             "outputs": np.array(outputs), "load": load, "sensor_vertices": sensor_vertices,
             "load_vertex": load_vertex, "nodes": nodes}
+
+
+def point_row(basis, point, direction) -> np.ndarray:
+    """The basis's row giving the displacement at ``point`` along ``direction`` (a unit force there along it is the
+    same vector): the shape functions of the cell holding the point (``probes``, rows component-major)."""
+    d = np.asarray(direction, float)
+    return (d / np.linalg.norm(d)) @ basis.probes(np.asarray(point, float).reshape(3, 1)).toarray()
 
 
 def assembled(d: dict, alpha, extra_K=None, extra_M=None) -> tuple[sp.csr_matrix, sp.csr_matrix]:
