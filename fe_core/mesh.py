@@ -87,6 +87,11 @@ class Mesh:
         """Cell centroids, shape (n_cells, 3), m."""
         return self.cell_coords.mean(axis=1)
 
+    def centroids_of(self, cells) -> np.ndarray:
+        """Centroids of the cells ``cells`` (indices), shape (len(cells), 3), m: ``centroids[cells]`` without
+        the whole mesh's (a patch's place is asked for thousands of times in the closure's exact search)."""
+        return self.nodes[self.cells[cells]].mean(axis=1)
+
     def volume(self) -> float:
         """Total volume in m^3 (exact for parallelepiped cells)."""
         c = self.cell_coords

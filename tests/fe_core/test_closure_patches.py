@@ -70,3 +70,16 @@ def test_a_refined_patch_named_elsewhere_is_made_on_first_use(plate):
     assert abs(K - whole.terms(base.alpha, label, [-0.1]).stiffness).max() == 0.0
     assert np.allclose(fresh.position(label), CASE["xyz_m"])
     assert fresh.maker("node 143 r7") == {} and fresh.maker("point 3") == {}
+
+
+def test_a_patch_place_is_the_mean_of_its_cells_centroids(plate):
+    """``position`` and ``describe`` read only the patch's cells (``Mesh.centroids_of``), the same numbers as
+    the whole mesh's centroids indexed, bit for bit."""
+    model = plate[0]
+    bands = PatchBands(model, patch_centres(model, 12))
+    mesh = model.mesh
+    for location in bands.locations()[:5]:
+        cells = bands.bands[location]
+        assert np.array_equal(mesh.centroids_of(cells), mesh.centroids[cells])
+        assert np.array_equal(bands.position(location), mesh.centroids[cells].mean(axis=0))
+        assert bands.describe(location)["x_min_m"] == float(mesh.centroids[cells][:, 0].min())

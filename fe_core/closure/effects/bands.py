@@ -166,12 +166,12 @@ class ElementBand(Effect):
 
     def position(self, location) -> np.ndarray:
         self._resolve(location)
-        return self.model.mesh.centroids[self.bands[location]].mean(axis=0)
+        return self.model.mesh.centroids_of(self.bands[location]).mean(axis=0)
 
     def describe(self, location) -> dict:
         self._resolve(location)
         cells = self.bands[location]
-        c = self.model.mesh.centroids[cells]
+        c = self.model.mesh.centroids_of(cells)
         return {"cells": int(cells.size), "x_min_m": float(c[:, 0].min()), "x_max_m": float(c[:, 0].max())}
 
 
