@@ -22,7 +22,8 @@ resident memory of the process.
 ``update`` runs ``python -m flows.update`` as a user does and samples its whole process tree (the flow, its
 FE workers, Prefect's server) every ``--every`` seconds: the peak of the summed resident memory (RSS) and of
 the summed proportional set size (PSS: a page shared by several processes, such as a memory-mapped model,
-counted once in all), each process's peak, wall time and the FE runs of the summary. ``--code DIR`` runs
+counted once in all), each process's peak, when the peak came and the log line then (the stage under way), the memory over the run
+(``<run id>.memory.csv``), wall time and the FE runs of the summary. ``--code DIR`` runs
 another checkout's code (``/work/main`` for the figures before a change).
 
 The file has no imports from the project at module level, so ``python /path/to/benchmarks/scaling.py`` can
@@ -255,6 +256,8 @@ class TreeSampler:
         self.root = psutil.Process(pid)
         self.every = every
         self.peak_rss = self.peak_pss = 0.0
+        self.peak_time = None  # time.time() of the tree's RSS peak
+        self.series: list[tuple[float, float, float]] = []  # (time.time(), tree RSS GB, tree PSS GB)
         self.per_process: dict[int, dict] = {}
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -279,7 +282,10 @@ class TreeSampler:
                 rec = self.per_process.setdefault(p.pid, {"name": name, "peak_rss_gb": 0.0, "peak_pss_gb": 0.0})
                 rec["peak_rss_gb"] = max(rec["peak_rss_gb"], info.rss / 1e9)
                 rec["peak_pss_gb"] = max(rec["peak_pss_gb"], info.pss / 1e9)
-            self.peak_rss = max(self.peak_rss, rss / 1e9)
+            now = time.time()
+            self.series.append((now, rss / 1e9, pss / 1e9))
+            if rss / 1e9 > self.peak_rss:
+                self.peak_rss, self.peak_time = rss / 1e9, now
             self.peak_pss = max(self.peak_pss, pss / 1e9)
             self._stop.wait(self.every)
 
@@ -289,6 +295,26 @@ class TreeSampler:
     def stop(self):
         self._stop.set()
         self.thread.join()
+
+
+def line_at(log_text: str, when: float) -> str | None:
+    """The log's last line stamped at or before ``when`` (``time.time()``; the log's ``HH:MM:SS.mmm |`` stamps are
+    the machine's local time of the same day): the stage under way at the memory's peak."""
+    stamp = time.strftime("%H:%M:%S", time.localtime(when)) + f".{int(when % 1 * 1000):03d}"
+    found = None
+    for line in log_text.splitlines():
+        head = line[:12]
+        if len(head) == 12 and head[2] == head[5] == ":" and head[8] == "." and line[12:15] == " | ":
+            if head > stamp:
+                break
+            found = line
+    return found
+
+
+def _write_series(path: Path, series) -> None:
+    """The sampled tree's memory over the run, one row per sample: seconds from the first, RSS and PSS (GB)."""
+    t0 = series[0][0] if series else 0.0
+    path.write_text("t_s,tree_rss_gb,tree_pss_gb\n" + "".join(f"{t - t0:.1f},{r:.3f},{p:.3f}\n" for t, r, p in series))
 
 
 @contextlib.contextmanager
@@ -322,7 +348,7 @@ def update(model_file: Path, measured: Path, code: Path, run_id: str, extra: lis
     with _dask_cluster(dask_workers, code) as address, open(log, "w") as fh:
         if address is not None:
             cmd += ["--fe-backend", "dask", "--dask-address", address]
-        t0 = time.perf_counter()
+        t0, t0_epoch = time.perf_counter(), time.time()
         proc = subprocess.Popen(cmd, cwd=code, stdout=fh, stderr=subprocess.STDOUT)
         sampler = TreeSampler(os.getpid() if address is not None else proc.pid, every)
         sampler.start()
@@ -330,6 +356,8 @@ def update(model_file: Path, measured: Path, code: Path, run_id: str, extra: lis
         sampler.stop()
         wall = time.perf_counter() - t0
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    _write_series(OUT / f"{run_id}.memory.csv", sampler.series)
+    peak_line = line_at(log.read_text(errors="replace"), sampler.peak_time) if sampler.peak_time else None
     summary = {}
     path = runs / run_id / "summary.json"
     if path.exists():
@@ -338,6 +366,8 @@ def update(model_file: Path, measured: Path, code: Path, run_id: str, extra: lis
              "commit": _commit(code), "command": " ".join(cmd), "returncode": rc, "wall_s": round(wall, 1),
              "cpu_s_children": round(children.ru_utime + children.ru_stime, 1),
              "peak_tree_rss_gb": round(sampler.peak_rss, 2), "peak_tree_pss_gb": round(sampler.peak_pss, 2),
+             "peak_after_s": round(sampler.peak_time - t0_epoch, 1) if sampler.peak_time else None,
+             "peak_during": peak_line[:300] if peak_line else None, "memory_series": str(OUT / f"{run_id}.memory.csv"),
              "processes": sorted(({"pid": k, **{a: (round(b, 2) if isinstance(b, float) else b) for a, b in v.items()}}
                                   for k, v in sampler.per_process.items()), key=lambda r: -r["peak_rss_gb"])[:6],
              "load_before": load0, "load_after": _load(), "log": str(log), "dask_workers": dask_workers,
