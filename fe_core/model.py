@@ -90,7 +90,9 @@ class ParametricModel(ModelResponses):
     damping : (float, float)
         Rayleigh coefficients ``(a [1/s], b [s])``.
     sensor_nodes : ndarray, shape (n_sensors,), int, or None
-        Node of each sensor (None when the outputs are given directly).
+        Node of each sensor (None when the outputs are given directly); for a model file with
+        ``point_placement = "interpolate"``, each sensor's nearest node (its output vector reads the
+        element holding the point), for what needs one node (sensor mass, the report).
     sensor_component : int
         0, 1 or 2 for u_x, u_y, u_z (with ``sensor_nodes``).
     segment_masses : list of float, kg

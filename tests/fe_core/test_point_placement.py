@@ -80,6 +80,8 @@ def test_tet10_sensor_and_hammer_rows_are_scikit_fems_probes(tmp_path):
         np.testing.assert_allclose(_full(model, vector), expected, rtol=0, atol=1e-10)
     assert model.sensor_nodes.tolist() == [int(np.argmin(np.linalg.norm(nodes - P1, axis=1)))]
     assert any("between nodes: element" in p and "from nearest node" in p for p in model.placements)
+    with pytest.raises(ValueError, match="combines several DOFs"):   # one-DOF views refuse it (not on the
+        _ = model.sensor_dofs                                        # update's path: it reads `outputs`)
 
 
 def test_the_default_and_nearest_are_todays_placement_and_a_point_at_a_node_reads_that_node(tmp_path):
