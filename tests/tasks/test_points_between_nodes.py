@@ -33,7 +33,7 @@ def _model(tmp_path: Path):
 
 def test_sensor_mass_and_report_arrows_use_the_nearest_node(tmp_path):
     from fe_core.closure.effects.masses import SensorMass
-    from tasks.report.mesh import MeshView, _at_node
+    from tasks.report.mesh import MeshView, _at_node, _entry_arrows
 
     model, nearest = _model(tmp_path)
     assert model.sensor_nodes.tolist() == nearest
@@ -44,6 +44,10 @@ def test_sensor_mass_and_report_arrows_use_the_nearest_node(tmp_path):
         assert len(arrows.nodes) > 1                       # the element's nodes carry the reading
         one = _at_node(model, arrows, node)
         assert one.nodes.tolist() == [node] and np.allclose(one.directions, [[0.0, 0.0, 1.0]], atol=1e-12)
+    assert model.excitation_nodes == {"excitation 1": [(nearest[0], [0.0, 0.0, 1.0])]}
+    hammer = _entry_arrows(model, model.excitation_nodes[model.excitation_name])
+    assert hammer.nodes.tolist() == [nearest[0]] and hammer.directions.tolist() == [[0.0, 0.0, 1.0]]
+    assert len(view.arrows(model, model.load).nodes) > 1
 
 
 def test_the_modal_shapes_figure_reads_through_the_output_vectors(tmp_path):

@@ -234,7 +234,7 @@ def _sensors_and_excitation(spec: _Spec, locator: _Locator, dof_of, n_free: int)
     _unique_test_dofs(spec, sensor_tests, "sensors")
 
     excitations = _tables(spec, "excitations")
-    exc_names, exc_tests = [], []
+    exc_names, exc_tests, exc_nodes = [], [], {}
     loads = []
     for k, tab in enumerate(excitations):
         where = f"excitations[{k}]"
@@ -255,8 +255,10 @@ def _sensors_and_excitation(spec: _Spec, locator: _Locator, dof_of, n_free: int)
         direction = None
         for e, entry in enumerate(entries):
             at = base if single else f"{base}[{e}]"
-            r, v, placed, direction, _ = _dof_entries(spec, locator, entry, at, dof_of, weighted=True,
-                                                      test_keys=single)
+            r, v, placed, direction, nearest = _dof_entries(spec, locator, entry, at, dof_of, weighted=True,
+                                                            test_keys=single)
+            exc_nodes.setdefault(name, []).append((nearest, (direction * _get(spec, entry, "weight", at, (float,),
+                                                                              1.0)).tolist()))
             np.add.at(F, r, v)
             placements.append(f"excitation {exc_names[-1]!r}: {placed}")
         exc_tests.append(_test_dof(spec, tab, where, direction if single else None))
@@ -272,4 +274,5 @@ def _sensors_and_excitation(spec: _Spec, locator: _Locator, dof_of, n_free: int)
                  excitation_test_dofs=exc_tests)
     if locator.placement == "interpolate":   # sensor mass and gain effects, the report: the nearest node
         extra["sensor_nodes"] = np.array(sensor_nodes, dtype=int)
+        extra["excitation_nodes"] = exc_nodes
     return outputs, loads[exc_names.index(chosen)], names, placements, chosen, extra
