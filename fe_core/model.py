@@ -90,7 +90,9 @@ class ParametricModel(ModelResponses):
     damping : (float, float)
         Rayleigh coefficients ``(a [1/s], b [s])``.
     sensor_nodes : ndarray, shape (n_sensors,), int, or None
-        Node of each sensor (None when the outputs are given directly).
+        Node of each sensor (None when the outputs are given directly); for a model file with
+        ``point_placement = "interpolate"``, each sensor's nearest node (its output vector reads the
+        element holding the point), for what needs one node (sensor mass, the report).
     sensor_component : int
         0, 1 or 2 for u_x, u_y, u_z (with ``sensor_nodes``).
     segment_masses : list of float, kg
@@ -124,6 +126,10 @@ class ParametricModel(ModelResponses):
     node_coordinates : ndarray, shape (k, 3), m, or None
         Coordinates of the ``k`` nodes of :attr:`dof_table` in ascending node id (a matrices
         model's optional node table); None when not given. A mesh model's are ``mesh.nodes``.
+    excitation_nodes : dict or None
+        With ``point_placement = "interpolate"``: per excitation name, ``[(nearest node, force vector
+        weight * direction), ...]`` of its entries (its load reads the elements holding the points), for the
+        report's arrows; None otherwise.
     cell_segment : ndarray, shape (n_cells,), int, or None
         Segment index (0-based, in :attr:`segment_names`' order) of each mesh cell, -1 for
         the fixed remainder; None without a mesh.
@@ -175,6 +181,7 @@ class ParametricModel(ModelResponses):
     excitation_test_dofs: list = field(default_factory=list)
     mass_parameters: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     node_coordinates: np.ndarray | None = None
+    excitation_nodes: dict | None = None
 
     def __post_init__(self) -> None:
         self.mass_parameters = np.asarray(self.mass_parameters, dtype=int).ravel()

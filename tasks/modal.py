@@ -156,7 +156,11 @@ def shapes_figure(data, model, theta, result: dict, path: Path) -> Path | None:
     n_model = len(result["model_frequencies_hz"])
     _, shapes, _ = model.modes(alpha, n_model, gamma)  # (n_model, n_nodes, 3)
     L = data.outputs.tocsc()
-    rows = L.indices[L.indptr[:-1]]  # one free DOF per test DOF (the model's sensors)
+    # where each test DOF is drawn: its largest entry (the one DOF of a sensor at a node along x, y or z; a
+    # point read through an element's shape functions, point_placement = "interpolate", has several)
+    big = np.array([L.indptr[k] + int(np.argmax(np.abs(L.data[L.indptr[k]:L.indptr[k + 1]])))
+                    for k in range(L.shape[1])], dtype=int)
+    rows, sign = L.indices[big], np.sign(L.data[big])
     dofs = model.free_dofs[rows]
     nodes, comp = dofs // 3, dofs % 3
     xyz = model.mesh.nodes
@@ -168,12 +172,12 @@ def shapes_figure(data, model, theta, result: dict, path: Path) -> Path | None:
         t = m.names.index(pair["test"])
         j = int(pair["model"].split()[-1]) - 1
         field = shapes[j][:, comp[0]]
-        at_test = shapes[j][nodes, comp] * np.sign(L.data)
+        at_test = L.T @ shapes[j].reshape(-1)[model.free_dofs]   # the model's reading of each test DOF
         msf = (m.shapes[t] @ at_test) / (at_test @ at_test)
         ax = fig.add_subplot(len(pairs), 1, k + 1)
         scale = np.abs(m.shapes[t]).max()
         sc = ax.scatter(xyz[top, 0], xyz[top, 1], c=msf * field[top], s=4, cmap="coolwarm", vmin=-scale, vmax=scale)
-        ax.scatter(xyz[nodes, 0], xyz[nodes, 1], c=m.shapes[t] * np.sign(L.data), s=60, cmap="coolwarm",
+        ax.scatter(xyz[nodes, 0], xyz[nodes, 1], c=m.shapes[t] * sign, s=60, cmap="coolwarm",
                    vmin=-scale, vmax=scale, edgecolors="black")
         ax.set_aspect("equal")
         ax.set_title(f"{pair['test']} {pair['f_test_hz']:.1f} Hz  <->  {pair['model']} {pair['f_model_hz']:.1f} Hz, "

@@ -47,8 +47,13 @@ def _sensors_and_excitation(ax, model, view: MeshView) -> list:
     length = 0.12 * view.size
     handles = []
     outputs = model.outputs.tocsc()
+    at_nodes = getattr(model, "sensor_nodes", None)
+    if at_nodes is not None and len(at_nodes) != model.n_sensors:
+        at_nodes = None
     for j, name in enumerate(model.sensor_names):
         arrows = view.arrows(model, outputs[:, j])
+        if at_nodes is not None and len(arrows.nodes) > 1:   # read between nodes: one arrow at its nearest node
+            arrows = _at_node(model, arrows, int(at_nodes[j]))
         p, d = arrows.positions, arrows.directions
         ax.quiver(p[:, 0], p[:, 1], p[:, 2], d[:, 0], d[:, 1], d[:, 2], length=length, color="k", lw=1.4,
                   arrow_length_ratio=0.3, zorder=5)
@@ -59,6 +64,9 @@ def _sensors_and_excitation(ax, model, view: MeshView) -> list:
     handles.append(Line2D([], [], color="k", marker=r"$\rightarrow$", ms=10, ls="none",
                           label=f"sensor ({model.n_sensors}): measured direction"))
     exc = view.arrows(model, model.load)
+    entries = (getattr(model, "excitation_nodes", None) or {}).get(model.excitation_name)
+    if entries:   # read between nodes: an arrow at each entry's nearest node
+        exc = _entry_arrows(model, entries)
     p, d = exc.positions, exc.directions
     ax.quiver(p[:, 0], p[:, 1], p[:, 2], d[:, 0], d[:, 1], d[:, 2], length=0.8 * length, color="C3", lw=1.6,
               arrow_length_ratio=0.35, zorder=5)
@@ -67,6 +75,27 @@ def _sensors_and_excitation(ax, model, view: MeshView) -> list:
     handles.append(Line2D([], [], ls="none", marker="*", ms=12, mfc="C3", mec="k",
                           label=f"excitation {model.excitation_name!r} ({len(exc.nodes)} node{plural})"))
     return handles
+
+
+def _at_node(model, arrows, node: int):
+    """One arrow at ``node`` along the sum of a sensor's arrows (a point read through an element's shape
+    functions, ``point_placement = "interpolate"``: its direction, drawn at its nearest node)."""
+    from fe_core.surface import DofArrows
+
+    total = (arrows.directions * arrows.weights[:, None]).sum(axis=0)
+    size = float(np.linalg.norm(total))
+    direction = total / size if size > 0 else arrows.directions[int(np.argmax(arrows.weights))]
+    return DofArrows(np.array([node]), model.mesh.nodes[[node]], direction[None], np.array([size]))
+
+
+def _entry_arrows(model, entries):
+    """Arrows of an excitation's entries ``[(node, force vector), ...]``, one per node (vectors summed)."""
+    from fe_core.surface import DofArrows
+
+    nodes = sorted({int(n) for n, _ in entries})
+    vec = np.array([np.sum([f for n, f in entries if n == m], axis=0) for m in nodes], dtype=float)
+    size = np.linalg.norm(vec, axis=1)
+    return DofArrows(np.array(nodes), model.mesh.nodes[nodes], vec / np.where(size > 0, size, 1.0)[:, None], size)
 
 
 def plot_mesh_segments(model, path: Path, view: MeshView | None = None, title: str | None = None) -> Path:

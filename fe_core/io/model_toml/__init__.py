@@ -7,6 +7,8 @@ file. Every refusal is a :class:`ModelFileError` naming the file and the key::
     units = "SI"                       # or "mm-t-s" (mm, tonne, s: E in MPa, rho in t/mm^3)
     mesh = "three_plate.inp"           # .msh (Gmsh 4), .inp (Abaqus), .vtu, ...: or a [matrices] table
     point_tolerance = 1e-3             # nearest-node distance allowed for points (mesh units)
+    point_placement = "nearest"        # or "interpolate": a mesh model reads points through the element
+                                       # holding them (shape functions; point_tolerance: how far outside)
     excitation = "combined"            # which excitation drives the FRF (default: the only one)
 
     [damping]                          # Rayleigh C = a M + b K

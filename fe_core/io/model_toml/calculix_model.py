@@ -33,7 +33,7 @@ from ...model import ParametricModel
 from ..calculix import CcxError, DeckError, Segment, read_deck, segment_matrices
 from ..calculix.results import ResultError
 from ..calculix.vtu import deck_view
-from .sensors import _Locator, _sensors_and_excitation
+from .sensors import _Locator, _point_placement, _sensors_and_excitation
 from .spec import _get, _keys, _segment_parameters, _Spec, _tables
 
 __all__ = ["DEFAULT_TIMEOUT"]
@@ -135,6 +135,7 @@ def _check_restrained(spec: _Spec, K, deck_path) -> None:
 
 def _read_deck_settings(spec: _Spec, units: str):
     """(deck, solver_timeout) of a ``solver = "calculix"`` model file, checked (routes A and B)."""
+    _point_placement(spec, mesh=False)   # a deck's points go to their nearest node
     if units != "SI":
         raise spec.error("units", "a deck is taken in its own units; give its numbers in SI (N, m, kg, s)")
     solver = _get(spec, spec.data, "solver", "", (str,))

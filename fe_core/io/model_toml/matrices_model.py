@@ -12,7 +12,7 @@ import scipy.sparse as sp
 from ...assembly import SegmentedMatrix, free_dof_map
 from ...model import ParametricModel
 from ..matrices import MatrixFileError, check_symmetric_psd, read_dof_table, read_matrix, read_node_table
-from .sensors import _Locator, _sensors_and_excitation
+from .sensors import _Locator, _point_placement, _sensors_and_excitation
 from .spec import UNITS, _fixed_dofs, _get, _keys, _segment_parameters, _Spec, _tables
 
 __all__ = ["RIGID_RTOL"]
@@ -20,6 +20,7 @@ __all__ = ["RIGID_RTOL"]
 
 def _matrices_model(spec: _Spec, units: str, damping: tuple[float, float]) -> ParametricModel:
     length, stress, density = UNITS[units]
+    _point_placement(spec, mesh=False)
     if units != "SI":
         raise spec.error("units", "matrices are taken as given: exported matrices must be in SI (N/m, kg)")
     mat = spec.data["matrices"]

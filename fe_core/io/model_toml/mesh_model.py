@@ -14,7 +14,7 @@ from ...assembly import DOFS_PER_NODE, SegmentedMatrix, assemble_free, cell_dofs
 from ...material import Material
 from ...model import ParametricModel
 from ..mesh_file import MeshFile, MeshFileError, read_mesh
-from .sensors import _Locator, _sensors_and_excitation
+from .sensors import _Locator, _point_placement, _sensors_and_excitation
 from .spec import UNITS, _fixed_dofs, _get, _keys, _segment_parameters, _Spec, _tables
 
 log = logging.getLogger(__name__)
@@ -27,6 +27,7 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
     from ...elements import element_family
 
     length, stress, density = UNITS[units]
+    placement = _point_placement(spec, mesh=True)
     mesh_name = _get(spec, spec.data, "mesh", "", (str,))
     try:
         mf = read_mesh(spec.file("mesh", mesh_name))
@@ -135,7 +136,8 @@ def _mesh_model(spec: _Spec, units: str, damping: tuple[float, float]) -> Parame
     del M_parts, M0
 
     tol = _get(spec, spec.data, "point_tolerance", "", (float,), 0.01 * float(np.ptp(mesh.nodes, axis=0).max()))
-    locator = _Locator(spec, mf, mesh.nodes, None, tol)
+    locator = _Locator(spec, mf, mesh.nodes, None, tol, placement=placement, cells=mesh.cells,
+                       cell_type=mf.cell_type)
 
     def dof_of(node: int, component: int) -> int:
         return int(position[DOFS_PER_NODE * node + component])

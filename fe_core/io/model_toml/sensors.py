@@ -1,10 +1,11 @@
 """Sensors and excitations of a model file: directions, nodes found by index or nearest point
-(:class:`_Locator`), the output vectors and loads on the free DOFs, and the test's node and direction of
-each (UFF58, :data:`TEST_KEYS`)."""
+(:class:`_Locator`), or with ``point_placement = "interpolate"`` a mesh model's points read through the
+shape functions of the element holding them (:mod:`fe_core.elements.locate`), the output vectors and loads
+on the free DOFs, and the test's node and direction of each (UFF58, :data:`TEST_KEYS`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -14,7 +15,29 @@ from ..matrices import DIRECTIONS
 from ..mesh_file import MeshFile
 from .spec import _get, _keys, _Spec, _tables
 
-__all__ = ["TEST_KEYS"]
+__all__ = ["TEST_KEYS", "PLACEMENTS"]
+
+#: Values of the top-level ``point_placement`` key: a ``point`` goes to its nearest node (the default), or is
+#: read through the shape functions of the mesh element holding it.
+PLACEMENTS = ("nearest", "interpolate")
+
+#: Shape-function weights below this fraction of the largest are dropped (a point at a node reads that node).
+WEIGHT_RTOL = 1e-12
+
+
+def _point_placement(spec: _Spec, mesh: bool) -> str:
+    """The model file's ``point_placement``; ``"interpolate"`` only for a mesh model (``mesh = ...``)."""
+    value = _get(spec, spec.data, "point_placement", "", (str,), "nearest")
+    if value not in PLACEMENTS:
+        raise spec.error("point_placement", f"unknown value {value!r}; use \"nearest\" (a point goes to its "
+                                            "nearest node, the default) or \"interpolate\" (read through the "
+                                            "shape functions of the mesh element holding it)")
+    if value == "interpolate" and not mesh:
+        raise spec.error("point_placement", "\"interpolate\" reads points through the element shape functions "
+                                            "of a mesh model (mesh = ...); this model's matrices come from a "
+                                            "solver deck or files without elements, so its points go to their "
+                                            "nearest node: leave the key out or set \"nearest\"")
+    return value
 
 
 # -- directions, points and nodes --------------------------------------------------------------
@@ -41,6 +64,10 @@ class _Locator:
     nodes: np.ndarray | None       # coordinates in file units (mesh models)
     node_ids: np.ndarray | None    # DOF-table node ids (matrices models)
     tolerance: float
+    placement: str = "nearest"     # point_placement: "interpolate" needs cells and cell_type (mesh models)
+    cells: np.ndarray | None = None
+    cell_type: str | None = None
+    _cell_locator: Any = field(default=None, init=False, repr=False)
 
     def node(self, table: dict, where: str) -> tuple[int, str]:
         """(node index, a sentence saying where it is) of a ``node`` or ``point`` entry."""
@@ -58,40 +85,81 @@ class _Locator:
             if hit.size == 0:
                 raise spec.error(f"{where}.node", f"node {value} is not in the DOF table")
             return int(value), f"node {value}"
-        point = table["point"]
-        if not (isinstance(point, list) and len(point) == 3
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in point)):
-            raise spec.error(f"{where}.point", f"must be [x, y, z], got {point!r}")
-        if self.nodes is None:
-            raise spec.error(f"{where}.point", "a matrices model has no node coordinates: give 'node'")
-        dist = np.linalg.norm(self.nodes - np.asarray(point, float), axis=1)
-        i = int(np.argmin(dist))
+        point, dist, i = self._point(table, where)
         if dist[i] > self.tolerance:
             raise spec.error(f"{where}.point", f"the nearest node to {point} is {dist[i]:.6g} (mesh units) away at "
                                                f"{self.nodes[i].tolist()}, beyond point_tolerance = {self.tolerance:.6g}")
         return i, f"nearest node {i} at {dist[i]:.3g} from {point}"
 
+    def _point(self, table: dict, where: str) -> tuple[list, np.ndarray, int]:
+        """(the checked ``point``, its distance to every node, the nearest node)."""
+        point = table["point"]
+        if not (isinstance(point, list) and len(point) == 3
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in point)):
+            raise self.spec.error(f"{where}.point", f"must be [x, y, z], got {point!r}")
+        if self.nodes is None:
+            raise self.spec.error(f"{where}.point", "a matrices model has no node coordinates: give 'node'")
+        dist = np.linalg.norm(self.nodes - np.asarray(point, float), axis=1)
+        return point, dist, int(np.argmin(dist))
+
+    def weights(self, table: dict, where: str) -> tuple[list[tuple[int, float]], str, int, bool]:
+        """``([(node, weight), ...], placement sentence, nearest node, interpolated)`` of an entry: one node
+        with weight 1 (``node``, or ``point`` with ``"nearest"``), or the shape functions of the element
+        holding the point (``"interpolate"``; weights below :data:`WEIGHT_RTOL` of the largest dropped)."""
+        if self.placement != "interpolate" or "point" not in table or "node" in table:
+            node, placed = self.node(table, where)
+            return [(node, 1.0)], placed, node, False
+        from ...elements.locate import CellLocator
+
+        point, dist, i = self._point(table, where)
+        if self._cell_locator is None:
+            self._cell_locator = CellLocator(self.cell_type, self.nodes, self.cells)
+        hit = self._cell_locator.locate(np.asarray(point, float), margin=self.tolerance)
+        if hit is None or hit.outside > self.tolerance:
+            how = "no element comes near it" if hit is None else (f"the nearest element {hit.cell} is "
+                                                                  f"{hit.outside:.6g} (mesh units) away")
+            raise self.spec.error(f"{where}.point", f"{point} is outside the mesh: {how}, beyond point_tolerance "
+                                                    f"= {self.tolerance:.6g} (nearest node {i} at {dist[i]:.6g})")
+        w = hit.weights
+        keep = np.abs(w) >= WEIGHT_RTOL * np.abs(w).max()
+        if not keep.all():
+            w = w[keep] / w[keep].sum()   # the shape functions sum to one
+        nodes = self.cells[hit.cell][keep]
+        moved = f", {hit.outside:.3g} outside the mesh" if hit.outside > 1e-9 * self.tolerance else ""
+        placed = (f"at node {int(nodes[0])} ({dist[i]:.3g} from {point}{moved})" if nodes.size == 1 else
+                  f"between nodes: element {hit.cell} at distance {dist[i]:.3g} from nearest node {i} ({point}{moved})")
+        return [(int(n), float(v)) for n, v in zip(nodes, w)], placed, i, True
+
 
 def _dof_entries(spec: _Spec, locator: _Locator, table: dict, where: str, dof_of, weighted: bool,
                  test_keys: bool = False) -> tuple:
-    """(free-DOF indices, weights, placement text, direction) of one sensor or excitation point."""
+    """(free-DOF indices, weights, placement text, direction, nearest node) of one sensor or excitation point.
+
+    A node's DOF fixed by a support is refused; a point read through an element skips its fixed DOFs (their
+    displacement is zero) and is refused only when all of them are fixed."""
     allowed = {"node", "point", "direction", "name"} | ({"weight"} if weighted else set())
     allowed |= TEST_KEYS if test_keys else set()
     _keys(spec, table, allowed, where)
-    node, placed = locator.node(table, where)
+    at, placed, nearest, interpolated = locator.weights(table, where)
     if "direction" not in table:
         raise spec.error(f"{where}.direction", "is missing (x, y, z or [nx, ny, nz])")
     direction = _direction(spec, table["direction"], f"{where}.direction")
     weight = _get(spec, table, "weight", where, (float,), 1.0) if weighted else 1.0
     rows, values = [], []
-    for c in np.flatnonzero(np.abs(direction) > 1e-15):
-        row = dof_of(node, int(c))
-        if row < 0:
-            raise spec.error(where, f"{placed}: direction {'xyz'[c]} of this node is fixed by a support (or not "
-                                    "in the DOF table); a sensor or excitation must be on a free DOF")
-        rows.append(row)
-        values.append(weight * direction[c])
-    return rows, values, placed, direction
+    for node, w in at:
+        for c in np.flatnonzero(np.abs(direction) > 1e-15):
+            row = dof_of(node, int(c))
+            if row < 0 and interpolated:
+                continue
+            if row < 0:
+                raise spec.error(where, f"{placed}: direction {'xyz'[c]} of this node is fixed by a support (or "
+                                        "not in the DOF table); a sensor or excitation must be on a free DOF")
+            rows.append(row)
+            values.append(weight * w * direction[c])
+    if not rows:
+        raise spec.error(where, f"{placed}: every DOF of this element's nodes along the direction is fixed by a "
+                                "support; a sensor or excitation must move")
+    return rows, values, placed, direction, nearest
 
 
 #: Keys that tie a sensor or an excitation to the test's geometry (UFF58 nodes and directions).
@@ -147,13 +215,15 @@ def _unique_test_dofs(spec: _Spec, dofs: list, what: str) -> None:
 
 def _sensors_and_excitation(spec: _Spec, locator: _Locator, dof_of, n_free: int):
     sensors = _tables(spec, "sensors")
-    cols, rows, vals, names, placements, sensor_tests = [], [], [], [], [], []
+    cols, rows, vals, names, placements, sensor_tests, sensor_nodes = [], [], [], [], [], [], []
     for j, tab in enumerate(sensors):
         where = f"sensors[{j}]"
         name = _get(spec, tab, "name", where, (str,), f"sensor {j + 1}")
         if name in names:
             raise spec.error(f"{where}.name", f"sensor name {name!r} is used twice")
-        r, v, placed, direction = _dof_entries(spec, locator, tab, where, dof_of, weighted=False, test_keys=True)
+        r, v, placed, direction, nearest = _dof_entries(spec, locator, tab, where, dof_of, weighted=False,
+                                                        test_keys=True)
+        sensor_nodes.append(nearest)
         rows += r
         vals += v
         cols += [j] * len(r)
@@ -164,7 +234,7 @@ def _sensors_and_excitation(spec: _Spec, locator: _Locator, dof_of, n_free: int)
     _unique_test_dofs(spec, sensor_tests, "sensors")
 
     excitations = _tables(spec, "excitations")
-    exc_names, exc_tests = [], []
+    exc_names, exc_tests, exc_nodes = [], [], {}
     loads = []
     for k, tab in enumerate(excitations):
         where = f"excitations[{k}]"
@@ -185,7 +255,10 @@ def _sensors_and_excitation(spec: _Spec, locator: _Locator, dof_of, n_free: int)
         direction = None
         for e, entry in enumerate(entries):
             at = base if single else f"{base}[{e}]"
-            r, v, placed, direction = _dof_entries(spec, locator, entry, at, dof_of, weighted=True, test_keys=single)
+            r, v, placed, direction, nearest = _dof_entries(spec, locator, entry, at, dof_of, weighted=True,
+                                                            test_keys=single)
+            exc_nodes.setdefault(name, []).append((nearest, (direction * _get(spec, entry, "weight", at, (float,),
+                                                                              1.0)).tolist()))
             np.add.at(F, r, v)
             placements.append(f"excitation {exc_names[-1]!r}: {placed}")
         exc_tests.append(_test_dof(spec, tab, where, direction if single else None))
@@ -199,4 +272,7 @@ def _sensors_and_excitation(spec: _Spec, locator: _Locator, dof_of, n_free: int)
         raise spec.error("excitation", f"no excitation {chosen!r} (excitations: {', '.join(exc_names)})")
     extra = dict(excitation_loads=np.column_stack(loads), excitation_names=exc_names, sensor_test_dofs=sensor_tests,
                  excitation_test_dofs=exc_tests)
+    if locator.placement == "interpolate":   # sensor mass and gain effects, the report: the nearest node
+        extra["sensor_nodes"] = np.array(sensor_nodes, dtype=int)
+        extra["excitation_nodes"] = exc_nodes
     return outputs, loads[exc_names.index(chosen)], names, placements, chosen, extra

@@ -20,8 +20,8 @@ __all__ = ["ModelFileError", "model_files", "UNITS", "UPDATES"]
 #: Unit systems: (length to m, stress to Pa, density to kg/m^3).
 UNITS = {"SI": (1.0, 1.0, 1.0), "mm-t-s": (1e-3, 1e6, 1e12)}
 
-_TOP_KEYS = {"units", "mesh", "matrices", "point_tolerance", "excitation", "damping", "elements", "materials",
-             "segments", "supports", "sensors", "excitations", "name", "description",
+_TOP_KEYS = {"units", "mesh", "matrices", "point_tolerance", "point_placement", "excitation", "damping", "elements",
+             "materials", "segments", "supports", "sensors", "excitations", "name", "description",
              "solver", "deck", "solver_timeout", "include_paths", "parameters", "n_modes"}
 
 
