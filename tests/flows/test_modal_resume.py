@@ -40,7 +40,10 @@ def test_a_second_call_reads_the_stages_back_and_changed_inputs_are_refused(tmp_
     assert [f["state_type"] for f in flow_runs] == ["COMPLETED"]
     tasks = _api(prefect_harness, "/task_runs/filter", {"flow_runs": {"id": {"any_": [flow_runs[0]["id"]]}}})
     assert sorted(t["name"] for t in tasks) == sorted(["correlation_before", "fit", "correlation_after", "closure"])
-    assert len(runs.splitlines()) == first["fe_evaluations"] > 0
+    # every eigen-solve is recorded: the update's, and the closure's own when its screen needs one (on some CPUs the
+    # closure's point is not bit for bit a fitted run's, and it solves once more)
+    assert len(runs.splitlines()) == first["fe_evaluations"] + first["closure"].get("fe_runs", 0)
+    assert first["fe_evaluations"] > 0
     # the clean benchmark data (0.2 % / 2 % noise, stated): the closure finds noise and names no effect
     assert first["closure"]["verdict"] == "noise" and first["closure"]["chosen"] is None
     assert not first["closure"]["before"]["structured"]
