@@ -57,3 +57,22 @@ def test_json_tail_and_summary_shapes(tmp_path):
     assert s["kind"] == "modal" and s["intervals"]["b"]["sd"] == 0.03
     assert P.intervals({"parameters": {"a": 0.0}, "intervals": {"a": {"lower95": None, "upper95": None, "sd": None}}
                         }).tolist() == [[-math.inf, math.inf]]      # a parameter the data do not pin down
+
+
+def test_a_row_under_the_invocations_lock_is_recorded_as_locked(tmp_path, monkeypatch):
+    """The command holds the heavy-job lock for all its rows by default and runs each row without a lock of its
+    own: the rows must still say they ran locked (the page said "without the heavy-job lock" for such a run)."""
+    from types import SimpleNamespace
+
+    import benchmarks.headline as H
+
+    monkeypatch.setattr(H, "REPO", tmp_path)
+    monkeypatch.setattr(H, "WORK", tmp_path / "runs" / "headline")
+    row = SimpleNamespace(key="k", env={}, commands=[(["json.tool", "--help"], {})],
+                          summarise=lambda out, log, timing: ("read", {"n": 1}))
+    held = H.run_row(row, None, held=True)
+    assert held["locked"] and held["result"] == "read" and held["commands"][0]["exit"] == 0
+    assert not H.run_row(row, None)["locked"]
+    lock = tmp_path / "lock"
+    lock.touch()
+    assert H.run_row(row, lock)["locked"]

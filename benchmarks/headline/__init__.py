@@ -93,15 +93,16 @@ def run_command(argv: list[str], env: dict, log) -> dict:
             "load_before": [round(x, 2) for x in load], "load_after": [round(x, 2) for x in os.getloadavg()]}
 
 
-def run_row(row, lock: Path | None) -> dict:
-    """Run one row's commands (under the lock), read its figures, store and return ``row.json``."""
+def run_row(row, lock: Path | None, held: bool = False) -> dict:
+    """Run one row's commands (under the lock), read its figures, store and return ``row.json``. ``held``: the
+    caller holds the heavy-job lock for the whole invocation (the row is locked though ``lock`` is None)."""
     out = WORK / row.key
     if out.exists():
         shutil.rmtree(out)      # a run folder left there would be resumed by flows.update, not rerun
     out.mkdir(parents=True)
     with locked(lock) as waited, open(out / "log.txt", "w") as log:
         record = {"key": row.key, **provenance(), "lock_wait_s": round(waited, 1),   # the tree as the row starts
-                  "locked": lock is not None}
+                  "locked": lock is not None or held}
         t0 = time.perf_counter()
         record["commands"] = []
         for argv, env in row.commands:

@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
         with locked(None if args.lock_per_row else lock) as waited:
             for r in todo:
                 print(f"[{r.key}] {r.what}", flush=True)
-                rec = run_row(r, lock if args.lock_per_row else None)
+                rec = run_row(r, lock if args.lock_per_row else None, held=lock is not None and not args.lock_per_row)
                 if not args.lock_per_row and r is todo[0]:
                     rec["lock_wait_s"] = round(waited, 1)
                 ran.append(rec)
