@@ -18,6 +18,12 @@ from tasks.runstore import atomic_write_bytes
 
 __all__ = ["plot_residuals"]
 
+#: Lines up to which each is drawn with its marker and labelled on the frequency axis; beyond, lines only and
+#: about :data:`MAX_TICKS` labels (a test system's export has a line every 0.5-1 Hz: hb07's 1,270 lines labelled
+#: one by one were a black bar and took 20 of its closure's seconds to lay out).
+MARKERS_UP_TO = 60
+MAX_TICKS = 12
+
 
 def plot_residuals(folder: Path | str, out: Path | str | None = None) -> Path:
     """Residual (Eq. 5, per cent) against frequency per sensor, before and after; the noise band shaded."""
@@ -33,6 +39,8 @@ def plot_residuals(folder: Path | str, out: Path | str | None = None) -> Path:
     sensors = sorted(before["sensor"].unique())
     freqs = np.sort(before["frequency_hz"].unique())
     x = np.arange(freqs.size)  # even spacing: the two bands sit side by side
+    ticks, joins = _ticks(freqs)
+    few = freqs.size <= MARKERS_UP_TO
     sigma = info["residual_before"]["sigma"]
     cols = 3
     rows = int(np.ceil(len(sensors) / cols))
@@ -43,12 +51,14 @@ def plot_residuals(folder: Path | str, out: Path | str | None = None) -> Path:
         b = before[before["sensor"] == s].sort_values("frequency_hz")["residual"].to_numpy()
         a = after[after["sensor"] == s].sort_values("frequency_hz")["residual"].to_numpy()
         ax.axhspan(-200 * sigma, 200 * sigma, color="0.9", label="noise, 2 sigma")
-        ax.plot(x, 100 * b, "o-", ms=3, label="before (alpha only)")
-        ax.plot(x, 100 * a, "s-", ms=3, label=label_after)
+        ax.plot(x, 100 * b, marker="o" if few else None, ms=3, lw=1.0, label="before (alpha only)")
+        ax.plot(x, 100 * a, marker="s" if few else None, ms=3, lw=1.0, label=label_after)
         ax.axhline(0.0, color="0.5", lw=0.5)
+        for j in joins:
+            ax.axvline(j - 0.5, color="0.6", lw=0.6, ls=":")
         ax.set_title(f"sensor {s}", fontsize=9)
-        ax.set_xticks(x)
-        ax.set_xticklabels([f"{f:g}" for f in freqs], rotation=90, fontsize=7)
+        ax.set_xticks(ticks)
+        ax.set_xticklabels([f"{f:g}" for f in freqs[ticks]], rotation=90, fontsize=7)
         ax.tick_params(axis="y", labelsize=7)
     for ax in axes.ravel()[len(sensors):]:
         ax.set_visible(False)
@@ -67,3 +77,15 @@ def plot_residuals(folder: Path | str, out: Path | str | None = None) -> Path:
     plt.close(fig)
     atomic_write_bytes(path, buf.getvalue())
     return path
+
+
+def _ticks(freqs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the lines labelled on the axis (every line up to :data:`MARKERS_UP_TO`, else :data:`MAX_TICKS`
+    evenly spread) and the indices where a band starts after a gap of more than ten times the median spacing (two
+    bands side by side; lines dropped here and there leave smaller gaps)."""
+    n = freqs.size
+    if n <= MARKERS_UP_TO:
+        return np.arange(n), np.array([], int)
+    step = np.diff(freqs)
+    joins = np.flatnonzero(step > 10.0 * np.median(step)) + 1
+    return np.unique(np.linspace(0, n - 1, MAX_TICKS).round().astype(int)), joins
