@@ -1,4 +1,5 @@
-"""The closure's residual figure reads at a test system's line density: a label per line only for a few lines."""
+"""The residual figures read at a test system's line density: a label per line only for a few lines (the closure's
+figure, the report's residual map)."""
 
 from __future__ import annotations
 
@@ -42,3 +43,18 @@ def test_the_figure_is_written_for_few_and_many_lines(tmp_path, lines):
     (tmp_path / "closure.json").write_text(json.dumps(info))
     png = plot_residuals(tmp_path)
     assert png == tmp_path / "residuals.png" and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("lines, labels", [(20, 20), (1270, 12)])
+def test_the_reports_residual_map_labels_each_of_a_few_lines_and_a_dozen_of_many(monkeypatch, tmp_path, lines, labels):
+    import tasks.report.figures.frf as frf
+
+    shown = {}
+    monkeypatch.setattr(frf, "_save", lambda fig, path: shown.setdefault("fig", fig) and path)
+    freqs = np.arange(100.0, 100.0 + lines)
+    df = pd.DataFrame([(s, f, 0.01 * np.sin(f)) for s in (1, 2, 3) for f in freqs],
+                      columns=["sensor", "frequency_hz", "residual"])
+    frf.plot_residual_maps({"before": df, "after": df.assign(residual=df["residual"] / 2)}, tmp_path / "map.png")
+    for ax in shown["fig"].axes[:2]:
+        texts = [t.get_text() for t in ax.get_xticklabels()]
+        assert len(texts) == labels and texts[0] == "100" and texts[-1] == f"{100 + lines - 1}"
