@@ -14,15 +14,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from tasks.report.figures._style import LABEL_EVERY_LINE_UP_TO, frequency_ticks
 from tasks.runstore import atomic_write_bytes
 
 __all__ = ["plot_residuals"]
-
-#: Lines up to which each is drawn with its marker and labelled on the frequency axis; beyond, lines only and
-#: about :data:`MAX_TICKS` labels (a test system's export has a line every 0.5-1 Hz: hb07's 1,270 lines labelled
-#: one by one were a black bar and took 20 of its closure's seconds to lay out).
-MARKERS_UP_TO = 60
-MAX_TICKS = 12
 
 
 def plot_residuals(folder: Path | str, out: Path | str | None = None) -> Path:
@@ -40,7 +35,7 @@ def plot_residuals(folder: Path | str, out: Path | str | None = None) -> Path:
     freqs = np.sort(before["frequency_hz"].unique())
     x = np.arange(freqs.size)  # even spacing: the two bands sit side by side
     ticks, joins = _ticks(freqs)
-    few = freqs.size <= MARKERS_UP_TO
+    few = freqs.size <= LABEL_EVERY_LINE_UP_TO
     sigma = info["residual_before"]["sigma"]
     cols = 3
     rows = int(np.ceil(len(sensors) / cols))
@@ -80,12 +75,11 @@ def plot_residuals(folder: Path | str, out: Path | str | None = None) -> Path:
 
 
 def _ticks(freqs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of the lines labelled on the axis (every line up to :data:`MARKERS_UP_TO`, else :data:`MAX_TICKS`
-    evenly spread) and the indices where a band starts after a gap of more than ten times the median spacing (two
-    bands side by side; lines dropped here and there leave smaller gaps)."""
+    """Indices of the lines labelled on the axis (:func:`tasks.report.figures._style.frequency_ticks`) and, beyond
+    a few lines, the indices where a band starts after a gap of more than ten times the median spacing (two bands
+    side by side; lines dropped here and there leave smaller gaps)."""
     n = freqs.size
-    if n <= MARKERS_UP_TO:
-        return np.arange(n), np.array([], int)
+    if n <= LABEL_EVERY_LINE_UP_TO:
+        return frequency_ticks(n), np.array([], int)
     step = np.diff(freqs)
-    joins = np.flatnonzero(step > 10.0 * np.median(step)) + 1
-    return np.unique(np.linspace(0, n - 1, MAX_TICKS).round().astype(int)), joins
+    return frequency_ticks(n), np.flatnonzero(step > 10.0 * np.median(step)) + 1

@@ -9,7 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tasks.closure.plot import MARKERS_UP_TO, MAX_TICKS, _ticks, plot_residuals
+from tasks.closure.plot import _ticks, plot_residuals
+from tasks.report.figures._style import FREQUENCY_LABELS, LABEL_EVERY_LINE_UP_TO
 
 
 def test_few_lines_are_each_labelled_many_get_a_dozen_spread_over_the_band():
@@ -18,8 +19,8 @@ def test_few_lines_are_each_labelled_many_get_a_dozen_spread_over_the_band():
     assert ticks.tolist() == [0, 1, 2, 3] and joins.size == 0
     band = np.arange(160.0, 1460.0)                             # hb07's 1 Hz lines
     ticks, joins = _ticks(band)
-    assert ticks.size == MAX_TICKS and ticks[0] == 0 and ticks[-1] == band.size - 1
-    assert np.all(np.diff(ticks) >= band.size // MAX_TICKS - 1) and joins.size == 0
+    assert ticks.size == FREQUENCY_LABELS and ticks[0] == 0 and ticks[-1] == band.size - 1
+    assert np.all(np.diff(ticks) >= band.size // FREQUENCY_LABELS - 1) and joins.size == 0
 
 
 def test_two_bands_side_by_side_are_marked_where_the_second_starts_and_dropped_lines_are_not():
@@ -29,7 +30,7 @@ def test_two_bands_side_by_side_are_marked_where_the_second_starts_and_dropped_l
     assert _ticks(two)[1].tolist() == [80]
 
 
-@pytest.mark.parametrize("lines", [MARKERS_UP_TO // 2, 1270])
+@pytest.mark.parametrize("lines", [LABEL_EVERY_LINE_UP_TO // 2, 1270])
 def test_the_figure_is_written_for_few_and_many_lines(tmp_path, lines):
     rng = np.random.default_rng(3)
     freqs = np.linspace(100.0, 100.0 + lines, lines)

@@ -61,6 +61,21 @@ def _bottom_labels_only(axes, n: int, ncols: int) -> None:
             ax.set_xlabel("")
 
 
+#: Lines up to which each gets its label on a frequency axis of line indices (and its marker where a figure draws
+#: them); beyond, about :data:`FREQUENCY_LABELS` spread evenly: a test system's export has a line every 0.5-1 Hz,
+#: and hb07's 1,270 lines labelled one by one were a black bar that took 20 s of its closure to lay out.
+LABEL_EVERY_LINE_UP_TO = 60
+FREQUENCY_LABELS = 12
+
+
+def frequency_ticks(n_lines: int) -> np.ndarray:
+    """Indices of the lines labelled on an axis of ``n_lines`` line indices: all up to
+    :data:`LABEL_EVERY_LINE_UP_TO`, else :data:`FREQUENCY_LABELS` evenly spread, the first and last among them."""
+    if n_lines <= LABEL_EVERY_LINE_UP_TO:
+        return np.arange(n_lines)
+    return np.unique(np.linspace(0, n_lines - 1, FREQUENCY_LABELS).round().astype(int))
+
+
 def _measured_style(n_points: int) -> dict:
     """Squares for a few measured lines, small dots for a test's hundreds or thousands."""
     return MEASURED_STYLE if n_points <= 100 else dict(MEASURED_STYLE, marker=".", ms=2.5, mfc="C3")

@@ -10,7 +10,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.ticker import PercentFormatter
 
-from ._style import CURVE_STYLE, _grid, _measured_style, _save
+from ._style import CURVE_STYLE, _grid, _measured_style, _save, frequency_ticks
 
 __all__ = [
     "plot_frf_overview",
@@ -108,8 +108,7 @@ def plot_residual_maps(maps: dict[str, pd.DataFrame], path: Path, title: str | N
         values = wide.to_numpy()
         vmax = common if shared_scale else float(np.nanmax(np.abs(values))) if np.isfinite(values).any() else 1.0
         im = ax.imshow(values, cmap="RdBu_r", vmin=-vmax, vmax=vmax, aspect="auto")
-        n_lines = wide.shape[1]     # a label per line for a few, about a dozen for a test's hundreds or thousands
-        ticks = np.arange(n_lines) if n_lines <= 60 else np.unique(np.linspace(0, n_lines - 1, 12).round().astype(int))
+        ticks = frequency_ticks(wide.shape[1])
         ax.set_xticks(ticks, [f"{wide.columns[k]:g}" for k in ticks], rotation=90, fontsize=8)
         ax.set_yticks(range(wide.shape[0]), [str(s) for s in wide.index])
         ax.set_xlabel("frequency (Hz)")
