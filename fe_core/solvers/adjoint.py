@@ -49,7 +49,15 @@ import scipy.sparse as sp
 
 from .frf import direct_frf, krylov_space
 
-__all__ = ["ReducedResponse", "project_rows"]
+__all__ = ["ReducedResponse", "modal_sum", "project_rows"]
+
+
+def modal_sum(left: np.ndarray, g: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``sum_m left[s, m] g[p, m] y[p, m]``, shape (p, n_s): a sensor's reading of a modal response ``g y`` per
+    frequency, as two real products (``left`` is real, ``g y`` complex) instead of a complex sum over the
+    (p, n_s, m) array ``u = left g``."""
+    z = g * y
+    return z.real @ left.T + 1j * (z.imag @ left.T)
 
 
 def project_rows(A, W: np.ndarray) -> np.ndarray:
@@ -130,7 +138,7 @@ class ReducedResponse:
         # matrices spins its threads: 46 ms against 0.2 ms on 2 busy cores, measured).
         At = A.T
         Av = self._v.real @ At + 1j * (self._v.imag @ At) if np.isrealobj(A) else self._v @ At  # (p, m)
-        return np.einsum("psm,pm->ps", self._u, Av, optimize=False)
+        return modal_sum(self.left, self.g, Av)
 
     def dlog(self, dK=None, dM=None, da: float = 0.0, db: float = 0.0, dgain=None) -> np.ndarray:
         """``d ln(|Z_s| (1 + g_s))`` per unit of the change, shape (p, n_s).
@@ -148,7 +156,7 @@ class ReducedResponse:
             dZ += (-(w**2) + 1j * w * self.a)[:, None] * self._bilinear(Am)
         if da or db:  # W^T M W = I, W^T K W = diag(mu)
             diag = (1j * w)[:, None] * (da + db * self.mu[None, :])
-            dZ += np.einsum("psm,pm,pm->ps", self._u, diag, self._v)
+            dZ += modal_sum(self.left, self.g, diag * self._v)
         out = np.real(-dZ / self.Z)
         if dgain is not None:  # ln(1 + g): d/dg = 1 / (1 + g)
             out = out + (np.asarray(dgain, float) / (1.0 + self.gain))[None, :]
