@@ -17,7 +17,9 @@ adjoint on the FE model, :mod:`fe_core.solvers.sensitivity`; its cost in FE-run 
 4. **Global phase** (cycle k > 1, stage ``global``, :func:`.hybrid_phases.global_phase`): space-filling
    points, the MRGP emulator (step ``emulator``), parallel Gauss-Newton runs from its best candidates; its
    best end point is checked again. Another cycle follows while the check finds structure, the last phase did
-   not end on the budget, and a space-filling round and a Jacobian still fit the budget.
+   not end on the budget, a space-filling round and a Jacobian still fit the budget, and the last cycle found a
+   better basin than those before it (``basin_rtol``; else, where the best basin is near, ``basin_near``, the run
+   stops with status "basin").
 
 At the end (:meth:`Hybrid.report`) the reported point is the best FE run; when the last check looked at another
 point, the check is made at the reported point, so that the stop reason and the convergence speak of it.
@@ -170,6 +172,9 @@ class Hybrid:
                 return self._finish()
         if status == "budget" or led.cost + self.options.space_filling + NEXT_CYCLE_MARGIN >= self.options.max_cost:
             return self._finish()
+        if k > 1 and self._no_better_basin(found):
+            self.status = "basin"
+            return self._finish()
         self.cycle += 1
         led.phase_start = led.rounds
         self._start = (led.rounds, led.extended)
@@ -177,6 +182,15 @@ class Hybrid:
         self._phase = global_phase(led, self.lower, self.upper, [m.x for m in self.minima], self.options,
                                    self.cycle, self.memo, self.iteration)
         return False
+
+    def _no_better_basin(self, found: list) -> bool:
+        """Whether this global cycle's best minimum (``found[0]``) is no better than the best minimum of the cycles
+        before it by ``basin_rtol`` (relative overall error), that best being near (``basin_near``)."""
+        rtol, near = self.options.basin_rtol, self.options.basin_near
+        before = [m.error for m in self.minima[:len(self.minima) - len(found)]]
+        if rtol is None or not before or (near is not None and min(before) > near):
+            return False
+        return found[0].error >= (1.0 - rtol) * min(before)
 
     def _finish(self) -> bool:
         self._done = True
@@ -259,6 +273,7 @@ class Hybrid:
             return StopDecision(False, False, "continue")
         reason = {"target": "a Gauss-Newton run reached the target", "floor": "the residual is noise",
                   "budget": "the budget is spent or no start was left",
+                  "basin": "a global cycle found no better basin than the best found before it",
                   "effect": "a missing effect explains the residual far better than any basin found"}[self.status]
         return StopDecision(True, self.status in ("target", "floor"), reason)
 
@@ -320,7 +335,8 @@ class HybridResult:
     """Outcome of :func:`hybrid`.
 
     x, error : best point and its overall error (Eq. 6b); status : "target", "floor" (the check found
-    noise), "effect" (the evidence: a missing effect, :mod:`fe_core.closure.evidence`) or "budget"; evaluations,
+    noise), "effect" (the evidence: a missing effect, :mod:`fe_core.closure.evidence`), "basin" (a global cycle
+    found no better basin) or "budget"; evaluations,
     jacobians, rounds, cost (FE-run equivalents); minima : where Gauss-Newton runs ended; checks : (minimum, Check)
     in order; history : see :class:`Ledger`; evidence : the weigh step's record (None when nothing was weighed).
     """

@@ -5,6 +5,8 @@ has several basins in x_1 (40 "frequencies" W, one sensor): from 0 a local metho
 Its derivative is analytic, so the strategy's Jacobian runs are exact.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -206,3 +208,29 @@ def test_a_reduced_centre_is_confirmed_at_full_order(bias):
     assert np.max(np.abs(res.x - TRUTH)) < 1e-3
     if bias > 1e-3:  # the reduced centre disagreed with its confirmation: Gauss-Newton went on from it
         assert sum(full for _, full in log) >= 3
+
+
+def test_a_global_cycle_that_finds_no_better_basin_ends_the_search():
+    """The model's own error (a smooth misfit no parameter removes, as a coarse mesh leaves): the local phase is in
+    the truth's basin and the check sees structure; the first global cycle comes back to that basin, and the run
+    stops there ("basin") instead of spending its budget on cycles that find it again (issue 40's hb13)."""
+    own = 0.06 * np.sin(2.5 * W)
+
+    def evaluate(batch):
+        out = []
+        for x, j in zip(batch.points, batch.jacobian):
+            Z, dZ = _toy(x)
+            out.append((Z + U * own, dZ if j else None))
+        return out
+
+    start = np.array([-0.6, 0.0])
+    res = hybrid(evaluate, start, DATA, LOWER, UPPER, OPTIONS)
+    assert res.status == "basin" and len(res.checks) == 2
+    assert not res.checks[0][1].at_floor and np.max(np.abs(res.x - TRUTH)) < 0.05
+    longer = hybrid(evaluate, start, DATA, LOWER, UPPER, replace(OPTIONS, basin_rtol=None))
+    assert longer.status == "budget" and len(longer.checks) > 2
+    assert res.cost < longer.cost and res.error <= longer.error * (1 + OPTIONS.basin_rtol)
+    # Only near: with the same basin called far off (its overall error above basin_near), the cycles go on.
+    assert res.error > 0.01
+    far = hybrid(evaluate, start, DATA, LOWER, UPPER, replace(OPTIONS, basin_near=0.01))
+    assert far.status == "budget" and far.cost == longer.cost
