@@ -157,15 +157,12 @@ class _ReducedModal(ReducedResponse):
         self._v = self.g * self.right[None, :]
 
     def project(self, A) -> np.ndarray:
-        """``W^T A W`` (modal coordinates, ``W = V phi``) of a sparse change. A change of ``r`` rows fewer than half
-        the basis's ``d`` (an effect at a node) goes through the rows of ``W`` it touches, ``3 r d^2`` operations;
-        a larger one (a segment, a patch) through its projection on the basis, ``2 d^3``."""
+        """``W^T A W`` (modal coordinates, ``W = V phi``) of a sparse change: through the rows of ``W`` it touches
+        (``3 r d^2``) when it has fewer than ``d / 2`` rows (an effect at a node), else through the basis (``2 d^3``)."""
         A = sp.csr_matrix(A)
         rows = np.flatnonzero(np.diff(A.indptr))
         if 2 * rows.size >= self.phi.shape[0]:
             return self.phi.T @ self.basis.project(A) @ self.phi
-        if rows.size == 0:
-            return np.zeros_like(self.phi)
         V = self.basis.V
         return (V[rows] @ self.phi).T @ ((A[rows] @ V) @ self.phi)
 
@@ -199,10 +196,8 @@ class _ReducedLinearised(LinearisedResponse):
 
     def alpha_derivatives(self) -> np.ndarray:
         """``d ln|Z| / d alpha_i``, shape (p * n_s, m): ``ReducedResponse.dlog`` of each segment's projected
-        stiffness ``dK`` (basis coordinates), without taking it to modal coordinates: ``u^T phi^T dK phi v`` as
-        ``modal_sum(left, g, y)`` with ``y = (phi v)^T dK phi`` per frequency, real and imaginary parts apart
-        (the complex (p, n_s, d) array ``phi u`` and complex products of real matrices cost twice to four times
-        as much)."""
+        stiffness ``dK``: ``u^T phi^T dK phi v`` as ``modal_sum(left, g, y)``, ``y = (phi v)^T dK phi`` per frequency,
+        real and imaginary parts apart (a complex (p, n_s, d) ``phi u`` costs two to four times as much)."""
         red = self.reduced
         phi = red.phi
         vr, vi = red._v.real @ phi.T, red._v.imag @ phi.T  # (p, d): v taken back to the basis, real and imaginary
@@ -215,12 +210,8 @@ class _ReducedLinearised(LinearisedResponse):
                 extra = item.effect.alpha_derivative(self.alpha, item.location, item.values, i)
                 if extra is not None and extra.stiffness is not None:
                     dK = dK + self.basis.project(extra.stiffness)
-            # y = phi^T dK (phi v) per frequency, in modal coordinates: the cheaper order of the products
-            if d < 2 * p:
-                Q = dK.T @ phi
-                y = vr @ Q + 1j * (vi @ Q)
-            else:
-                y = (vr @ dK.T) @ phi + 1j * ((vi @ dK.T) @ phi)
+            Q = dK.T @ phi if d < 2 * p else None  # the cheaper order of the products
+            y = vr @ Q + 1j * (vi @ Q) if Q is not None else (vr @ dK.T) @ phi + 1j * ((vi @ dK.T) @ phi)
             dZ = c * modal_sum(red.left, red.g, y)
             cols.append(np.real(-dZ / red.Z).ravel())
         return np.column_stack(cols)
