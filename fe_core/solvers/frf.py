@@ -304,23 +304,11 @@ MAX_BANDWIDTH = 400
 def _shifted_solver(K: sp.csr_matrix, M: sp.csr_matrix, sigma: float | None, centre: float):
     """A solver for ``(K - sigma M) x = f`` and the shift it uses."""
     if sigma is None or sigma == 0.0:
-        coo = K.tocoo()
-        upper = coo.row <= coo.col
-        bandwidth = int(np.max(coo.col[upper] - coo.row[upper], initial=0))
-        if bandwidth <= MAX_BANDWIDTH:
-            n = K.shape[0]
-            ab = np.zeros((bandwidth + 1, n))
-            ab[bandwidth + coo.row[upper] - coo.col[upper], coo.col[upper]] = coo.data[upper]
-            factor, info = lapack.dpbtrf(ab, lower=0)
-            if info == 0:
-                def solve(rhs: np.ndarray) -> np.ndarray:
-                    x, status = lapack.dpbtrs(factor, rhs, lower=0)
-                    if status != 0:
-                        raise RuntimeError(f"LAPACK dpbtrs failed with info={status}")
-                    return x
-
+        banded, solve = banded_cholesky(K)
+        if banded:
+            if solve is not None:
                 return solve, 0.0
-            log.debug("K is not positive-definite (dpbtrf info=%d); using SuperLU", info)
+            log.debug("K is not positive-definite (dpbtrf); using SuperLU")
         else:
             solve = spd_solver(K)
             if solve is not None:
@@ -330,6 +318,30 @@ def _shifted_solver(K: sp.csr_matrix, M: sp.csr_matrix, sigma: float | None, cen
             sigma = centre
     lu = spla.splu((K - sigma * M).tocsc(), permc_spec="MMD_AT_PLUS_A")
     return lu.solve, float(sigma)
+
+
+def banded_cholesky(K: sp.spmatrix):
+    """(banded, solve): whether K's half-bandwidth is at most MAX_BANDWIDTH and, if it is and K is
+    positive-definite, ``rhs -> K^-1 rhs`` by LAPACK's banded Cholesky (dpbtrf/dpbtrs; ``rhs`` (n,) or
+    (n, k)), else None. Only the upper triangle is read."""
+    coo = sp.coo_matrix(K)
+    upper = coo.row <= coo.col
+    bandwidth = int(np.max(coo.col[upper] - coo.row[upper], initial=0))
+    if bandwidth > MAX_BANDWIDTH:
+        return False, None
+    ab = np.zeros((bandwidth + 1, K.shape[0]))
+    ab[bandwidth + coo.row[upper] - coo.col[upper], coo.col[upper]] = coo.data[upper]
+    factor, info = lapack.dpbtrf(ab, lower=0)
+    if info != 0:
+        return True, None
+
+    def solve(rhs: np.ndarray) -> np.ndarray:
+        x, status = lapack.dpbtrs(factor, rhs, lower=0)
+        if status != 0:
+            raise RuntimeError(f"LAPACK dpbtrs failed with info={status}")
+        return x
+
+    return True, solve
 
 
 def spd_solver(A: sp.spmatrix):
