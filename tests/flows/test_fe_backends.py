@@ -19,7 +19,7 @@ from distributed import Client, LocalCluster
 from joblib import delayed
 
 from flows import update
-from flows.config import FE_BACKENDS, REPO, ConfigError, UpdateConfig
+from flows.config import FE_BACKENDS, ConfigError, UpdateConfig
 from tasks import fe_backends
 from tasks.fe_backends import FEBackendError, run_unordered
 from tasks.runstore import RunStore
@@ -34,11 +34,9 @@ def _write_config(path: Path, runs_dir: Path, settings) -> Path:
     return path
 
 
-def _start(command: list[str], args: list[str], env: dict) -> subprocess.Popen:
-    """``python -m flows.update`` (``command``: tests/flows/conftest.py's update_command) in a session of its own."""
-    return subprocess.Popen([*command, *args], cwd=REPO,
-                            env={**os.environ, **env}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
+def _start(command, args: list[str], env: dict):
+    """``python -m flows.update`` in a session of its own (``command``: tests/flows/conftest.py's update_launcher)."""
+    return command.start(args, env)
 
 
 def _finish(proc: subprocess.Popen, timeout: float = 300) -> str:
@@ -91,9 +89,9 @@ def work(tmp_path_factory, reduced_settings_frozen) -> dict:
 
 
 @pytest.fixture(scope="module")
-def loky_reference(work, prefect_server, update_command) -> dict:
+def loky_reference(work, prefect_server, update_launcher) -> dict:
     """summary.json of the reduced run with the default backend (loky)."""
-    _finish(_start(update_command, ["--config", str(work["config"]), "--run-id", "loky"], prefect_server))
+    _finish(_start(update_launcher, ["--config", str(work["config"]), "--run-id", "loky"], prefect_server))
     return json.loads((work["runs"] / "loky" / "summary.json").read_text())
 
 
@@ -126,11 +124,11 @@ def test_unreachable_scheduler_is_refused_before_any_work(tmp_path, monkeypatch,
 # -- Dask ---------------------------------------------------------------------------------------
 @pytest.mark.slow
 def test_dask_cluster_gives_the_loky_summary_and_runs_every_fe_run_on_its_workers(work, loky_reference,
-                                                                                 prefect_server, update_command):
+                                                                                 prefect_server, update_launcher):
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
             Client(cluster) as client:
         workers = set(client.run(os.getpid).values())
-        proc = _start(update_command, ["--config", str(work["config"]), "--run-id", "dask", "--fe-backend", "dask",
+        proc = _start(update_launcher, ["--config", str(work["config"]), "--run-id", "dask", "--fe-backend", "dask",
                                        "--dask-address", cluster.scheduler_address], prefect_server)
         _finish(proc)
         assert set(client.run(os.getpid).values()) == workers  # no worker was replaced meanwhile
@@ -149,12 +147,12 @@ def test_dask_cluster_gives_the_loky_summary_and_runs_every_fe_run_on_its_worker
 
 @pytest.mark.slow
 def test_killed_dask_worker_mid_stage_its_runs_are_rescheduled_and_the_result_is_the_same(
-        work, loky_reference, prefect_server, update_command):
+        work, loky_reference, prefect_server, update_launcher):
     run = work["runs"] / "dask-killed"
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
                       env={"MRGP_FE_DELAY_SECONDS": FE_DELAY}) as cluster, Client(cluster) as client:
         before = set(client.run(os.getpid).values())
-        proc = _start(update_command, ["--config", str(work["config"]), "--run-id", "dask-killed",
+        proc = _start(update_launcher, ["--config", str(work["config"]), "--run-id", "dask-killed",
                                        "--fe-backend", "dask", "--dask-address", cluster.scheduler_address],
                       prefect_server)
         killed, t_kill, logged = _kill_first_fe_worker(proc, run)
@@ -177,9 +175,9 @@ def test_killed_dask_worker_mid_stage_its_runs_are_rescheduled_and_the_result_is
 # -- loky ---------------------------------------------------------------------------------------
 @pytest.mark.slow
 def test_killed_loky_worker_mid_stage_the_lost_runs_are_submitted_again_and_the_result_is_the_same(
-        work, loky_reference, prefect_server, update_command):
+        work, loky_reference, prefect_server, update_launcher):
     run = work["runs"] / "loky-killed"
-    proc = _start(update_command, ["--config", str(work["config"]), "--run-id", "loky-killed", "--n-jobs", "2"],
+    proc = _start(update_launcher, ["--config", str(work["config"]), "--run-id", "loky-killed", "--n-jobs", "2"],
                   {**prefect_server, "MRGP_FE_DELAY_SECONDS": FE_DELAY})
     killed, t_kill, logged = _kill_first_fe_worker(proc, run)
     out = _finish(proc)

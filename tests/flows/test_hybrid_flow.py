@@ -113,9 +113,8 @@ def _config(tmp_path: Path, runs: Path, measured: Path) -> Path:
 
 
 def _run(command, args, env) -> subprocess.CompletedProcess:
-    """``python -m flows.update`` (``command``: tests/flows/conftest.py's update_command) in a session of its own."""
-    proc = subprocess.Popen([*command, *args], cwd=REPO, env={**os.environ, **env},
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    """``python -m flows.update`` in a session of its own (``command``: tests/flows/conftest.py's update_launcher)."""
+    proc = command.start(args, env)
     out, _ = proc.communicate(timeout=300)
     try:
         os.killpg(proc.pid, signal.SIGKILL)
@@ -133,17 +132,17 @@ def _tables(root: Path) -> dict[str, pd.DataFrame]:
 
 @pytest.mark.slow
 def test_kill_inside_hybrid_stages_then_resume_gives_the_uninterrupted_run(tmp_path, hybrid_run, measured_file,
-                                                                          prefect_server, update_command):
+                                                                          prefect_server, update_launcher):
     """The yardstick is the module's uninterrupted run (``hybrid_run``, the same settings made in this process): the
     command line and the flow called in-process make one run, so the victim, killed and resumed through the command
     line, is compared with it beside it in its runs folder."""
     reference = hybrid_run[1].root
     cfg = _config(tmp_path, reference.parent, measured_file)
     for point, what in KILL_POINTS:
-        proc = _run(update_command, ["--config", str(cfg), "--run-id", "victim"],
+        proc = _run(update_launcher, ["--config", str(cfg), "--run-id", "victim"],
                     {**prefect_server, "MRGP_KILL_AT": point})
         assert proc.returncode == -signal.SIGKILL, f"not killed at {point} ({what}):\n{proc.stdout[-3000:]}"
-    proc = _run(update_command, ["--config", str(cfg), "--run-id", "victim"], prefect_server)
+    proc = _run(update_launcher, ["--config", str(cfg), "--run-id", "victim"], prefect_server)
     assert proc.returncode == 0, proc.stdout[-3000:]
     victim = reference.parent / "victim"
     got, want = (json.loads((r / "summary.json").read_text()) for r in (victim, reference))

@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
 import time
 from collections import Counter
 from pathlib import Path
@@ -29,7 +28,6 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from flows.config import REPO
 from tasks.fe_runs import read_fe_log
 from tasks.runstore import RunStore
 
@@ -61,11 +59,11 @@ KILL_POINTS = [
 
 
 @pytest.fixture(scope="module")
-def reference_run(tmp_path_factory, reduced_settings_frozen, prefect_server, update_command) -> tuple[Path, Path]:
+def reference_run(tmp_path_factory, reduced_settings_frozen, prefect_server, update_launcher) -> tuple[Path, Path]:
     """(config file, run folder) of one uninterrupted reduced run, shared by the tests of this module."""
     tmp = tmp_path_factory.mktemp("kill-anywhere")
     cfg = _config(tmp, tmp / "runs", dict(reduced_settings_frozen))
-    proc = _start(update_command, ["--config", str(cfg), "--run-id", "reference"], prefect_server)
+    proc = _start(update_launcher, ["--config", str(cfg), "--run-id", "reference"], prefect_server)
     out = _finish(proc)
     assert proc.returncode == 0, out[-3000:]
     return cfg, tmp / "runs" / "reference"
@@ -78,9 +76,8 @@ def _config(tmp_path: Path, runs: Path, settings: dict) -> Path:
 
 
 def _start(command, args, env):
-    """``python -m flows.update`` (``command``: tests/flows/conftest.py's update_command) in a session of its own."""
-    return subprocess.Popen([*command, *args], cwd=REPO, env={**os.environ, **env},
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    """``python -m flows.update`` in a session of its own (``command``: tests/flows/conftest.py's update_launcher)."""
+    return command.start(args, env)
 
 
 def _finish(proc) -> str:
@@ -145,10 +142,10 @@ def _assert_same_run(victim: Path, ref_root: Path, recovered: list[int]) -> None
 
 
 @pytest.mark.slow
-def test_kill_at_every_point_then_resume_gives_the_uninterrupted_run(reference_run, prefect_server, update_command):
+def test_kill_at_every_point_then_resume_gives_the_uninterrupted_run(reference_run, prefect_server, update_launcher):
     cfg, ref_root = reference_run
     victim = ref_root.parent / "victim"
-    _kill_chain(update_command, cfg, victim, KILL_POINTS, prefect_server)
+    _kill_chain(update_launcher, cfg, victim, KILL_POINTS, prefect_server)
     assert 16 + json.loads((victim / "summary.json").read_text())["polish"]["n"] > 20  # 18, 20 inside the polish
     # Sample 5 of iteration 1 and sample 20 of the polish: each killed between its result and its log line.
     _assert_same_run(victim, ref_root, recovered=[5, 20])
@@ -158,13 +155,13 @@ def test_kill_at_every_point_then_resume_gives_the_uninterrupted_run(reference_r
 @pytest.mark.slow
 def test_sigkill_from_outside_during_the_fe_stage_of_iteration_2_then_resume_gives_the_same_run(reference_run,
                                                                                                 prefect_server,
-                                                                                                update_command):
+                                                                                                update_launcher):
     """A kill at no named point: the process group killed from outside while an FE run of iteration 2 is under way
     (each slowed by 0.4 s, so that the kill lands inside the stage), then resumed: the same summary, each sample
     evaluated once."""
     cfg, ref_root = reference_run
     victim_root = ref_root.parent / "victim-outside"
-    victim = _start(update_command, ["--config", str(cfg), "--run-id", victim_root.name],
+    victim = _start(update_launcher, ["--config", str(cfg), "--run-id", victim_root.name],
                     {**prefect_server, "MRGP_FE_DELAY_SECONDS": "0.4"})
     log_path = victim_root / "fe_evaluations.jsonl"
     deadline = time.time() + 240
@@ -184,7 +181,7 @@ def test_sigkill_from_outside_during_the_fe_stage_of_iteration_2_then_resume_giv
     assert not (victim_root / "summary.json").exists()
     assert not RunStore(victim_root).is_finished(2, "fe")
 
-    resumed = _start(update_command, ["--config", str(cfg), "--run-id", victim_root.name], prefect_server)
+    resumed = _start(update_launcher, ["--config", str(cfg), "--run-id", victim_root.name], prefect_server)
     out = _finish(resumed)
     assert resumed.returncode == 0, out[-3000:]
 
