@@ -45,11 +45,21 @@ def prefect_harness():
     default; an environment variable cannot turn them off, a settings context can): each flow run's heartbeat
     thread sleeps in steps of 1 s and the flow run waits for it at its end, about 0.5 s per flow and subflow run
     (a reduced update is 4: ~2 s of ~9 s), for an event no test reads (the zombie detection of deployments).
+
+    The server runs without the services that record the events of task runs, persist events and evaluate
+    automations' triggers (the harness passes its settings to the server's process): they took half of its CPU,
+    1.0 of 2.0 s per reduced update (measured on 812e15c), for tables no test reads here. The UI test
+    (tests/flows/test_prefect_ui.py) starts a server of its own, with every service.
     """
-    from prefect.settings import PREFECT_API_URL, PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
+    from prefect.settings import (PREFECT_API_URL, PREFECT_FLOWS_HEARTBEAT_FREQUENCY,
+                                  PREFECT_SERVER_SERVICES_EVENT_PERSISTER_ENABLED,
+                                  PREFECT_SERVER_SERVICES_TASK_RUN_RECORDER_ENABLED,
+                                  PREFECT_SERVER_SERVICES_TRIGGERS_ENABLED, temporary_settings)
     from prefect.testing.utilities import prefect_test_harness
 
-    with prefect_test_harness(server_startup_timeout=120), \
+    quiet = {PREFECT_SERVER_SERVICES_TASK_RUN_RECORDER_ENABLED: False, PREFECT_SERVER_SERVICES_EVENT_PERSISTER_ENABLED: False,
+             PREFECT_SERVER_SERVICES_TRIGGERS_ENABLED: False}
+    with temporary_settings(updates=quiet), prefect_test_harness(server_startup_timeout=120), \
             temporary_settings(updates={PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
         yield PREFECT_API_URL.value()
 
