@@ -35,11 +35,10 @@ def test_a_second_call_reads_the_stages_back_and_changed_inputs_are_refused(tmp_
     store = RunStore(root)
     assert all(store.is_finished(1, stage) for stage in STAGES)
     runs = (root / "modal_runs.jsonl").read_text()
-    # the run in Prefect's API (what the UI shows): the flow run and one task run per computed stage
+    # the run in Prefect's API: the flow run (its task runs, one per computed stage, are shown by a server that
+    # records them: tests/flows/test_prefect_ui.py; the session's server here does not record task runs)
     flow_runs = _api(prefect_harness, "/flow_runs/filter", {"flow_runs": {"name": {"any_": ["modal-resumed"]}}})
     assert [f["state_type"] for f in flow_runs] == ["COMPLETED"]
-    tasks = _api(prefect_harness, "/task_runs/filter", {"flow_runs": {"id": {"any_": [flow_runs[0]["id"]]}}})
-    assert sorted(t["name"] for t in tasks) == sorted(["correlation_before", "fit", "correlation_after", "closure"])
     # every eigen-solve is recorded: the update's, and the closure's own when its screen needs one (on some CPUs the
     # closure's point is not bit for bit a fitted run's, and it solves once more)
     assert len(runs.splitlines()) == first["fe_evaluations"] + first["closure"].get("fe_runs", 0)

@@ -226,3 +226,24 @@ def test_the_prefect_ui_shows_a_run_of_the_default_strategy_its_cycles_and_their
     browser.get(f"{base}/runs/flow-run/{cycles[0]['id']}")
     _wait_for_text(browser, ["cycle-1", "update-ui-hybrid", "2 Task runs", "iteration 1, stage local: 1/1 FE runs done",
                              "iteration 1, stage check:"])
+
+
+def test_the_modal_update_is_in_the_api_with_one_task_run_per_computed_stage(server, tmp_path):
+    """``python -m flows.update`` on identified modes (the modal flow, tests/flows/test_modal_resume.py) as the UI
+    sees it: the flow run completed, one task run per stage it computed."""
+    base, env = server
+    proc = subprocess.run([sys.executable, "-m", "flows.update", "--model", "data/examples/modal/model.toml",
+                           "--measured", "data/examples/modal/modes.uff", "--runs-dir", str(tmp_path / "runs"),
+                           "--run-id", "modal-ui", "--starts", "1", "--frequency-sigma", "0.002",
+                           "--shape-sigma", "0.02"], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    flow_runs = _api(base, "/flow_runs/filter", {"flow_runs": {"name": {"any_": ["modal-modal-ui"]}}})
+    assert [f["state_type"] for f in flow_runs] == ["COMPLETED"]
+    want = sorted(["correlation_before", "fit", "correlation_after", "closure"])
+    deadline = time.time() + 30  # the server records task runs from their events, in batches
+    while True:
+        tasks = _api(base, "/task_runs/filter", {"flow_runs": {"id": {"any_": [flow_runs[0]["id"]]}}})
+        if sorted(t["name"] for t in tasks) == want or time.time() > deadline:
+            break
+        time.sleep(0.5)
+    assert sorted(t["name"] for t in tasks) == want
