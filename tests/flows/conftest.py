@@ -57,8 +57,8 @@ def prefect_harness():
                                   PREFECT_SERVER_SERVICES_TRIGGERS_ENABLED, temporary_settings)
     from prefect.testing.utilities import prefect_test_harness
 
-    quiet = {PREFECT_SERVER_SERVICES_TASK_RUN_RECORDER_ENABLED: False, PREFECT_SERVER_SERVICES_EVENT_PERSISTER_ENABLED: False,
-             PREFECT_SERVER_SERVICES_TRIGGERS_ENABLED: False}
+    quiet = {PREFECT_SERVER_SERVICES_TASK_RUN_RECORDER_ENABLED: False,
+             PREFECT_SERVER_SERVICES_EVENT_PERSISTER_ENABLED: False, PREFECT_SERVER_SERVICES_TRIGGERS_ENABLED: False}
     with temporary_settings(updates=quiet), prefect_test_harness(server_startup_timeout=120), \
             temporary_settings(updates={PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
         yield PREFECT_API_URL.value()
