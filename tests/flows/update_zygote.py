@@ -5,9 +5,10 @@ it runs anything; the kill tests start dozens. This process imports all that onc
 request, and the child runs the module as ``__main__`` exactly as ``python -m flows.update`` would (under the
 settings context of tests/flows/conftest.py's UPDATE_LAUNCHER: no flow-run heartbeats): its own session, its
 arguments, its environment on top of this process's, stdout and stderr into a file, Python's exit handlers
-run at its end as the interpreter runs them, its exit code (or the signal that killed it) reported. Nothing has started a thread here when it forks.
+run at its end as the interpreter runs them, its exit code (or the signal that killed it) reported. Nothing
+has started a thread here when it forks.
 
-Requests and replies are JSON lines on stdin/stdout (tests/flows/conftest.py's ``ForkedUpdate`` is the
+Requests and replies are JSON lines on stdin/stdout (tests/flows/conftest.py's ``UpdateLauncher`` is the
 client): ``{"run": [args], "env": {..}, "out": path}`` -> ``{"pid": pid}``; ``{"poll": pid}`` ->
 ``{"status": None | exit code, negative for a signal}``.
 """
