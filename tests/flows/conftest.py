@@ -75,16 +75,6 @@ def prefect_server(prefect_harness, tmp_path_factory):
     return {"PREFECT_HOME": str(home), "PREFECT_API_URL": prefect_harness, "DO_NOT_TRACK": "1"}
 
 
-#: ``python -m flows.update`` as a test's own process runs it (UpdateLauncher below; tests/flows/update_zygote.py
-#: forks the same from a warm process), with its flow runs' heartbeats off as in prefect_harness (the environment
-#: cannot say so): flows.environment first (the environment Prefect is imported in), then the module run as
-#: ``__main__`` under that settings context, its arguments and exit code as they are.
-UPDATE_LAUNCHER = ("import runpy, flows.environment\n"
-                   "from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings\n"
-                   "with temporary_settings(updates={PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):\n"
-                   "    runpy.run_module('flows.update', run_name='__main__', alter_sys=True)\n")
-
-
 class ForkedUpdate:
     """``python -m flows.update`` forked from tests/flows/update_zygote.py, with the parts of ``subprocess.Popen``
     the tests use (pid, poll, wait, communicate, returncode; stdout and stderr together, as text)."""
@@ -114,9 +104,9 @@ class ForkedUpdate:
 
 
 class UpdateLauncher:
-    """Starts ``python -m flows.update`` runs: forked from one warm process (tests/flows/update_zygote.py) that
-    imported everything once, about 4.5 s of CPU less per run; a run whose environment changes a Prefect setting
-    (read when Prefect is imported) gets a process of its own, with UPDATE_LAUNCHER."""
+    """Starts ``python -m flows.update`` runs, each forked from one warm process (tests/flows/update_zygote.py)
+    that imported everything once: about 4.5 s of CPU less per run. Prefect reads its settings when it is
+    imported, so a run's environment may add variables but not change a ``PREFECT_*`` one."""
 
     def __init__(self, env: dict, folder: Path):
         import os
@@ -143,16 +133,9 @@ class UpdateLauncher:
 
     def start(self, args: list[str], env: dict):
         """A run of ``python -m flows.update args`` with ``env`` on top of the session's environment."""
-        import os
-        import subprocess
-        import sys
-
-        from flows.config import REPO
-
-        if any(k.startswith("PREFECT_") and self._env.get(k) != v for k, v in env.items()):
-            return subprocess.Popen([sys.executable, "-c", UPDATE_LAUNCHER, *args], cwd=REPO,
-                                    env={**os.environ, **env}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                    text=True, start_new_session=True)
+        changed = sorted(k for k, v in env.items() if k.startswith("PREFECT_") and self._env.get(k) != v)
+        if changed:
+            raise ValueError(f"{', '.join(changed)}: Prefect read these when the warm process imported it")
         self._count += 1
         out = self._folder / f"update-{self._count}.log"
         return ForkedUpdate(self, self.request({"run": list(args), "env": dict(env), "out": str(out)})["pid"], out)

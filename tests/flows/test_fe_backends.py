@@ -34,11 +34,6 @@ def _write_config(path: Path, runs_dir: Path, settings) -> Path:
     return path
 
 
-def _start(command, args: list[str], env: dict):
-    """``python -m flows.update`` in a session of its own (``command``: tests/flows/conftest.py's update_launcher)."""
-    return command.start(args, env)
-
-
 def _finish(proc: subprocess.Popen, timeout: float = 300) -> str:
     try:
         out, _ = proc.communicate(timeout=timeout)
@@ -91,7 +86,7 @@ def work(tmp_path_factory, reduced_settings_frozen) -> dict:
 @pytest.fixture(scope="module")
 def loky_reference(work, prefect_server, update_launcher) -> dict:
     """summary.json of the reduced run with the default backend (loky)."""
-    _finish(_start(update_launcher, ["--config", str(work["config"]), "--run-id", "loky"], prefect_server))
+    _finish(update_launcher.start(["--config", str(work["config"]), "--run-id", "loky"], prefect_server))
     return json.loads((work["runs"] / "loky" / "summary.json").read_text())
 
 
@@ -128,7 +123,7 @@ def test_dask_cluster_gives_the_loky_summary_and_runs_every_fe_run_on_its_worker
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
             Client(cluster) as client:
         workers = set(client.run(os.getpid).values())
-        proc = _start(update_launcher, ["--config", str(work["config"]), "--run-id", "dask", "--fe-backend", "dask",
+        proc = update_launcher.start(["--config", str(work["config"]), "--run-id", "dask", "--fe-backend", "dask",
                                        "--dask-address", cluster.scheduler_address], prefect_server)
         _finish(proc)
         assert set(client.run(os.getpid).values()) == workers  # no worker was replaced meanwhile
@@ -152,7 +147,7 @@ def test_killed_dask_worker_mid_stage_its_runs_are_rescheduled_and_the_result_is
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
                       env={"MRGP_FE_DELAY_SECONDS": FE_DELAY}) as cluster, Client(cluster) as client:
         before = set(client.run(os.getpid).values())
-        proc = _start(update_launcher, ["--config", str(work["config"]), "--run-id", "dask-killed",
+        proc = update_launcher.start(["--config", str(work["config"]), "--run-id", "dask-killed",
                                        "--fe-backend", "dask", "--dask-address", cluster.scheduler_address],
                       prefect_server)
         killed, t_kill, logged = _kill_first_fe_worker(proc, run)
@@ -177,7 +172,7 @@ def test_killed_dask_worker_mid_stage_its_runs_are_rescheduled_and_the_result_is
 def test_killed_loky_worker_mid_stage_the_lost_runs_are_submitted_again_and_the_result_is_the_same(
         work, loky_reference, prefect_server, update_launcher):
     run = work["runs"] / "loky-killed"
-    proc = _start(update_launcher, ["--config", str(work["config"]), "--run-id", "loky-killed", "--n-jobs", "2"],
+    proc = update_launcher.start(["--config", str(work["config"]), "--run-id", "loky-killed", "--n-jobs", "2"],
                   {**prefect_server, "MRGP_FE_DELAY_SECONDS": FE_DELAY})
     killed, t_kill, logged = _kill_first_fe_worker(proc, run)
     out = _finish(proc)

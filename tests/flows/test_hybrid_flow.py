@@ -113,7 +113,7 @@ def _config(tmp_path: Path, runs: Path, measured: Path) -> Path:
 
 
 def _run(command, args, env) -> subprocess.CompletedProcess:
-    """``python -m flows.update`` in a session of its own (``command``: tests/flows/conftest.py's update_launcher)."""
+    """``python -m flows.update`` by ``command`` (tests/flows/conftest.py's update_launcher), to its end."""
     proc = command.start(args, env)
     out, _ = proc.communicate(timeout=300)
     try:

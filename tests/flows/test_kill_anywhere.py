@@ -63,7 +63,7 @@ def reference_run(tmp_path_factory, reduced_settings_frozen, prefect_server, upd
     """(config file, run folder) of one uninterrupted reduced run, shared by the tests of this module."""
     tmp = tmp_path_factory.mktemp("kill-anywhere")
     cfg = _config(tmp, tmp / "runs", dict(reduced_settings_frozen))
-    proc = _start(update_launcher, ["--config", str(cfg), "--run-id", "reference"], prefect_server)
+    proc = update_launcher.start(["--config", str(cfg), "--run-id", "reference"], prefect_server)
     out = _finish(proc)
     assert proc.returncode == 0, out[-3000:]
     return cfg, tmp / "runs" / "reference"
@@ -73,11 +73,6 @@ def _config(tmp_path: Path, runs: Path, settings: dict) -> Path:
     path = tmp_path / "reduced.toml"
     path.write_text("\n".join([f'runs_dir = "{runs}"'] + [f"{k} = {json.dumps(v)}" for k, v in settings.items()]))
     return path
-
-
-def _start(command, args, env):
-    """``python -m flows.update`` in a session of its own (``command``: tests/flows/conftest.py's update_launcher)."""
-    return command.start(args, env)
 
 
 def _finish(proc) -> str:
@@ -102,14 +97,14 @@ def _tables(root: Path) -> dict[str, pd.DataFrame]:
 def _kill_chain(command, cfg: Path, victim: Path, points, env) -> str:
     """Kill the run at each point in turn, then let it finish; returns the last run's output."""
     for point, what in points:
-        proc = _start(command, ["--config", str(cfg), "--run-id", victim.name], {**env, "MRGP_KILL_AT": point})
+        proc = command.start(["--config", str(cfg), "--run-id", victim.name], {**env, "MRGP_KILL_AT": point})
         out = _finish(proc)
         assert proc.returncode == -signal.SIGKILL, f"not killed at {point} ({what}):\n{out[-3000:]}"
         if point.startswith("before-rename:"):  # the kill came between the write and the rename
             name = point.rsplit("/", 1)[1]
             assert list(victim.rglob(f".{name}.*.tmp")), f"no temporary {name} left at {point}"
         assert point == points[-1][0] or not (victim / "summary.json").exists()
-    proc = _start(command, ["--config", str(cfg), "--run-id", victim.name], env)
+    proc = command.start(["--config", str(cfg), "--run-id", victim.name], env)
     out = _finish(proc)
     assert proc.returncode == 0, out[-3000:]
     assert "stale lock" in out  # the killed run's lock was detected and taken over
@@ -161,7 +156,7 @@ def test_sigkill_from_outside_during_the_fe_stage_of_iteration_2_then_resume_giv
     evaluated once."""
     cfg, ref_root = reference_run
     victim_root = ref_root.parent / "victim-outside"
-    victim = _start(update_launcher, ["--config", str(cfg), "--run-id", victim_root.name],
+    victim = update_launcher.start(["--config", str(cfg), "--run-id", victim_root.name],
                     {**prefect_server, "MRGP_FE_DELAY_SECONDS": "0.4"})
     log_path = victim_root / "fe_evaluations.jsonl"
     deadline = time.time() + 240
@@ -181,7 +176,7 @@ def test_sigkill_from_outside_during_the_fe_stage_of_iteration_2_then_resume_giv
     assert not (victim_root / "summary.json").exists()
     assert not RunStore(victim_root).is_finished(2, "fe")
 
-    resumed = _start(update_launcher, ["--config", str(cfg), "--run-id", victim_root.name], prefect_server)
+    resumed = update_launcher.start(["--config", str(cfg), "--run-id", victim_root.name], prefect_server)
     out = _finish(resumed)
     assert resumed.returncode == 0, out[-3000:]
 

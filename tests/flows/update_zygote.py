@@ -2,9 +2,9 @@
 
 Each ``python -m flows.update`` spends 4-5 s of CPU importing Prefect, pandas, scipy and the repository before
 it runs anything; the kill tests start dozens. This process imports all that once, then forks one child per
-request, and the child runs the module as ``__main__`` exactly as ``python -m flows.update`` would (under the
-settings context of tests/flows/conftest.py's UPDATE_LAUNCHER: no flow-run heartbeats): its own session, its
-arguments, its environment on top of this process's, stdout and stderr into a file, Python's exit handlers
+request, and the child runs the module as ``__main__`` exactly as ``python -m flows.update`` would (under a
+settings context without flow-run heartbeats, as tests/flows/conftest.py's server runs flows): its own
+session, its arguments, its environment on top of this process's, stdout and stderr into a file, Python's exit handlers
 run at its end as the interpreter runs them, its exit code (or the signal that killed it) reported. Nothing
 has started a thread here when it forks.
 
