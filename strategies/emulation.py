@@ -19,7 +19,8 @@ import numpy as np
 import mrgp_core
 
 __all__ = ["train_mrgp", "predict_overall_error", "reduced_outputs", "AUTO_REDUCED_ABOVE", "merge_duplicates",
-           "DUPLICATE_RTOL", "length_scales", "refine_on_emulator"]
+           "DUPLICATE_RTOL", "forward_difference_jacobian", "length_scales",
+           "refine_on_emulator"]
 
 log = logging.getLogger(__name__)
 
@@ -139,18 +140,50 @@ def refine_on_emulator(residuals_of, starts: np.ndarray, low: np.ndarray, high: 
                        max_evaluations: int = 50, tolerance: float = 1e-8) -> np.ndarray:
     """Gauss-Newton (trust-region least squares) on the emulator's mean from each start, inside [low, high].
 
-    ``residuals_of(x)`` gives the residual vector the emulator predicts at x (m,). Returns the end points,
-    shape (len(starts), m): candidates where the emulator's mean is smallest. ``tolerance``: scipy's ``ftol``,
-    ``xtol`` and ``gtol``; near machine precision the runs end on ``max_evaluations`` or at a stationary
-    point, so an end point moves continuously with the data (a loose test that stops one step earlier for a
-    change in the last digits moves it by a whole step).
+    ``residuals_of(X)`` gives the residual vectors the emulator predicts at the points X (k, m), shape (k, p).
+    Returns the end points, shape (len(starts), m): candidates where the emulator's mean is smallest.
+    ``tolerance``: scipy's ``ftol``, ``xtol`` and ``gtol``; near machine precision the runs end on
+    ``max_evaluations`` or at a stationary point, so an end point moves continuously with the data (a loose
+    test that stops one step earlier for a change in the last digits moves it by a whole step).
+
+    The Jacobian is scipy's forward difference (relative step 1e-6, turned back at the bounds) evaluated in
+    one call of ``residuals_of`` on the point and its m steps, not m + 1 calls: the emulator's cost is in
+    its per-call work, so a Jacobian costs about one evaluation.
     """
     from scipy.optimize import least_squares
 
+    def residual(x):
+        return residuals_of(x[None])[0]
+
+    def jacobian(x):
+        return forward_difference_jacobian(residuals_of, x, low, high)
+
     out = []
     for x0 in np.asarray(starts, float):
-        sol = least_squares(residuals_of, np.clip(x0, low, high), bounds=(low, high), method="trf",
-                            max_nfev=max_evaluations, diff_step=1e-6, ftol=tolerance, xtol=tolerance,
-                            gtol=tolerance)
+        sol = least_squares(residual, np.clip(x0, low, high), jac=jacobian, bounds=(low, high), method="trf",
+                            max_nfev=max_evaluations, ftol=tolerance, xtol=tolerance, gtol=tolerance)
         out.append(sol.x)
     return np.array(out).reshape(-1, len(low))
+
+
+def forward_difference_jacobian(residuals_of, x: np.ndarray, low: np.ndarray, high: np.ndarray,
+                                relative_step: float = 1e-6) -> np.ndarray:
+    """Forward-difference Jacobian (p, m) of the batched ``residuals_of`` at x, from one call on m + 1 points.
+
+    The steps are scipy's for ``least_squares(..., diff_step=relative_step)``: relative to |x_i| (the square
+    root of machine epsilon times max(1, |x_i|) where that step vanishes), reversed where it would leave
+    [low, high], and shortened to the bound where neither direction fits.
+    """
+    x = np.asarray(x, float)
+    sign = np.where(x >= 0, 1.0, -1.0)
+    step = relative_step * sign * np.abs(x)
+    step = np.where((x + step) - x == 0, np.sqrt(np.finfo(float).eps) * sign * np.maximum(1.0, np.abs(x)), step)
+    below, above = x - low, high - x
+    fits = np.abs(step) <= np.maximum(below, above)
+    outside = ((x + step) < low) | ((x + step) > high)
+    step = np.where(outside & fits, -step, step)
+    step = np.where(~fits, np.where(above >= below, above, -below), step)
+    points = np.vstack([x, x + np.diag(step)])
+    dx = np.diag(points[1:]) - x
+    values = residuals_of(points)
+    return ((values[1:] - values[0]) / dx[:, None]).T

@@ -82,5 +82,5 @@ def predict(X: np.ndarray, Y: np.ndarray, E: np.ndarray, layout: ModalLayout, hy
 
     predicted = errors(C)
     starts = np.vstack([best, C[np.argsort(predicted, kind="stable")[:GN_STARTS]]])
-    refined = refine_on_emulator(lambda x: residuals(x[None])[0], starts, low, high, tolerance=1e-14)
+    refined = refine_on_emulator(residuals, starts, low, high, tolerance=1e-14)
     return np.vstack([C, refined]), np.concatenate([predicted, errors(refined)])
