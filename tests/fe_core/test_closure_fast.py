@@ -13,7 +13,7 @@ import os
 import numpy as np
 import pytest
 
-from fe_core.closure import fast, fits, screening, selection
+from fe_core.closure import fast, fast_basis, fits, screening, selection
 from fe_core.closure.effects import Applied, LinearisedResponse, PointMass
 from fe_core.io import read_model
 from flows.config import REPO
@@ -41,7 +41,7 @@ def test_the_reduced_model_is_the_full_one_at_its_basis_point(beam):
     full = LinearisedResponse(model, alpha, freqs, applied)
     basis = fast.ReducedBasis(model, freqs)
     basis.add(full.reduced.W)
-    red = fast._ReducedLinearised(basis, model, alpha, freqs, applied)
+    red = fast_basis._ReducedLinearised(basis, model, alpha, freqs, applied)
     assert np.max(np.abs(red.Z - full.Z)) < 1e-8 * np.max(np.abs(full.Z))
     Jf = np.column_stack([full.alpha_derivatives(), full.effect_derivatives(mass, "node 208")])
     Jr = np.column_stack([red.alpha_derivatives(), red.effect_derivatives(mass, "node 208")])
@@ -112,7 +112,7 @@ def test_a_segment_mass_at_another_factor_is_projected_from_the_held_projection(
     effect = SegmentMass(model)
     location = effect.locations()[-1]
     first = effect.terms(np.zeros(model.n_segments), location, [0.2]).mass
-    assert np.count_nonzero(np.diff(first.tocsr().indptr)) > fast.REMEMBER_ROWS
+    assert np.count_nonzero(np.diff(first.tocsr().indptr)) > fast_basis.REMEMBER_ROWS
     V = basis.V
     zero = first.copy()
     zero.data[:] = 0.0  # stored zeros (a derivative that vanishes) first: projected, not remembered
