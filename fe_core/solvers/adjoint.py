@@ -49,7 +49,10 @@ import scipy.sparse as sp
 
 from .frf import direct_frf, krylov_space
 
-__all__ = ["ReducedResponse", "modal_sum", "project_rows"]
+__all__ = ["ReducedResponse", "modal_sum", "project_rows", "DIAGONAL_CHUNK"]
+
+#: Locations per block of :meth:`ReducedResponse.diagonal_dlog` (its memory: a (chunk, k, p, n_s) complex block).
+DIAGONAL_CHUNK = 256
 
 
 def modal_sum(left: np.ndarray, g: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -169,15 +172,29 @@ class ReducedResponse:
         (``"mass"``) at the free DOFs ``rows[l]`` (shape (L, k); negative entries
         are skipped): a point mass or a grounded spring at every node in one
         product, ``dZ_s = -c(w) sum_r (u_s . W_r)(W_r . v)``.
+
+        The DOFs' modal rows meet ``u`` and ``v`` in real matrix products (``W`` is real: two real products
+        take half the work of one complex one), :data:`DIAGONAL_CHUNK` locations at a time (a (chunk, k, p,
+        n_s) complex block, not one for every DOF of the mesh: 2.2 GB at 25,000 DOFs and 700 lines).
         """
         rows = np.atleast_2d(np.asarray(rows, dtype=np.int64))
         w = self.omegas
         c = (1.0 + 1j * w * self.b) if matrix == "stiffness" else (-(w**2) + 1j * w * self.a)
-        used, where = np.unique(np.where(rows >= 0, rows, -1), return_inverse=True)
-        where = where.reshape(rows.shape)
-        Wu = self.W[np.maximum(used, 0)]  # (nu, m); the row of index -1 (if any) is masked below
-        unit = np.einsum("psm,rm->rps", self._u, Wu, optimize=True) * (Wu @ self._v.T)[:, :, None]  # (nu, p, s)
-        unit[used < 0] = 0.0
-        dZ = -c[None, :, None] * unit[where].sum(axis=1)  # (L, p, s)
-        return np.real(dZ / self.Z[None])
-
+        p, n_s = self.Z.shape
+        m = self.W.shape[1]
+        u = self._u.reshape(p * n_s, m)
+        u_re, u_im = np.ascontiguousarray(u.real.T), np.ascontiguousarray(u.imag.T)  # (m, p n_s)
+        v_re, v_im = np.ascontiguousarray(self._v.real.T), np.ascontiguousarray(self._v.imag.T)  # (m, p)
+        scale = -c[:, None] / self.Z  # (p, n_s)
+        out = np.empty((rows.shape[0], p, n_s))
+        for start in range(0, rows.shape[0], DIAGONAL_CHUNK):
+            block = rows[start:start + DIAGONAL_CHUNK]
+            used, where = np.unique(block, return_inverse=True)
+            Wu = self.W[np.maximum(used, 0)]  # (nu, m); the row of index -1 (if any) is zeroed
+            Wu[used < 0] = 0.0
+            a = (Wu @ u_re + 1j * (Wu @ u_im)).reshape(-1, p, n_s)  # u_s . W_r
+            b = Wu @ v_re + 1j * (Wu @ v_im)  # (nu, p): W_r . v
+            unit = a * b[:, :, None]  # (nu, p, n_s)
+            summed = unit[where.reshape(block.shape)].sum(axis=1) if block.shape[1] > 1 else unit[where.ravel()]
+            out[start:start + block.shape[0]] = np.real(summed * scale[None])
+        return out

@@ -88,15 +88,22 @@ def test_the_adjoint_derivative_is_the_central_difference_of_the_direct_frf(benc
     assert np.max(np.abs(red.dlog(dK=dK, dgain=dg) - fd)) <= DIFF_RTOL * np.max(np.abs(fd))
 
 
-def test_diagonal_changes_at_many_nodes_at_once_equal_one_by_one(benchmark_model):
-    """The batch product of the screening (every point mass or spring at once) against dlog per change."""
+@pytest.mark.parametrize("chunk", [256, 2])
+@pytest.mark.parametrize("per_location", [3, 1])
+def test_diagonal_changes_at_many_nodes_at_once_equal_one_by_one(benchmark_model, monkeypatch, chunk, per_location):
+    """The batch product of the screening (every point mass or spring at once) against dlog per change, in one
+    block and in blocks of two locations (a DOF shared by locations of two blocks, a location of padding only)."""
+    import fe_core.solvers.adjoint as adjoint
+
+    monkeypatch.setattr(adjoint, "DIAGONAL_CHUNK", chunk)
     model = benchmark_model
     K, M, a, b = _matrices(model)
     red = ReducedResponse(K, M, a, b, model.combined_load(), model.outputs, hz_to_rad(FREQS))
     n = model.n_dofs
-    rows = np.array([[10, 11, 12], [400, -1, 401], [n - 1, -1, -1]])
+    rows = np.array([[10, 11, 12], [400, -1, 401], [n - 1, -1, -1], [-1, -1, -1], [11, 400, -1]])[:, :per_location]
     for matrix in ("mass", "stiffness"):
         batch = red.diagonal_dlog(matrix, rows)
+        assert batch.shape == (len(rows), FREQS.size, model.outputs.shape[1])
         for k, r in enumerate(rows):
             r = r[r >= 0]
             D = sp.csr_matrix((np.ones(r.size), (r, r)), shape=(n, n))
