@@ -387,6 +387,13 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         for j in reversed(dropped):
             del steps[j], rivals[j], keys[j]
         move_log += notes
+        without = baseline if baseline is not None else (None if start.applied else start)
+        if not current.applied and without is not None and without.rss < current.rss:
+            # Every effect dropped: alpha refitted from where the effects had taken it may end in a worse minimum
+            # than the alpha-only fit the closure started from (held-out hb20: 70 % rms against 47 %).
+            log.info("backward check: every effect dropped; the alpha-only fit the closure started from is kept "
+                     "(sum of squares %.4g, the refit without the effects %.4g)", without.rss, current.rss)
+            current = without
         if dropped:
             analysis = analyse_residual(current.residual, freqs, current.n_parameters, sigma, significance,
                                         current.relative(u))
