@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from ...solvers.adjoint import project_rows
+from ...solvers.adjoint import modal_sum, project_rows
 from ..effects import Applied, Effect
 from ..effects.extended import segment_stiffness
 
@@ -188,24 +188,23 @@ class ReducedModel:
         g_ = 1.0 / ((1.0 + 1j * w * b)[:, None] * mu[None, :] - (w**2 - 1j * w * a)[:, None])  # (p, d)
         left = self.left @ phi                            # (n_s, d)
         right = phi.T @ self.right                        # (d,)
-        Z = (left[None, :, :] * (g_ * right[None, :])[:, None, :]).sum(axis=2)   # (p, n_s)
+        Z = modal_sum(left, g_, right[None, :])  # (p, n_s), in two real products: no (p, n_s, d) array
         lnZ = np.log(np.abs(Z)) + np.log1p(gain)[None, :]
         if not derivatives:
             return lnZ, None
-        u = left[None, :, :] * g_[:, None, :]             # (p, n_s, d)
         v = g_ * right[None, :]                           # (p, d)
         cols = []
         for dK, dM, da, db, dgain in derivatives:
             dZ = np.zeros_like(Z)
             if dK is not None:
                 A = phi.T @ dK @ phi
-                dZ += (1.0 + 1j * w * b)[:, None] * np.einsum("psd,pd->ps", u, v.real @ A.T + 1j * (v.imag @ A.T))
+                dZ += (1.0 + 1j * w * b)[:, None] * modal_sum(left, g_, v.real @ A.T + 1j * (v.imag @ A.T))
             if dM is not None:
                 A = phi.T @ dM @ phi
-                dZ += -(w**2 - 1j * w * a)[:, None] * np.einsum("psd,pd->ps", u, v.real @ A.T + 1j * (v.imag @ A.T))
+                dZ += -(w**2 - 1j * w * a)[:, None] * modal_sum(left, g_, v.real @ A.T + 1j * (v.imag @ A.T))
             if da or db:
                 diag = (1j * w)[:, None] * (da + db * mu[None, :])
-                dZ += np.einsum("psd,pd,pd->ps", u, diag, v)
+                dZ += modal_sum(left, g_, diag * v)
             col = np.real(-dZ / Z)
             if dgain is not None:
                 col = col + (np.asarray(dgain, float) / (1.0 + gain))[None, :]
