@@ -28,6 +28,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ...solvers.adjoint import modal_sum, project_rows
+from ...threads import thread_map
 from ..effects import Applied, Effect
 from ..effects.extended import segment_stiffness
 
@@ -245,7 +246,8 @@ class ReducedModel:
         out = np.empty(sizes.shape)
         gain = np.log1p(self.gain)[None, :]
         p, n_s = Z0.shape
-        for k0 in range(0, N, chunk):
+
+        def block(k0):  # one chunk of candidates at every size (independent of the others: on the threads)
             Uc = np.einsum("dk,ndq->nkq", q, U[k0:k0 + chunk])          # modal coordinates (n, d, q)
             G = np.einsum("ndq,pd,ndr->npqr", Uc, inv, Uc, optimize=True)
             L = np.einsum("psd,ndq->npsq", X, Uc, optimize=True)
@@ -262,6 +264,8 @@ class ReducedModel:
                 if project is not None:
                     r = r - (r @ project) @ project.T
                 out[k0:k0 + chunk, j] = np.einsum("ni,ni->n", r, r)
+
+        thread_map(block, range(0, N, chunk))
         return out
 
     def alpha_projector(self, alpha, lines: np.ndarray | None = None) -> np.ndarray:

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from ...threads import thread_map
 from ..effects import Applied, Effect
 from ..fits import ALPHA_BOUNDS, ALPHA_SCALE, log_sized
 from .misfit import effective_values
@@ -165,14 +166,15 @@ def _scan_kind(rm: ReducedModel, effect: Effect, locations: list[str], alpha, lo
             return rm.scan(alpha, U, matrix, sizes, log_u, project, lines=lines)
     else:
         def rss_at(sizes):
-            out = np.empty(sizes.shape)
-            for i, loc in enumerate(locations):
+            def row(i):
+                out = np.empty(sizes.shape[1])
                 for j, s in enumerate(sizes[i]):
-                    lnZ, _ = rm.evaluate(alpha, [Applied(effect, loc, np.array([s]))])
+                    lnZ, _ = rm.evaluate(alpha, [Applied(effect, locations[i], np.array([s]))])
                     r = (lnZ - log_u)[lines].ravel()
                     r = r - project @ (project.T @ r)
-                    out[i, j] = r @ r
-            return out
+                    out[j] = r @ r
+                return out
+            return np.array(thread_map(row, range(len(locations)))).reshape(sizes.shape)
     rss = rss_at(grid)
     k = np.argmin(rss, axis=1)
     rows = np.arange(len(locations))
@@ -337,7 +339,7 @@ def alpha_restarts(model, freqs_hz, amplitude, alpha, n_starts: int, seed: int =
     if n_starts > 0:
         starts += list(lo + (hi - lo) * qmc.Sobol(model.n_segments, scramble=True, seed=seed).random(
             max(2, n_starts))[:n_starts])
-    ends = sorted((joint_fit(rm, log_u, a0, None, None, None, alpha_bounds, smoothers) for a0 in starts),
+    ends = sorted(thread_map(lambda a0: joint_fit(rm, log_u, a0, None, None, None, alpha_bounds, smoothers), starts),
                   key=lambda e: e[2])
     out: list[tuple[np.ndarray, float]] = []
     for a, _, rss in ends:
@@ -392,10 +394,10 @@ def exact_search(model, freqs_hz, amplitude, alpha, library: Sequence[Effect], a
                 continue
             count[f.effect] = count.get(f.effect, 0) + 1
             picks.append(f)
-        for f in picks:
-            f.alpha, f.values, f.rss = joint_fit(rm, log_u, f.alpha, by_kind[f.effect], f.location, f.values,
-                                                 alpha_bounds, smoothers)
-            f.passes = k + 1
+        ends = thread_map(lambda f: joint_fit(rm, log_u, f.alpha, by_kind[f.effect], f.location, f.values,
+                                              alpha_bounds, smoothers), picks)
+        for f, (a, v, r) in zip(picks, ends):
+            f.alpha, f.values, f.rss, f.passes = a, v, r, k + 1
             fitted[(f.effect, f.location)] = f
         best = min(fitted.values(), key=lambda f: f.rss)
         record["passes"].append({"alpha": point.tolist(), "scanned": len(scanned), "fitted": len(picks),
@@ -413,9 +415,11 @@ def exact_search(model, freqs_hz, amplitude, alpha, library: Sequence[Effect], a
             rm = ReducedModel(model, freqs, point, applied,
                               enrich=[(point, list(applied) + [Applied(by_kind[best.effect], best.location,
                                                                        np.asarray(best.values, float))])])
-            for f in fitted.values():  # the fitted candidates' sums of squares on the new reduced model
-                f.alpha, f.values, f.rss = reduced_fit(rm, log_u, f.alpha, by_kind[f.effect], f.location, f.values,
-                                                       alpha_bounds, max_nfev=20)
+            again = list(fitted.values())  # the fitted candidates' sums of squares on the new reduced model
+            ends = thread_map(lambda f: reduced_fit(rm, log_u, f.alpha, by_kind[f.effect], f.location, f.values,
+                                                    alpha_bounds, max_nfev=20), again)
+            for f, (a, v, r) in zip(again, ends):
+                f.alpha, f.values, f.rss = a, v, r
         focus = {}
         for f in sorted(fitted.values(), key=lambda f: f.rss)[:REFINE]:
             focus.setdefault(f.effect, []).append(f.location)
