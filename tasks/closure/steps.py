@@ -6,7 +6,9 @@ and the effect library (:func:`effect_library`). A finished step is read back fr
 
 from __future__ import annotations
 
+import functools
 import json
+import os
 import time
 
 import numpy as np
@@ -109,8 +111,24 @@ def measured(problem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 # -- tasks ---------------------------------------------------------------------------------------------
+def on_the_cores(fn):
+    """A step's PARDISO calls in this process on the closure's cores (``settings["n_jobs"]``; -1: every core):
+    nothing runs beside a step's own work here (its full checks run in worker processes, one thread each, while
+    this process waits). hb06's model (25,128 DOFs): a response with its Krylov space 2.0 -> 1.3-1.5 s on 2
+    threads (/work/exp/s14/mb_pardiso.py). Decorate below ``@task``; the task's third argument is the settings."""
+    @functools.wraps(fn)
+    def run(root, problem, settings, *args, **kwargs):
+        from fe_core.solvers import pardiso
+
+        n = int(settings.get("n_jobs", 1) or 1)
+        with pardiso.threads((os.cpu_count() or 1) if n < 0 else n):
+            return fn(root, problem, settings, *args, **kwargs)
+    return run
+
+
 @task(name="closure-baseline", cache_policy=NO_CACHE)
 @beating("closure baseline (alpha-only least squares from the run's parameters and the restarts)")
+@on_the_cores
 def baseline_task(root: str, problem, settings: dict) -> dict:
     """Alpha-only least squares from the run's parameters; residual and its analysis. ``problem``: the run's
     :class:`tasks.problem.Problem` (its model and measured data: the closure fits :func:`measured`)."""
@@ -133,6 +151,7 @@ def baseline_task(root: str, problem, settings: dict) -> dict:
 
 @task(name="closure-screen", cache_policy=NO_CACHE)
 @beating("closure screen (every candidate effect, linearised)")
+@on_the_cores
 def screen_task(root: str, problem, settings: dict) -> dict:
     """Linearised explained share of every candidate effect at the baseline."""
     store = ClosureStore(root)
@@ -182,6 +201,7 @@ def check_candidate(ref, effects, kind: str, location: str, linear_values, base_
 
 
 @task(name="closure-check", cache_policy=NO_CACHE)
+@on_the_cores
 def check_task(root: str, problem, settings: dict) -> dict:
     """Full FE least squares of the best-screened candidates, in parallel, each stored as it finishes."""
     store = ClosureStore(root)
@@ -326,6 +346,7 @@ def _indexed(k, *args):
 
 @task(name="closure-decide", cache_policy=NO_CACHE)
 @beating("closure decision (forward selection, moves, swaps, intervals)")
+@on_the_cores
 def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: float | None = None) -> dict:
     """Scores, the decision, the updated model, residual tables and ``closure.json``.
 
