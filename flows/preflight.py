@@ -152,6 +152,7 @@ def check_memory(config: UpdateConfig, cache_root: Path | None = None):
     :class:`flows.memory.Footprint` (None for a model of another kind). ``cache_root``: the model cache (a
     model found there needs no assembly)."""
     from fe_core.io import cache
+    from fe_core.threads import cores
     from flows.memory import GB, available_bytes, estimate
     from tasks.problem import model_checksum, model_path
 
@@ -166,7 +167,7 @@ def check_memory(config: UpdateConfig, cache_root: Path | None = None):
             cached = cache.lookup(cache_root, model_checksum(path)) is not None
         except (OSError, ValueError):
             cached = False
-    jobs = (os.cpu_count() or 1) if config.n_jobs < 0 else config.n_jobs
+    jobs = cores(config.n_jobs)
     if config.fe_backend != "loky":  # the global rounds' FE runs are the cluster's; Gauss-Newton runs here
         jobs = 1
     footprint = estimate(path, jobs, cached=cached)

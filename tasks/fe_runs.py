@@ -37,6 +37,7 @@ from joblib import delayed
 
 from fe_core.inference.residual import overall_error
 from fe_core.solvers import reduced_basis
+from fe_core.threads import cores
 from strategies.base import Outcome
 from tasks.faults import kill_point
 from tasks.fe_log import FE_LOG, append_log, read_fe_log
@@ -73,9 +74,10 @@ def is_large(model) -> bool:
 
 
 def run_cores(settings) -> int:
-    """The cores a run may use: ``n_jobs`` (-1: every core of this machine)."""
-    n = int(getattr(settings, "n_jobs", 1) or 1)
-    return os.cpu_count() or 1 if n < 0 else max(n, 1)
+    """The cores a run may use: ``n_jobs`` (-1: every core this process may use; :func:`fe_core.threads.cores`),
+    from the run's settings (an object with ``n_jobs`` or the closure's dict)."""
+    n = settings.get("n_jobs", 1) if isinstance(settings, dict) else getattr(settings, "n_jobs", 1)
+    return cores(n)
 
 
 def solver_threads(problem, settings):

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import functools
 import json
-import os
 import time
 
 import numpy as np
@@ -23,6 +22,7 @@ from fe_core.closure.far.misfit import judge_misfit
 from fe_core.closure.far.search import alpha_restarts
 from fe_core.closure.selection import forward_select
 from fe_core.inference.residual import analyse_residual, log_residual
+from fe_core.threads import at_most
 from tasks.closure.store import (
     ClosureStore,
     _baseline_fit,
@@ -36,6 +36,7 @@ from tasks.closure.store import (
 )
 from tasks.closure.summary import _candidates_frame, _closure_json, _verdict_json
 from tasks.common import beating, heartbeat
+from tasks.fe_runs import run_cores
 from tasks.runstore import atomic_write_bytes, atomic_write_json
 
 __all__ = [
@@ -112,16 +113,16 @@ def measured(problem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 # -- tasks ---------------------------------------------------------------------------------------------
 def on_the_cores(fn):
-    """A step's PARDISO calls in this process on the closure's cores (``settings["n_jobs"]``; -1: every core):
-    nothing runs beside a step's own work here (its full checks run in worker processes, one thread each, while
-    this process waits). hb06's model (25,128 DOFs): a response with its Krylov space 2.0 -> 1.3-1.5 s on 2
-    threads (/work/exp/s14/mb_pardiso.py). Decorate below ``@task``; the task's third argument is the settings."""
+    """A step's PARDISO calls in this process on the closure's cores (``settings["n_jobs"]``,
+    :func:`tasks.fe_runs.run_cores`): nothing runs beside a step's own work here (its full checks run in worker
+    processes, one thread each, while this process waits). hb06's model (25,128 DOFs): a response with its Krylov
+    space 2.0 -> 1.3-1.5 s on 2 threads (``python -m benchmarks.closure_threads``). Decorate below ``@task``; the
+    task's third argument is the settings."""
     @functools.wraps(fn)
     def run(root, problem, settings, *args, **kwargs):
         from fe_core.solvers import pardiso
 
-        n = int(settings.get("n_jobs", 1) or 1)
-        with pardiso.threads((os.cpu_count() or 1) if n < 0 else n):
+        with pardiso.threads(run_cores(settings)):
             return fn(root, problem, settings, *args, **kwargs)
     return run
 
@@ -182,7 +183,14 @@ def check_candidate(ref, effects, kind: str, location: str, linear_values, base_
                     max_moves: int, alpha_bounds, start_alpha=None) -> dict:
     """One full FE check (runs in a worker process; ``ref``: the model's :class:`tasks.problem.ModelRef`);
     returns a flat record. ``start_alpha``: where the exact search fitted alpha with the candidate (the check
-    starts there)."""
+    starts there). The checks fill the cores between them: each one's pieces run in its own thread."""
+    with at_most(1):
+        return _check_candidate(ref, effects, kind, location, linear_values, base_alpha, freqs, u, max_moves,
+                                alpha_bounds, start_alpha)
+
+
+def _check_candidate(ref, effects, kind, location, linear_values, base_alpha, freqs, u, max_moves, alpha_bounds,
+                     start_alpha) -> dict:
     model = ref.load()
     library = _cached_library(model, effects)
     cand = screening.Candidate(effect=kind, location=location, n_locations=len(library[kind].locations()),

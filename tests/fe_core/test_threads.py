@@ -65,3 +65,25 @@ def test_the_diagonal_derivatives_and_the_reduced_scan_are_the_same_on_one_threa
 def _matrices(model, alpha):
     from fe_core.closure.effects.extended import extended_matrices
     return extended_matrices(model, alpha, [])
+
+
+def test_cores_reads_a_runs_n_jobs():
+    assert threads.cores(1) == 1
+    assert threads.cores(3) == 3
+    assert threads.cores(0) == 1 and threads.cores(None) == 1
+    assert threads.cores(-1) == threads._cores() >= 1
+
+
+def test_at_most_bounds_the_pool_within_its_block_and_restores_it(monkeypatch):
+    import threading
+    monkeypatch.setattr(threads, "THREADS", 2)
+    here = threading.get_ident()
+    with threads.at_most(1):
+        assert threads.THREADS == 1
+        assert thread_map(lambda _: threading.get_ident(), range(3)) == [here] * 3
+    assert threads.THREADS == 2
+    with pytest.raises(RuntimeError), threads.at_most(1):
+        raise RuntimeError("restored on an exception too")
+    assert threads.THREADS == 2
+    with threads.at_most(8):  # never more than the pool had
+        assert threads.THREADS == 2
