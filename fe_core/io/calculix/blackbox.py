@@ -20,12 +20,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ...threads import cores, thread_map
 from .deck import Deck, NumberRef
 from .results import read_steady_state
 from .runner import CcxError, run_ccx
@@ -162,8 +162,7 @@ def fd_gauss_newton(model: DeckFRF, measured_amplitude, theta0, lower, upper, wo
                 failures.append(FailedRun(folder, np.asarray(points[k]), str(exc)))
                 return None
 
-        with ThreadPoolExecutor(max_workers=workers or min(len(points), os.cpu_count() or 1)) as pool:
-            return list(pool.map(one, range(len(points))))
+        return thread_map(one, range(len(points)), threads=workers or cores(-1))  # one ccx process per thread
 
     theta = np.clip(np.asarray(theta0, float), lo, hi)
     m = theta.size

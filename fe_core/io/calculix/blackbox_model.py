@@ -19,13 +19,13 @@ import copy
 import hashlib
 import os
 import tempfile
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
 
+from ...threads import cores, thread_map
 from .deck import Deck, NumberRef
 from .results import ResultError, read_eigenfrequencies
 from .blackbox import run_in_folder, run_steady_state
@@ -185,9 +185,7 @@ class BlackBoxDeckModel:
         """``(Z, dZ)``: the receptance and its forward-difference derivative, shape (p, n) and (p, n, m);
         the m + 1 ccx runs in parallel threads (one ccx process each)."""
         points, h = self.fd_points(theta, upper)
-        workers = max(1, min(len(points), os.cpu_count() or 1))
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            Zs = list(pool.map(lambda x: self.parameter_frf(x, freqs_hz, channels), points))
+        Zs = thread_map(lambda x: self.parameter_frf(x, freqs_hz, channels), points, threads=cores(-1))
         dZ = np.stack([(Zs[i + 1] - Zs[0]) / h[i] for i in range(len(h))], axis=-1)
         return Zs[0], dZ
 

@@ -16,13 +16,13 @@ import hashlib
 import os
 import shutil
 import tempfile
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
 
+from ...threads import cores, thread_map
 from .deck import Deck, NumberRef
 from .results import read_storage
 from .runner import ccx_executable, run_ccx
@@ -111,9 +111,7 @@ def segment_matrices(deck: Deck, segments: list[Segment], timeout: float, worker
             run_ccx(folder, "deck", timeout, expect=(".sti", ".mas", ".dof"))
             return read_storage(folder, "deck")
 
-        n_workers = workers or max(1, min(len(texts), os.cpu_count() or 1))
-        with ThreadPoolExecutor(max_workers=n_workers) as pool:
-            results = list(pool.map(one, range(len(texts))))
+        results = thread_map(one, range(len(texts)), threads=workers or cores(-1))  # one ccx process per thread
         labels = results[0][2]
         for k, r in enumerate(results[1:], start=1):
             if not np.array_equal(r[2], labels):
