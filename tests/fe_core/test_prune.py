@@ -66,8 +66,37 @@ def test_after_a_drop_the_effects_left_are_judged_again_without_it(benchmark_mod
 
     monkeypatch.setattr(pr, "carries_over", carries)
     monkeypatch.setattr(pr, "stands_out", lambda refitted, candidate, noise: True)  # the first rule passes both
-    monkeypatch.setattr(pr, "_refit", lambda model, f, u, alpha, applied, bounds: fit_with(applied))
+    monkeypatch.setattr(pr, "_refit", lambda model, f, u, alpha, applied, bounds, restart: fit_with(applied))
     fit, dropped, notes = prune(benchmark_model, F, np.ones((len(F), 1)), fit_with([spurious, leaning]), NOISE,
                                 across=True)
     assert judged == [("node 919", 2), ("node 457", 2), ("node 919", 1)]
     assert dropped == [0, 1] and fit.applied == [] and len(notes) == 2
+
+
+def test_a_refit_without_an_effect_also_starts_from_the_alpha_only_fit_and_keeps_the_better_end(benchmark_model,
+                                                                                                 monkeypatch):
+    """Alpha where a dropped effect had taken it can lie in a worse basin than the alpha-only fit's (held-out hb20).
+    The refit starts from both; the fits are stand-ins whose sum of squares is the start's distance from
+    ``good``."""
+    from fe_core.closure import prune as pr
+    from fe_core.closure.fits import Fit
+
+    good = np.full(6, 0.1)
+    starts = []
+
+    def fake_fit(model, f, u, start, *args, **kwargs):
+        starts.append(np.asarray(start, float).copy())
+        return Fit(alpha=np.asarray(start, float), effect=None, location=None, values=np.zeros(0),
+                   model_amplitude=None, residual=np.full((1, 1), np.linalg.norm(start - good)), evaluations=1)
+
+    monkeypatch.setattr(pr, "fit_update", fake_fit)
+    far = np.full(6, -0.3)
+    f = pr._refit(benchmark_model, F, None, far, [], (-0.5, 0.5), restart=good + 0.01)
+    assert len(starts) == 2 and np.allclose(f.alpha, good + 0.01)
+    starts.clear()
+    f = pr._refit(benchmark_model, F, None, good, [], (-0.5, 0.5), restart=far)  # the first start is better
+    assert len(starts) == 2 and np.allclose(f.alpha, good)
+    starts.clear()
+    pr._refit(benchmark_model, F, None, far, [], (-0.5, 0.5), restart=far.copy())  # the same start: one fit
+    pr._refit(benchmark_model, F, None, far, [], (-0.5, 0.5))
+    assert len(starts) == 2

@@ -216,7 +216,7 @@ def test_when_the_backward_check_drops_every_effect_the_alpha_only_fit_it_starte
     assert worse.rss > base.rss and not worse.applied
     seen = []
 
-    def drop_all(model, freqs, u, fit, *args):
+    def drop_all(model, freqs, u, fit, *args, **kwargs):
         seen.append(fit)
         return worse, list(range(len(fit.applied))), ["every effect dropped (by the test)"]
 
