@@ -188,7 +188,9 @@ class ReducedResponse:
         u_re, u_im = np.ascontiguousarray(u.real.T), np.ascontiguousarray(u.imag.T)  # (m, p n_s)
         v_re, v_im = np.ascontiguousarray(self._v.real.T), np.ascontiguousarray(self._v.imag.T)  # (m, p)
         scale = -c[:, None] / self.Z  # (p, n_s)
-        out = np.empty((rows.shape[0], p, n_s))
+        out = np.zeros((rows.shape[0], p, n_s))
+        if rows.shape[1] == 0:  # changes at no free DOF (an effect whose nodes the model does not hold): none
+            return out
 
         def chunk(start):  # independent blocks: on the threads (fe_core.threads)
             block = rows[start:start + DIAGONAL_CHUNK]
