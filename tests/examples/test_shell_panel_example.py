@@ -132,3 +132,19 @@ def test_the_closure_effect_library_builds_on_a_deck_model():
     assert "point_mass" in kinds and "sensor_mass" in kinds
     point = next(effect for effect in library if effect.kind == "point_mass")
     assert len(point.locations()) > 10
+
+
+def test_the_sensor_mass_on_a_deck_sits_at_the_sensors_nodes():
+    """Each sensor reads the mean of ccx's expanded nodes through the shell, of which the node table holds the
+    shell's own node (the one model.toml names): the transducers' mass goes there, three translations each. It
+    went nowhere before (no sensor's first DOF read is a table node's), and its screen crashed on the empty rows."""
+    from fe_core.closure.effects import SensorMass
+
+    model = read_model(EXAMPLE / "model.toml")
+    toml = (EXAMPLE / "model.toml").read_text()
+    nodes = [int(line.split("=")[1]) for line in toml.splitlines() if line.startswith("node =")]
+    effect = SensorMass(model)
+    assert effect.nodes.tolist() == nodes[:model.outputs.shape[1]]
+    terms = effect.terms(np.zeros(model.n_segments), "all sensors", [0.01])
+    assert terms.mass.nnz == 3 * len(set(effect.nodes.tolist()))
+    assert np.allclose(terms.mass.diagonal().sum(), 0.01 * terms.mass.nnz)

@@ -360,3 +360,20 @@ def test_a_matrices_model_offers_only_the_nodes_its_node_table_places():
     fewer = candidate_nodes(replace(model, node_coordinates=xyz))
     assert set(fewer) == set(every) - set(unplaced)
     assert set(E.PointMass(replace(model, node_coordinates=xyz)).nodes) == set(fewer)
+
+
+def test_a_sensor_mass_with_no_node_to_sit_on_is_left_out_of_the_library_and_refused_by_name(benchmark_model):
+    """Sensors reading only DOFs no node of the model owns (a solver's internal nodes): the transducers' mass would
+    load nothing; it is not offered, and asked for by name it is refused saying what it needs."""
+    import copy
+
+    from fe_core.closure.effects import base, build_library
+
+    model = copy.copy(benchmark_model)
+    model.outputs = sp.csr_matrix(benchmark_model.outputs.shape)  # reads nothing a node owns
+    model.sensor_nodes = None  # the sensors' nodes found from what they read
+    assert "sensor_mass" not in {e.kind for e in build_library(model)}
+    with pytest.raises(ValueError, match="sensor_mass.*sensors that read the DOFs of nodes"):
+        build_library(model, ["sensor_mass"])
+    assert "sensor_mass" in {e.kind for e in build_library(benchmark_model)}
+    assert base._sensor_nodes(model).tolist() == [-1] * model.outputs.shape[1]

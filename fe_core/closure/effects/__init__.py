@@ -108,7 +108,7 @@ from .base import (
 )
 from .damping import RayleighDamping
 from .extended import LinearisedResponse, extended_frf, extended_matrices, segment_stiffness, sensor_gain
-from .masses import MASS_SHARE, PointMass, SegmentMass, SensorMass
+from .masses import MASS_SHARE, PointMass, SegmentMass, SensorMass, _sensor_mass_factory
 from .sensors import SensorGain
 from .springs import GroundedSpring
 
@@ -149,7 +149,7 @@ register_effect("joint_band", _joint_factory)
 register_effect("damping", RayleighDamping)
 register_effect("grounded_spring_x", lambda model: GroundedSpring(model, component=0))
 register_effect("grounded_spring_y", lambda model: GroundedSpring(model, component=1))
-register_effect("sensor_mass", SensorMass)
+register_effect("sensor_mass", _sensor_mass_factory)
 register_effect("sensor_gain", SensorGain)
 register_effect("patch", _patch_factory)
 register_effect("cell_set", _cell_set_factory)

@@ -305,15 +305,22 @@ def _sensor_nodes(model: ParametricModel) -> np.ndarray:
     nodes = getattr(model, "sensor_nodes", None)
     if nodes is not None:
         return np.asarray(nodes, dtype=int)
-    # The node of the DOFs each output vector reads (a sensor along a vector reads one node's DOFs).
+    # The node of the DOFs each output vector reads: a sensor along a vector reads one node's DOFs; on a solver's
+    # shell deck it may read the mean of the expanded nodes through the thickness, of which the node table holds
+    # only the shell's own (CalculiX: issue 40's channel deck), so the first DOF read that a node owns counts.
     L = model.outputs.tocsc()
-    first = L.indices[L.indptr[:-1]]  # a free-DOF index per sensor
     all_nodes, rows = node_rows(model)
     owner = np.full(model.n_dofs, -1)
     for c in range(DOFS_PER_NODE):
         ok = rows[:, c] >= 0
         owner[rows[ok, c]] = all_nodes[ok]
-    return owner[first]
+    out = np.full(L.shape[1], -1)
+    for j in range(L.shape[1]):
+        owned = owner[L.indices[L.indptr[j]:L.indptr[j + 1]]]
+        owned = owned[owned >= 0]
+        if owned.size:
+            out[j] = owned[0]
+    return out
 
 
 # -- registry -----------------------------------------------------------------------------------------
@@ -375,4 +382,5 @@ _NEEDS = {
     "patch": "a mesh whose element matrices the model gives (not a model given as matrices)",
     "cell_set": "a mesh with element matrices and a named cell set that is not a union of whole segments",
     "joint_band": "a mesh with element matrices and cell sets plate1, plate2, ... meeting at planes x = const",
+    "sensor_mass": "sensors that read the DOFs of nodes the model holds",
 }

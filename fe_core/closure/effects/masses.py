@@ -99,3 +99,9 @@ class SensorMass(Effect):
 
     def describe(self, location) -> dict:
         return {"nodes": [int(n) for n in self.nodes], "per_sensor": True}
+
+
+def _sensor_mass_factory(model: ParametricModel) -> SensorMass | None:
+    """The transducers' mass, or None where no sensor reads a DOF of a node the model holds (nothing to load)."""
+    effect = SensorMass(model)
+    return effect if effect._rows.size else None
