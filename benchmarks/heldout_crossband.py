@@ -30,11 +30,9 @@ import numpy as np
 def halves(model, freqs, u, sigma, fit, j: int) -> list[dict]:
     """Per half of the lines (lower, upper): the effect ``j`` of ``fit``'s signature, the residual, their ratio and
     the value a one-step refit on that half alone gives it (the step as :func:`fe_core.closure.crossband` takes it)."""
-    from fe_core.closure.jacobian import extended_log_jacobian
+    from fe_core.closure.crossband import half_step, weighed
 
-    J, Z = extended_log_jacobian(model, fit.alpha, freqs, fit.applied)
-    r = (np.log(np.abs(Z) / u) / sigma).reshape(-1)
-    Jw = J / sigma.reshape(-1)[:, None]
+    Jw, r = weighed(model, freqs, u, fit.alpha, fit.applied, sigma)
     start = len(fit.alpha) + sum(len(a.values) for a in fit.applied[:j])
     v = np.asarray(fit.applied[j].values, float)
     own = list(range(start, start + v.size))
@@ -47,9 +45,7 @@ def halves(model, freqs, u, sigma, fit, j: int) -> list[dict]:
         e = Jw[rows][:, own]
         signature = float(np.linalg.norm((e - q @ (q.T @ e)) @ v))
         residual = float(np.linalg.norm(r[rows]))
-        norms = np.linalg.norm(Jw[rows], axis=0)
-        norms[norms == 0] = 1.0
-        step, *_ = np.linalg.lstsq(Jw[rows] / norms, -r[rows], rcond=1e-10)
+        step, norms = half_step(Jw, r, rows)
         out.append({"half": name, "signature": signature, "residual": residual, "ratio": signature / residual,
                     "value_fitted_here": (v + (step / norms)[own]).tolist()})
     return out

@@ -32,24 +32,36 @@ import numpy as np
 from .effects import Applied
 from .jacobian import extended_log_jacobian
 
-__all__ = ["carries_over", "MIN_LINES"]
+__all__ = ["carries_over", "half_step", "weighed", "MIN_LINES"]
 
 #: Fewest lines on each side of the split for the check to be made (fewer cannot fix the model's factors).
 MIN_LINES = 4
 
 
+def weighed(model, freqs, amplitude, alpha, applied, sigma) -> tuple[np.ndarray, np.ndarray]:
+    """``(Jw, r)``: the log-amplitude Jacobian of alpha and the effects' values and the residual, both over the noise
+    ``sigma``; rows frequency-major, channels fastest."""
+    J, Z = extended_log_jacobian(model, alpha, freqs, applied)
+    return J / sigma.reshape(-1)[:, None], (np.log(np.abs(Z) / amplitude) / sigma).reshape(-1)
+
+
+def half_step(Jw: np.ndarray, r: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(step, norms)``: the Gauss-Newton step fitted on ``rows`` alone, in columns scaled to unit norm there
+    (``norms``; directions those rows do not determine left alone): the parameters move by ``step / norms``."""
+    norms = np.linalg.norm(Jw[rows], axis=0)
+    norms[norms == 0] = 1.0
+    step, *_ = np.linalg.lstsq(Jw[rows] / norms, -r[rows], rcond=1e-10)
+    return step, norms
+
+
 def _predicted(model, freqs, amplitude, alpha, applied, sigma, splits) -> list[float]:
     """For each ``train`` of ``splits``: the weighed sum of squares on the other lines after one Gauss-Newton step
     fitted on ``train`` (one Jacobian for all the splits: the point is the same)."""
-    J, Z = extended_log_jacobian(model, alpha, freqs, applied)
-    r = (np.log(np.abs(Z) / amplitude) / sigma).reshape(-1)
-    Jw = J / sigma.reshape(-1)[:, None]
+    Jw, r = weighed(model, freqs, amplitude, alpha, applied, sigma)
     out = []
     for train in splits:
         rows = np.repeat(train, amplitude.shape[1])  # rows frequency-major, channels fastest
-        norms = np.linalg.norm(Jw[rows], axis=0)
-        norms[norms == 0] = 1.0
-        step, *_ = np.linalg.lstsq(Jw[rows] / norms, -r[rows], rcond=1e-10)
+        step, norms = half_step(Jw, r, rows)
         out.append(float(np.sum((r[~rows] + (Jw[~rows] / norms) @ step) ** 2)))
     return out
 
