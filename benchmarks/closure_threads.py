@@ -34,10 +34,10 @@ import numpy as np  # noqa: E402
 
 
 def _load(run_id: str, runs_dir: str):
-    from flows.diagnose import _stored_problem, closure_data, run_folder
+    from flows.diagnose import closure_data, run_folder, run_problem
 
     _, summary, manifest = run_folder(run_id, runs_dir)
-    problem = _stored_problem(manifest.get("config", {}), None)
+    problem = run_problem(manifest.get("config", {}))
     freqs, u = closure_data(problem.data, problem.model).complete()
     params = summary["parameters"]
     alpha = np.array([float(params[f"alpha_{i + 1}"]) for i in range(len(params))])

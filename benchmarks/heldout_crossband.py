@@ -56,11 +56,11 @@ def from_run(run: Path, kind: str, location: str, value: float):
     closure's alpha-only start."""
     from fe_core.closure.effects import build_library
     from fe_core.closure.fits import fit_update
-    from flows.diagnose import _stored_problem, closure_data
+    from flows.diagnose import closure_data, run_problem
 
     cfg = json.loads((run / "manifest.json").read_text())["config"]
     closure = json.loads((run / "closure" / "closure.json").read_text())
-    problem = _stored_problem(cfg, None)
+    problem = run_problem(cfg)
     model = problem.model
     data = closure_data(problem.data, model)
     freqs, u = data.complete()

@@ -103,8 +103,10 @@ def closure_data(data, model):
     return data
 
 
-def _stored_problem(cfg: dict, measured: str | None):
-    """The finished run's problem (model, data), read once, as the run resolved it; ``measured``: another file."""
+def run_problem(cfg: dict, measured: str | None = None):
+    """The finished run's problem (model, data), read once, as the run resolved it from its manifest's ``config``;
+    ``measured``: another file. For scripts that study a stored run (``benchmarks.closure_threads``,
+    ``benchmarks.heldout_crossband``) as the closure does."""
     from flows.config import UpdateConfig, stored_settings
     from flows.problem import stored_problem
 
@@ -156,7 +158,7 @@ def diagnose(run_id: str, runs_dir: str | Path = "runs", name: str = "closure", 
     selection = {k: cfg[k] for k in _SELECTION_KEYS if k in cfg}
     model_name = cfg.get("model", "three_plate")
     if problem is None or measured is not None:
-        problem = _stored_problem(cfg, measured)
+        problem = run_problem(cfg, measured)
     model, ref = problem.model, problem.ref
     data = closure_data(problem.data, model)  # refuse channel data first
     gammas = [k for k in summary["parameters"] if k.startswith("gamma_")]
