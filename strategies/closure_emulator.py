@@ -295,6 +295,7 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
     ``searches``, the :class:`EmulatedSearch` of each kind.
     """
     from fe_core.closure.decisions import decide, dedupe_counting, merge, rank
+    from fe_core.closure.far.plausible import mark_first_negligible
     from fe_core.closure.fits import checks_per_type
     from fe_core.closure.screening import check_in_waves, pick_in_waves, screen
     from fe_core.inference.residual import analyse_residual
@@ -314,6 +315,8 @@ def first_round(model: ParametricModel, freqs_hz, amplitude, base: Fit, before, 
                                          alpha_bounds=alpha_bounds, refine_moves=max_moves)
         checked.append(emulated_candidate(searches[kind], effect))
     checked = dedupe_counting(checked)
+    if before.structured:  # the first effect's size rule, as the flow's first round
+        mark_first_negligible(model, freqs, base, checked, before.sigma)
     chosen = decide(base, before, checked)
     out: dict = {"searches": searches}
     if chosen is None:

@@ -33,7 +33,7 @@ from .effects import Effect
 from ..inference.residual import ResidualAnalysis, analyse_residual
 from .far.picks import search_candidates
 from .far.misfit import mark_polish, worth_checking
-from .far.plausible import mark_negligible
+from .far.plausible import mark_first_negligible, mark_negligible
 from .identify import IDENTIFIED, Rival, evidence, located, location_spread, searched
 from .prune import prune
 
@@ -345,6 +345,8 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
             break
         if steps:  # after an effect, plausible in size: shifts a mode by half a per cent (the model's own error)
             mark_negligible(model, freqs, current, checked, sigma=analysis.sigma)
+        elif analysis.structured:  # the first: so, unless it takes the misfit down to the model's own level
+            mark_first_negligible(model, freqs, current, checked, analysis.sigma)
         if baseline is not None and steps:  # at the model's own misfit a further effect must take out most of it
             mark_polish(baseline.residual, current.residual, checked, analysis.sigma)
         chosen = decide(current, analysis, checked)

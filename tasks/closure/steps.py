@@ -19,6 +19,7 @@ from prefect.cache_policies import NO_CACHE
 from fe_core.closure import decisions, fits, screening
 from fe_core.closure.effects import build_library, extended_frf, registered_effects
 from fe_core.closure.far.misfit import judge_misfit
+from fe_core.closure.far.plausible import mark_first_negligible
 from fe_core.closure.far.search import alpha_restarts
 from fe_core.closure.selection import forward_select
 from fe_core.inference.residual import analyse_residual, log_residual
@@ -391,6 +392,8 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
     from fe_core.closure.decisions import dedupe_counting  # a tie with the emulated search keeps its FE solves
 
     checked = dedupe_counting(checked)
+    if before.structured:  # the first effect's size rule (fe_core.closure.far.plausible)
+        mark_first_negligible(model, freqs, base, checked, before.sigma)
     chosen = decisions.decide(base, before, checked)
     final = chosen.fit if chosen is not None else base
     # Tested against the configured noise, else the level estimated from this residual itself (never the first

@@ -263,3 +263,33 @@ def test_a_sensor_gain_within_its_channels_misfit_is_not_plausible_one_beyond_it
     mark_negligible(benchmark_model, np.linspace(20, 300, p), base, cands, sigma=0.005)
     assert [c.negligible for c in cands] == [True, False, False]
     assert not gain_within_misfit(base, Applied(PointMass(benchmark_model), "node 337", np.array([0.1])), 0.005)
+
+
+def test_a_first_effect_that_moves_no_mode_is_kept_only_when_it_explains_the_misfit(far_plate):
+    """The first effect's size rule: a 10 g mass (shifts below half a per cent) that leaves 80 % of the misfit beyond
+    the noise is the model's own error dressed as an effect; the same mass taking the misfit down to the noise is
+    what a model with no error of its own resolves (not judged on its size); the 6 % mass moves modes by per cents."""
+    from fe_core.closure.far.plausible import MIN_SHIFT, mark_first_negligible
+
+    model, freqs, u, node, mass = far_plate
+    effect, rng = PointMass(model), np.random.default_rng(11)
+    sigma = 0.01
+    noise = sigma * rng.standard_normal(u.shape)
+    smooth = 0.05 * np.sin(np.linspace(0, 12, u.shape[0]))[:, None] * np.ones(u.shape[1])
+    base = fits.Fit(alpha=ALPHA, effect=None, location=None, values=np.zeros(0), model_amplitude=None,
+                    residual=smooth + noise, evaluations=0)
+
+    def candidate(value, residual):
+        c = Candidate("point_mass", f"node {node}", 5000, np.array([value]), 0.0, 0.0)
+        c.fit = fits.Fit(alpha=ALPHA, effect="point_mass", location=f"node {node}", values=np.array([value]),
+                         model_amplitude=None, residual=residual, evaluations=0,
+                         added=Applied(effect, f"node {node}", np.array([value])))
+        return c
+
+    polish, resolved, large = (candidate(0.01, 0.8 * smooth + noise), candidate(0.01, noise),
+                               candidate(mass, 0.8 * smooth + noise))
+    assert smooth_misfit(polish.fit.residual, sigma) > 0.7 * smooth_misfit(base.residual, sigma)
+    mark_first_negligible(model, freqs, base, [polish, resolved, large], sigma)
+    assert polish.negligible and polish.largest_shift < MIN_SHIFT
+    assert not resolved.negligible
+    assert not large.negligible and large.largest_shift > 4 * MIN_SHIFT
