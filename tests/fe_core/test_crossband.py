@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from fe_core.benchmark import ALPHA_ACTUAL, MEASUREMENT_FREQUENCIES_HZ as F, three_plate
-from fe_core.closure.crossband import carries_over
+from fe_core.closure.crossband import SEEN_BY, carries_over, excused, signatures
 from fe_core.closure.decisions import stands_out
 from fe_core.closure.effects import Applied, GroundedSpring, PointMass, SegmentMass, extended_frf
 from fe_core.closure.far.misfit import smooth_misfit
@@ -72,3 +72,28 @@ def test_the_backward_check_drops_the_spring_at_structure_and_keeps_the_mass(ben
 def test_too_few_lines_are_not_split(benchmark_model, fine_data, mass_fit):
     assert carries_over(benchmark_model, F[:6], fine_data[:6], mass_fit.alpha, mass_fit.applied, 0, NOISE) == (
         True, "too few lines to split")
+
+
+def test_signatures_are_the_effects_columns_beyond_the_others_over_the_residual():
+    rng = np.random.default_rng(3)
+    p, n = 40, 3
+    Jw, r = rng.standard_normal((p * n, 5)), rng.standard_normal(p * n)
+    low = np.arange(p) < 20
+    seen = signatures(Jw, r, n, [3, 4], [2.0, -0.5], (low, ~low))
+    for ratio, train in zip(seen, (low, ~low)):
+        rows = np.repeat(train, n)
+        rest, e = Jw[rows][:, :3], Jw[rows][:, 3:] @ np.array([2.0, -0.5])
+        beyond = e - rest @ np.linalg.lstsq(rest, e, rcond=None)[0]  # another route to the same projection
+        assert ratio == pytest.approx(np.linalg.norm(beyond) / np.linalg.norm(r[rows]), rel=1e-10)
+    # an effect the other columns span is seen by neither half
+    Jw[:, 4] = Jw[:, 0] - 2.0 * Jw[:, 1]
+    assert signatures(Jw, r, n, [4], [1.0], (low, ~low)) == pytest.approx([0.0, 0.0], abs=1e-12)
+
+
+def test_a_failing_half_is_excused_only_when_it_cannot_see_the_effect_and_the_other_sees_it_clearly():
+    assert excused([False, True], [0.5, 24.0])  # the lower half blind, the upper sees it at 24
+    assert excused([True, False], [SEEN_BY, 0.2])
+    assert not excused([False, True], [0.5, 2.9])  # seen at less than the bar: the wrong effects' range
+    assert not excused([False, True], [1.5, 24.0])  # the failing half sees it: its failure counts
+    assert not excused([False, False], [0.5, 24.0])  # neither direction helps
+    assert not excused([True, True], [0.5, 24.0])  # nothing to excuse
