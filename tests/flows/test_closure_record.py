@@ -106,13 +106,13 @@ def test_the_printout_says_what_closure_json_says(closure):
 def test_a_closure_out_of_time_starts_no_second_round_and_says_the_limit_stopped_it(closure, tmp_path,
                                                                                     prefect_harness):
     """The same closure decided again with its time limit already spent (--closure-minutes 0): the first effect
-    is decided from the stored checks, no round, swap or move follows (only the backward check, which here drops
-    that first effect, a patch, as not carrying over), and the record says the limit stopped it."""
+    is decided from the stored checks, no round, swap or move follows (only the backward check may drop that first
+    effect), and the record says the limit stopped it; without the limit the selection went on to a second round."""
     import shutil
     from pathlib import Path
 
     _, record, _, _ = closure
-    assert len(record["effects"]) >= 2 and record["selection_stopped"] != "time limit" and record["swaps"]
+    assert len(record["effects"]) >= 2 and record["selection_stopped"] != "time limit"
     run = tmp_path / "far"
     shutil.copytree(Path(record["run_folder"]), run)
     shutil.rmtree(run / "closure" / "step=decide")
