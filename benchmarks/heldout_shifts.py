@@ -43,9 +43,11 @@ def shifts(run: Path, kind: str, location: str, value: float) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.heldout_shifts", description=__doc__.split("\n")[0])
     p.add_argument("--run", type=Path, required=True, help="a finished run's folder with its closure")
-    p.add_argument("effect", nargs=3, metavar=("KIND", "LOCATION", "VALUE"))
+    p.add_argument("kind", help="the effect's kind (patch, point_mass, grounded_spring, ...)")
+    p.add_argument("location", help='its location as the closure names it ("node 1106 r2")')
+    p.add_argument("value", type=float, help="its value (beta, kg, N/m)")
     args = p.parse_args(argv)
-    out = shifts(args.run, args.effect[0], args.effect[1], float(args.effect[2]))
+    out = shifts(args.run, args.kind, args.location, args.value)
     for name, s in out.items():
         print(f"{name} shifts, %: {np.round(100 * np.asarray(s), 3).tolist()} (largest {100 * np.max(np.abs(s)):.3f})")
     return 0
