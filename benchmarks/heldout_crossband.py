@@ -31,12 +31,11 @@ import numpy as np
 def halves(model, freqs, u, sigma, fit, j: int) -> list[dict]:
     """Per half of the lines (lower, upper): the effect ``j`` of ``fit``'s signature, the residual, their ratio and
     the value a one-step refit on that half alone gives it (the step as :func:`fe_core.closure.crossband` takes it)."""
-    from fe_core.closure.crossband import half_step, signatures, weighed
+    from fe_core.closure.crossband import columns, half_step, signatures, weighed
 
     Jw, r = weighed(model, freqs, u, fit.alpha, fit.applied, sigma)
-    start = len(fit.alpha) + sum(len(a.values) for a in fit.applied[:j])
     v = np.asarray(fit.applied[j].values, float)
-    own = list(range(start, start + v.size))
+    own = list(columns(fit.alpha, fit.applied, j))
     low = freqs <= np.median(freqs)
     seen = signatures(Jw, r, u.shape[1], own, v, (low, ~low))
     out = []
@@ -49,11 +48,9 @@ def halves(model, freqs, u, sigma, fit, j: int) -> list[dict]:
     return out
 
 
-def from_run(run: Path, kind: str, location: str, value: float):
-    """The run's model and complete lines, the noise they state, and the effect refitted with alpha from the
-    closure's alpha-only start."""
-    from fe_core.closure.effects import build_library
-    from fe_core.closure.fits import fit_update
+def stored(run: Path):
+    """``(model, freqs, u, sigma, alpha)``: a finished run's model, its complete lines and the noise they state, and
+    the closure's alpha-only start (``closure.json``'s ``parameters_before``)."""
     from flows.diagnose import closure_data, run_problem
 
     cfg = json.loads((run / "manifest.json").read_text())["config"]
@@ -63,7 +60,16 @@ def from_run(run: Path, kind: str, location: str, value: float):
     data = closure_data(problem.data, model)
     freqs, u = data.complete()
     sigma = np.broadcast_to(np.asarray(data.noise_spec(None).sigma, float), u.shape)
-    alpha = np.array(list(closure["parameters_before"].values()), float)
+    return model, freqs, u, sigma, np.array(list(closure["parameters_before"].values()), float)
+
+
+def from_run(run: Path, kind: str, location: str, value: float):
+    """The run's model and complete lines, the noise they state, and the effect refitted with alpha from the
+    closure's alpha-only start."""
+    from fe_core.closure.effects import build_library
+    from fe_core.closure.fits import fit_update
+
+    model, freqs, u, sigma, alpha = stored(run)
     effect = {e.kind: e for e in build_library(model, [kind])}[kind]
     return model, freqs, u, sigma, [fit_update(model, freqs, u, alpha, effect, location, [value])]
 

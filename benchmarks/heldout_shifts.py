@@ -11,7 +11,6 @@ eigenvalues with the effect added (a large softening is far from first order). A
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -19,17 +18,12 @@ import numpy as np
 
 def shifts(run: Path, kind: str, location: str, value: float) -> dict:
     """``{"first_order": [...], "reduced": [...]}``: relative shifts (fractions) of the modes in the band."""
+    from benchmarks.heldout_crossband import stored
     from fe_core.closure.effects import Applied, build_library
     from fe_core.closure.far.plausible import frequency_shifts
     from fe_core.closure.far.reduced import ReducedModel
-    from flows.diagnose import closure_data, run_problem
 
-    cfg = json.loads((run / "manifest.json").read_text())["config"]
-    closure = json.loads((run / "closure" / "closure.json").read_text())
-    problem = run_problem(cfg)
-    model = problem.model
-    freqs, _ = closure_data(problem.data, model).complete()
-    alpha = np.array(list(closure["parameters_before"].values()), float)
+    model, freqs, _, _, alpha = stored(run)
     effect = {e.kind: e for e in build_library(model, [kind])}[kind]
     item = Applied(effect, location, np.array([value]))
     rm = ReducedModel(model, freqs, alpha, [])

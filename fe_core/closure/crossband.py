@@ -41,7 +41,7 @@ import numpy as np
 from .effects import Applied
 from .jacobian import extended_log_jacobian
 
-__all__ = ["carries_over", "excused", "half_step", "signatures", "weighed", "MIN_LINES", "SEEN_BY"]
+__all__ = ["carries_over", "columns", "excused", "half_step", "signatures", "weighed", "MIN_LINES", "SEEN_BY"]
 
 #: Fewest lines on each side of the split for the check to be made (fewer cannot fix the model's factors).
 MIN_LINES = 4
@@ -76,6 +76,13 @@ def _predicted(Jw: np.ndarray, r: np.ndarray, n_channels: int, splits) -> list[f
         step, norms = half_step(Jw, r, rows)
         out.append(float(np.sum((r[~rows] + (Jw[~rows] / norms) @ step) ** 2)))
     return out
+
+
+def columns(alpha, applied: Sequence[Applied], j: int) -> range:
+    """The columns of effect ``j`` of ``applied`` in :func:`weighed`'s Jacobian (alpha's first, then each effect's
+    values in order)."""
+    start = len(np.atleast_1d(alpha)) + sum(len(np.atleast_1d(a.values)) for a in applied[:j])
+    return range(start, start + len(np.atleast_1d(applied[j].values)))
 
 
 def signatures(Jw: np.ndarray, r: np.ndarray, n_channels: int, own: Sequence[int], values, splits) -> list[float]:
@@ -130,9 +137,7 @@ def carries_over(model, freqs_hz, amplitude, alpha, applied: Sequence[Applied], 
             f"it; fitted on the upper lines, the lower's {lo_wo:.4g} and {lo_w:.4g}")
     if all(helps):
         return True, note
-    start = len(np.atleast_1d(alpha)) + sum(len(np.atleast_1d(a.values)) for a in applied[:j])
-    own = range(start, start + len(np.atleast_1d(applied[j].values)))
-    seen = signatures(Jw, r, u.shape[1], own, applied[j].values, splits)
+    seen = signatures(Jw, r, u.shape[1], columns(alpha, applied, j), applied[j].values, splits)
     note += f"; seen by the lower lines at {seen[0]:.3g} times their residual, by the upper at {seen[1]:.3g}"
     if excused(helps, seen):
         return True, note + ": the half that fails cannot see it, the other sees it clearly (excused)"

@@ -75,6 +75,13 @@ def mark_negligible(model, freqs_hz, base, checked: Sequence, min_shift: float =
     ``sigma`` (the noise: a level or per-value levels), a sensor's gain when it changes its channel's log amplitude
     by less than ``base``'s misfit beyond the noise on that channel (:func:`gain_within_misfit`)."""
     todo = [c for c in checked if c.fit is not None and _own(c) is not None]
+    _judge_shifts(model, freqs_hz, base, todo, min_shift, sigma, lambda c: ": not plausible in size")
+
+
+def _judge_shifts(model, freqs_hz, base, todo: Sequence, min_shift: float, sigma, why) -> None:
+    """Set ``largest_shift`` and ``negligible`` on the candidates ``todo`` from their own effect's shifts on the
+    reduced model at ``base`` (one full FE evaluation for all); with ``sigma``, a gain is judged on its channel.
+    ``why(c)``: the end of the log line of a candidate found negligible."""
     if not todo:
         return
     rm = ReducedModel(model, freqs_hz, base.alpha, base.applied)
@@ -87,9 +94,8 @@ def mark_negligible(model, freqs_hz, base, checked: Sequence, min_shift: float =
         c.largest_shift = float(np.max(np.abs(shifts)))
         c.negligible = c.largest_shift < min_shift
         if c.negligible:
-            log.info("%s at %s = %s: shifts no natural frequency in the band by %.1f %% or more (at most %.3f %%): "
-                     "not plausible in size", c.effect, c.location, np.round(_own(c).values, 6), 100 * min_shift,
-                     100 * c.largest_shift)
+            log.info("%s at %s = %s: shifts no natural frequency in the band by %.1f %% or more (at most %.3f %%)%s",
+                     c.effect, c.location, np.round(_own(c).values, 6), 100 * min_shift, 100 * c.largest_shift, why(c))
 
 
 def mark_first_negligible(model, freqs_hz, base, checked: Sequence, sigma, min_shift: float = MIN_SHIFT,
@@ -100,22 +106,11 @@ def mark_first_negligible(model, freqs_hz, base, checked: Sequence, sigma, min_s
     ``sigma`` (:func:`fe_core.closure.far.misfit.smooth_misfit`); a candidate that takes the misfit down to that share
     is not judged on its size."""
     before = smooth_misfit(base.residual, sigma)
-    todo = [c for c in checked if c.fit is not None and _own(c) is not None
-            and smooth_misfit(c.fit.residual, sigma) > share * before]
-    if not todo:
-        return
-    rm = ReducedModel(model, freqs_hz, base.alpha, base.applied)
-    for c in todo:
-        shifts = frequency_shifts(rm, base.alpha, _own(c))
-        if shifts is None or shifts.size == 0:
-            continue
-        c.largest_shift = float(np.max(np.abs(shifts)))
-        c.negligible = c.largest_shift < min_shift
-        if c.negligible:
-            left = smooth_misfit(c.fit.residual, sigma) / before if before > 0 else 1.0
-            log.info("%s at %s = %s: shifts no natural frequency in the band by %.1f %% or more (at most %.3f %%) and "
-                     "leaves %.0f %% of the misfit: not plausible in size as the first effect", c.effect, c.location,
-                     np.round(_own(c).values, 6), 100 * min_shift, 100 * c.largest_shift, 100 * left)
+    left = {id(c): smooth_misfit(c.fit.residual, sigma) for c in checked if c.fit is not None}
+    todo = [c for c in checked if c.fit is not None and _own(c) is not None and left[id(c)] > share * before]
+    _judge_shifts(model, freqs_hz, base, todo, min_shift, None,
+                  lambda c: f" and leaves {100 * left[id(c)] / before if before > 0 else 100:.0f} % of the misfit: "
+                            "not plausible in size as the first effect")
 
 
 def gain_within_misfit(base, item, sigma, candidate=None) -> bool:
