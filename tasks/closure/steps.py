@@ -402,7 +402,7 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
                              final.relative(u))
     ranked = decisions.rank(decisions.merge(checked, list(screened.values())))
     steps, implausible = ([chosen] if chosen is not None else []), [c for c in checked if c.implausible]
-    sel = None
+    sel, times = None, {}
     if chosen is not None:
         # Forward selection beyond the first effect (all effects refitted at each step, swaps), in one call;
         # with the first round's checks as the rivals of the first effect.
@@ -410,8 +410,9 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
                              significance=settings["significance"], per_type=settings["per_type"],
                              max_moves=settings["max_moves"], alpha_bounds=tuple(settings["alpha_bounds"]),
                              max_effects=settings.get("max_effects", 3), steps=[chosen], rounds=[ranked],
-                             baseline=base, out_of_time=None if deadline is None else
+                             baseline=base, times=times, out_of_time=None if deadline is None else
                              (lambda: time.time() > deadline))
+        _logger().info("closure: forward selection %s", ", ".join(f"{k} {v:.0f} s" for k, v in times.items()))
         steps = sel.steps
         implausible += [c for c in sel.implausible if all(c is not d for d in implausible)]
         final, after = sel.final, sel.after
@@ -442,6 +443,7 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
     if steps and after.structured:
         summary["decision"] += f"; {misfit.reason}"
     summary["selection_stopped"] = sel.stopped if sel is not None else None
+    summary["selection_seconds"] = {k: round(v, 1) for k, v in times.items()}  # per stage of the forward selection
     summary["max_minutes"] = settings.get("max_minutes")
     if sel is not None and sel.stopped == "time limit":
         summary["decision"] += (f"; the closure's time limit ({settings['max_minutes']:g} min) stopped the forward "
