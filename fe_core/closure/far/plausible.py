@@ -37,7 +37,8 @@ import numpy as np
 from .misfit import MISFIT_SHARE, smooth_misfit
 from .reduced import ReducedModel
 
-__all__ = ["MIN_SHIFT", "frequency_shifts", "mark_negligible", "mark_first_negligible", "gain_within_misfit"]
+__all__ = ["MIN_SHIFT", "frequency_shifts", "mark_negligible", "mark_first_negligible", "judge_shift",
+           "gain_within_misfit"]
 
 log = logging.getLogger(__name__)
 
@@ -92,10 +93,16 @@ def _judge_shifts(model, freqs_hz, base, todo: Sequence, min_shift: float, sigma
         if shifts is None or shifts.size == 0:
             continue
         c.largest_shift = float(np.max(np.abs(shifts)))
-        c.negligible = c.largest_shift < min_shift
-        if c.negligible:
-            log.info("%s at %s = %s: shifts no natural frequency in the band by %.1f %% or more (at most %.3f %%)%s",
-                     c.effect, c.location, np.round(_own(c).values, 6), 100 * min_shift, 100 * c.largest_shift, why(c))
+        judge_shift(c, min_shift, why(c))
+
+
+def judge_shift(c, min_shift: float = MIN_SHIFT, why: str = ": not plausible in size") -> bool:
+    """Set and return ``c.negligible`` from its ``largest_shift`` (judged earlier) against ``min_shift``, logged."""
+    c.negligible = c.largest_shift < min_shift
+    if c.negligible:
+        log.info("%s at %s = %s: shifts no natural frequency in the band by %.2g %% or more (at most %.3f %%)%s",
+                 c.effect, c.location, np.round(_own(c).values, 6), 100 * min_shift, 100 * c.largest_shift, why)
+    return c.negligible
 
 
 def mark_first_negligible(model, freqs_hz, base, checked: Sequence, sigma, min_shift: float = MIN_SHIFT,
