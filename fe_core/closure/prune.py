@@ -24,6 +24,8 @@ import numpy as np
 
 from .crossband import carries_over
 from .decisions import stands_out
+from .far.plausible import small_beside
+from .far.reduced import ReducedModel
 from .fits import ALPHA_BOUNDS, Fit, fit_update
 from .screening import Candidate
 
@@ -59,12 +61,17 @@ def prune(model, freqs_hz, amplitude, fit: Fit, noise=None, alpha_bounds=ALPHA_B
     beside the others, and with ``across`` also without those (of any number) that do not carry over across the
     band, refitted; ``dropped`` their indices in ``fit.applied`` (ascending); a note for each.
 
+    An effect that stands out must also be plausible in size beside the others
+    (:func:`.far.plausible.small_beside`: a frequency shift of half a per cent, unless it takes out most of the
+    misfit the others leave), as it was when it was added.
+
     ``noise``: the level (or per-value levels) the residual is weighed with, as for :func:`.decisions.decide`.
     ``restart``: a second alpha each refit without an effect also starts from (the alpha-only fit's), the better
     end kept.
     """
     kept = list(range(len(fit.applied)))
     dropped, notes = [], []
+    rm = None  # the reduced model at ``fit``, for the size of its effects (built when first needed)
 
     def drop(j: int, note: str, refitted: Fit) -> Fit:
         log.info("backward check: %s", note)
@@ -85,7 +92,18 @@ def prune(model, freqs_hz, amplitude, fit: Fit, noise=None, alpha_bounds=ALPHA_B
                               n_locations=len(own.effect.locations()), linear_values=own.values,
                               linear_rss=fit.rss, linear_explained=0.0, fit=fit)
         if stands_out(refitted, candidate, noise):
+            if noise is None:
+                continue
+            if rm is None:
+                rm = ReducedModel(model, freqs_hz, fit.alpha, fit.applied)
+            why = small_beside(rm, fit, here, refitted, noise)
+            if why is None:
+                continue
+            rm = None
+            fit = drop(j, f"{own.label()} = {own.values} dropped: beside the other effects {why}: too small to tell "
+                          "from the model's own error", refitted)
             continue
+        rm = None
         fit = drop(j, f"{own.label()} = {own.values} dropped: with the other effects refitted its gain does not "
                       f"stand out (sum of squares {refitted.rss:.4g} without it, {fit.rss:.4g} with it)", refitted)
     # After a drop every effect left is judged again: one that carried over beside the dropped effect may not without
