@@ -293,3 +293,33 @@ def test_a_first_effect_that_moves_no_mode_is_kept_only_when_it_explains_the_mis
     assert polish.negligible and polish.largest_shift < MIN_SHIFT
     assert not resolved.negligible
     assert not large.negligible and large.largest_shift > 4 * MIN_SHIFT
+
+
+def test_an_effect_small_beside_the_others_is_told_from_one_that_explains_the_misfit(far_plate):
+    """The backward check's size rule (plausible.small_beside): beside the 6 % mass, a 10 g mass (shifts below half a
+    per cent) that leaves 80 % of the misfit the mass alone leaves is too small to claim; the same 10 g mass taking
+    that misfit down to the noise is not judged on its size; the 6 % mass itself moves modes by per cents."""
+    from fe_core.closure.far.plausible import MIN_SHIFT, frequency_shifts, small_beside
+
+    model, freqs, u, node, mass = far_plate
+    effect, rng = PointMass(model), np.random.default_rng(12)
+    other = next(n for n in (int(x.split()[1]) for x in effect.locations()) if n != node)
+    sigma = 0.01
+    noise = sigma * rng.standard_normal(u.shape)
+    smooth = 0.05 * np.sin(np.linspace(0, 12, u.shape[0]))[:, None] * np.ones(u.shape[1])
+    small, large = Applied(effect, f"node {other}", np.array([0.01])), Applied(effect, f"node {node}", np.array([mass]))
+
+    def fit_of(applied, residual):
+        *prior, last = applied
+        return fits.Fit(alpha=ALPHA, effect="point_mass", location=last.location, values=last.values,
+                        model_amplitude=None, residual=residual, evaluations=0, added=last, prior=list(prior))
+
+    without_small = fit_of([large], smooth + noise)
+    rm = ReducedModel(model, freqs, ALPHA, [small, large])
+    assert np.max(np.abs(frequency_shifts(rm, ALPHA, small))) < MIN_SHIFT
+    why = small_beside(rm, fit_of([small, large], 0.8 * smooth + noise), 0, without_small, sigma)
+    assert why is not None and "80 % of the misfit" in why
+    assert small_beside(rm, fit_of([small, large], noise), 0, without_small, sigma) is None
+    assert np.max(np.abs(frequency_shifts(rm, ALPHA, large))) > 4 * MIN_SHIFT
+    assert small_beside(rm, fit_of([small, large], 0.8 * smooth + noise), 1, fit_of([small], smooth + noise),
+                        sigma) is None
