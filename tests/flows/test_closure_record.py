@@ -76,6 +76,10 @@ def test_closure_json_has_no_contradicting_fields(closure):
     assert on_disk["error_run"] == pytest.approx(summary["overall_error"], rel=1e-12)
     assert "amplitude residual" in on_disk["error_metric"] and "residual over" in on_disk["error_run_metric"]
     assert on_disk["error_after"] <= on_disk["error_before"]
+    # The forward selection's time per stage: the stages it went through, each timed.
+    seconds = on_disk["selection_seconds"]
+    assert {"screen", "check", "refine", "swap", "backward"} <= set(seconds) <= {
+        "screen", "search", "check", "refine", "swap", "backward"} and all(v >= 0 for v in seconds.values())
 
 
 @pytest.mark.slow
