@@ -1,4 +1,4 @@
-"""The two sets, fixed before any tuning (issue 40): ids, structures, effect kinds and seeds.
+"""The sets, fixed before any tuning (issue 40): ids, structures, effect kinds and seeds.
 
 A case's seed draws everything continuous about it (:func:`benchmarks.make.cases.case.draw`): the segments'
 factors (uniform in [-0.3, 0.3] each), the effect's place (a surface node away from the supports, or a patch
@@ -18,6 +18,11 @@ nearest the structure's points, which were up to 8.7 mm from the tool's (two thi
 The third held-out set (``heldout3``, ids ``hc01``-``hc24``) was fixed on 2026-11-30 after the second's results had
 been seen and rules tuned on them (the basin rule, the backward check's restart, the half-band check's exception on
 branch ``h40-crossband``): the same structures and kinds, new seeds, the data at the tool's nodes as in the second.
+
+The fourth held-out set (``heldout4``, ids ``hd01``-``hd24``) was fixed on 2026-11-30 (session 19) after the third's
+results had been seen and three size rules tuned on hc14 and hc23 (a swap's replacement plausible in size, the
+backward check's ``small_beside``, refining only contenders above half the bar): the same structures and kinds, new
+seeds, the data at the tool's nodes.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ IN_LIBRARY = ("point_mass", "mount", "patch")
 OUTSIDE = ("mass_layer", "joint")
 EXPECTED = {**{k: "explained" for k in IN_LIBRARY}, "none": "noise", **{k: "not explained" for k in OUTSIDE}}
 
-DEV_SEED, HELDOUT_SEED, HELDOUT2_SEED, HELDOUT3_SEED = 40_100, 70_200, 90_200, 130_300
+DEV_SEED, HELDOUT_SEED, HELDOUT2_SEED, HELDOUT3_SEED, HELDOUT4_SEED = 40_100, 70_200, 90_200, 130_300, 170_400
 
 DEV = [("holed_plate", "point_mass"), ("holed_plate", "patch"), ("holed_plate", "none"),
        ("ribbed_panel", "mount"), ("ribbed_panel", "point_mass"), ("ribbed_panel", "mass_layer"),
@@ -49,7 +54,8 @@ HELDOUT = [("holed_plate", "mount"), ("holed_plate", "point_mass"), ("holed_plat
 #: The sets: (cases, seed base, id prefix, where the data's sensors and hammer sit: ``"vertex"``, the data mesh's
 #: vertex nearest the structure's point; ``"model"``, the point of the tool's node there).
 SETS = {"dev": (DEV, DEV_SEED, "dev", "vertex"), "heldout": (HELDOUT, HELDOUT_SEED, "ho", "vertex"),
-        "heldout2": (HELDOUT, HELDOUT2_SEED, "hb", "model"), "heldout3": (HELDOUT, HELDOUT3_SEED, "hc", "model")}
+        "heldout2": (HELDOUT, HELDOUT2_SEED, "hb", "model"), "heldout3": (HELDOUT, HELDOUT3_SEED, "hc", "model"),
+        "heldout4": (HELDOUT, HELDOUT4_SEED, "hd", "model")}
 
 
 def cases(which: str) -> list[dict]:
