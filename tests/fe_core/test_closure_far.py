@@ -323,3 +323,18 @@ def test_an_effect_small_beside_the_others_is_told_from_one_that_explains_the_mi
     assert np.max(np.abs(frequency_shifts(rm, ALPHA, large))) > 4 * MIN_SHIFT
     assert small_beside(rm, fit_of([small, large], 0.8 * smooth + noise), 1, fit_of([small], smooth + noise),
                         sigma) is None
+
+
+def test_the_misfit_left_is_the_share_beyond_the_noise_of_the_reference():
+    """Both size rules judge an effect only when it leaves more than a quarter of a reference's misfit beyond the
+    noise: rms 5 % against noise 3 % is 4 % beyond it, rms 3.6 % is 2 % beyond it, so half is left."""
+    from types import SimpleNamespace as NS
+
+    from fe_core.closure.far.plausible import misfit_left
+    sigma = 0.03
+    ones = np.ones(40)
+    reference, fit = NS(residual=0.05 * ones), NS(residual=np.sqrt(0.03 ** 2 + 0.02 ** 2) * ones)
+    assert misfit_left(fit, reference, sigma) == pytest.approx(0.5, rel=1e-12)
+    at_noise = NS(residual=0.03 * ones)
+    assert misfit_left(at_noise, at_noise, sigma) == 0.0  # nothing beyond the noise on either side: nothing left
+    assert misfit_left(fit, at_noise, sigma) == 1.0  # the reference at the noise, the fit above it

@@ -38,7 +38,7 @@ from .misfit import MISFIT_SHARE, smooth_misfit
 from .reduced import ReducedModel
 
 __all__ = ["MIN_SHIFT", "frequency_shifts", "mark_negligible", "mark_first_negligible", "judge_shift",
-           "small_beside", "gain_within_misfit"]
+           "misfit_left", "small_beside", "gain_within_misfit"]
 
 log = logging.getLogger(__name__)
 
@@ -112,12 +112,22 @@ def mark_first_negligible(model, freqs_hz, base, checked: Sequence, sigma, min_s
     reduced model at ``base``, the alpha-only fit) and leaves more than ``share`` of ``base``'s misfit beyond the noise
     ``sigma`` (:func:`fe_core.closure.far.misfit.smooth_misfit`); a candidate that takes the misfit down to that share
     is not judged on its size."""
-    before = smooth_misfit(base.residual, sigma)
-    left = {id(c): smooth_misfit(c.fit.residual, sigma) for c in checked if c.fit is not None}
-    todo = [c for c in checked if c.fit is not None and _own(c) is not None and left[id(c)] > share * before]
+    left = {id(c): misfit_left(c.fit, base, sigma) for c in checked if c.fit is not None}
+    todo = [c for c in checked if c.fit is not None and _own(c) is not None and left[id(c)] > share]
     _judge_shifts(model, freqs_hz, base, todo, min_shift, None,
-                  lambda c: f" and leaves {100 * left[id(c)] / before if before > 0 else 100:.0f} % of the misfit: "
-                            "not plausible in size as the first effect")
+                  lambda c: f" and leaves {100 * left[id(c)]:.0f} % of the misfit: not plausible in size as the first "
+                            "effect")
+
+
+def misfit_left(fit, reference, sigma) -> float:
+    """The share of ``reference``'s misfit beyond the noise ``sigma`` that ``fit`` leaves
+    (:func:`fe_core.closure.far.misfit.smooth_misfit` of each residual); when the reference has none, 1 if ``fit``
+    has some and 0 if not. Both size rules judge an effect on its shifts only when this is above
+    :data:`.misfit.MISFIT_SHARE`: one that takes the misfit down to that share is not judged on its size."""
+    before, left = smooth_misfit(reference.residual, sigma), smooth_misfit(fit.residual, sigma)
+    if before > 0:
+        return left / before
+    return 1.0 if left > 0 else 0.0
 
 
 def small_beside(rm: ReducedModel, fit, j: int, without, sigma, min_shift: float = MIN_SHIFT,
@@ -133,12 +143,11 @@ def small_beside(rm: ReducedModel, fit, j: int, without, sigma, min_shift: float
     if shifts is None or shifts.size == 0:
         return None
     largest = float(np.max(np.abs(shifts)))
-    before, left = smooth_misfit(without.residual, sigma), smooth_misfit(fit.residual, sigma)
-    if largest >= min_shift or left <= share * before:
+    left = misfit_left(fit, without, sigma)
+    if largest >= min_shift or left <= share:
         return None
     return (f"it shifts no natural frequency in the band by {100 * min_shift:.2g} % or more (at most "
-            f"{100 * largest:.3f} %) and leaves {100 * left / before if before > 0 else 100:.0f} % of the misfit "
-            "the others leave without it")
+            f"{100 * largest:.3f} %) and leaves {100 * left:.0f} % of the misfit the others leave without it")
 
 
 def gain_within_misfit(base, item, sigma, candidate=None) -> bool:
