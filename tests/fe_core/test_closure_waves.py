@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from fe_core.closure.screening import Candidate, pick_in_waves, second_wave
 
@@ -43,3 +44,31 @@ def test_a_contender_in_the_first_wave_makes_the_further_candidates_unneeded():
 def test_where_no_kind_made_a_contender_every_further_candidate_is_checked():
     _, rest = pick_in_waves(SCREEN, per_type=1, far_per_type=5)
     assert second_wave(rest, [8.0, 7.0], 10.0) == rest
+
+
+def test_the_screen_s_one_value_fits_equal_the_explicit_projection():
+    """The screen's fits of one-value effects never form the projected columns (``screening._linear_fits_1``):
+    against the explicit ``P j = j - q q^T j`` on general columns, one nearly in the refitted span (a difference
+    of squares would keep 4 digits there) and one that explains the residual to 1e-9; a column in the span beside
+    them."""
+    from fe_core.closure.screening import _linear_fits_1
+
+    rng = np.random.default_rng(7)
+    n, m = 400, 6
+    q, _ = np.linalg.qr(rng.normal(size=(n, m)))
+    r = rng.normal(size=n)
+    r_perp = r - q @ (q.T @ r)
+    j = rng.normal(size=(5, n))
+    j[1] = q @ rng.normal(size=m) + 1e-6 * rng.normal(size=n)  # nearly in the span
+    j[2] = q @ rng.normal(size=m)  # in it: its value is rounding, as the explicit projection's is
+    j[3] = -3.0 * r_perp + 1e-9 * (j[0] - q @ (q.T @ j[0])) + q @ rng.normal(size=m)  # explains nearly all
+    d, rss = _linear_fits_1(j, r_perp, q)
+    jp = j - (j @ q) @ q.T
+    jj = np.einsum("ln,ln->l", jp, jp)
+    for k in (0, 1, 3, 4):
+        want = -(jp[k] @ r_perp) / jj[k]
+        assert d[k] == pytest.approx(want, rel=1e-9)
+        for v in (want, 0.5 * want, -2.0):
+            res = r_perp + v * jp[k]
+            assert rss(np.full(5, v))[k] == pytest.approx(res @ res, rel=1e-9, abs=1e-12 * (r_perp @ r_perp))
+    assert rss(d)[3] < 1e-15 * (r_perp @ r_perp)
