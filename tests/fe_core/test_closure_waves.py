@@ -1,5 +1,6 @@
 """Far off, the closure checks further candidates only when the best of each kind made no contender
-(fe_core.closure.screening.pick_in_waves / second_wave): hand-built screens, the expected picks by hand."""
+(fe_core.closure.screening.pick_in_waves / second_wave): hand-built screens, the expected picks by hand. And the
+screen's one-value fits (screening._linear_fits_1) against the explicit projection."""
 
 from __future__ import annotations
 
