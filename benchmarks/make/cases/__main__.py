@@ -1,4 +1,4 @@
-"""python -m benchmarks.make.cases --set dev|heldout|heldout2|heldout3|heldout4 [--only ID ...] [--structures] [--out DIR]"""
+"""python -m benchmarks.make.cases --set SET [--only ID ...] [--structures] [--out DIR] (SET: one of `sets.SETS`)"""
 
 from __future__ import annotations
 
@@ -28,9 +28,9 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=case.ROOT, help=f"root folder (default {case.ROOT})")
     args = p.parse_args(argv)
     if not args.set and not args.structures:
-        p.error("give --set dev|heldout|heldout2|heldout3|heldout4 and/or --structures")
+        p.error(f"give --set {'|'.join(sets.SETS)} and/or --structures")
     if args.structures:
-        names = sorted({c["structure"] for c in sets.cases("dev") + sets.cases("heldout")})
+        names = sorted({c["structure"] for which in sets.SETS for c in sets.cases(which)})
         for name in names:
             t0 = time.perf_counter()
             info = build.structure_info(name, args.out, rebuild=True)
