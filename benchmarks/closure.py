@@ -210,7 +210,8 @@ def _rivals_text(model, result, truth_effects: list) -> str:
     parts = []
     for c, rivals in zip(result.steps, result.rivals):
         for r in rivals:
-            parts.append(f"for {c.effect}: {r.effect} {r.location} = {r.values[0]:.4g} ({r.weight:.0%}"
+            parts.append(f"for {c.effect}: {r.effect} {r.location} = {r.values[0]:.4g} "
+                         f"({'too small to weigh' if r.negligible else f'{r.weight:.0%}'}"
                          + "".join(_distance_mm(model, t, r.location) for t in truth_effects
                                    if t["effect"] == r.effect) + ")")
     return "; ".join(parts) or "-"

@@ -16,7 +16,8 @@ cells' centroid) and the truth's, over the structure's size (its largest dimensi
 the mass (kg), the spring (N/m) or the patch's factor beta.
 
 Targets (issue 40): an effect of the library is ``explained`` with the right kind, the place within 5 % and the
-size within 15 % (the first effect added is scored; effects added beside it, which the truth lacks, are counted in
+size within 15 % (the first effect added is scored, as one with the effects of its kind found beside it when
+closure.json's ``combined`` takes them as one between nodes; effects added beside it, which the truth lacks, are counted in
 each result's ``extra effects`` and in the tally); a clean case is ``noise`` with the update converged and no
 effect; an effect outside the library is never ``explained``; every case within 15 min. Results go to
 ``<out>/results.jsonl`` (one line per case; a case already there is skipped unless ``--rerun``) and the markdown
@@ -111,10 +112,14 @@ def score(truth: dict, summary: dict, closure: dict, run: dict, cache: dict) -> 
     e = truth["effect"]
     effects = closure.get("effects") or []
     first = effects[0] if effects else {}
-    at = position(first.get("location"), first.get("details") or {}, truth, cache) if first else None
+    group = closure["combined"][first["combined"]] if "combined" in first else None
+    if group is not None:  # found as two or more beside each other: one between nodes, scored as the tool reports it
+        at, value = np.asarray(group["position_m"]), group["value"]
+    else:
+        at = position(first.get("location"), first.get("details") or {}, truth, cache) if first else None
+        value = first.get("value")
     size = truth["structure_size_m"]
     place_err = float(np.linalg.norm(np.asarray(at) - e["xyz_m"]) / size) if at is not None and "xyz_m" in e else None
-    value = first.get("value")
     size_err = (abs(float(value) - e["value"]) / abs(e["value"])
                 if isinstance(value, (int, float)) and e.get("value") else None)
     verdict = closure.get("verdict")
@@ -146,13 +151,15 @@ def score(truth: dict, summary: dict, closure: dict, run: dict, cache: dict) -> 
     true = "none" if e["kind"] == "none" else (
         f"{_library_kind(e)} at {e.get('location', e.get('description', ''))} = {e['value']:.4g} {e.get('unit', '')}")
     found = "; ".join(f"{x.get('type')} at {x.get('location')} = {x.get('value', float('nan')):.4g}" for x in effects)
+    if group is not None:
+        found += f" (steps {', '.join(map(str, group['steps']))}: one of {group['value']:.4g} between their nodes)"
     return {"case": truth["case"], "structure": truth["structure"], "expected": truth["expected"], "true effect": true,
             "found": found or "-", "place error %": None if place_err is None else round(100 * place_err, 2),
             "size error %": None if size_err is None else round(100 * size_err, 1), "verdict": verdict,
             "converged": summary.get("converged"), "update FE runs (eq.)":
                 f"{summary.get('fe_evaluations')} ({summary.get('fe_equivalents')})",
             "closure FE solves": closure.get("fe_solves"), "wall min": round(minutes, 1), "load": run["load"],
-            "extra effects": _extra(truth["expected"], len(effects)),
+            "extra effects": _extra(truth["expected"], len(effects) - (len(group["steps"]) - 1 if group else 0)),
             "judged right": judged, "pass": "yes" if not why else "no: " + ", ".join(why)}
 
 

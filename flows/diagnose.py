@@ -230,8 +230,14 @@ def print_closure(summary: dict, file=None) -> None:
                 print(f"       where: {e['locations_95']} locations of this kind hold 95 % of the evidence{far}"
                       f"{pinned}", file=file)
             for r in e.get("rivals", []):
+                weight = ("too small to be an effect (the size rule), so not weighed" if r.get("negligible") else
+                          f"evidence {r['evidence']:.0%}")
                 print(f"       or {r['type']} at {r['location']} = {r['value']:.4g} {r['unit']} (extended BIC "
-                      f"{r['delta_ebic']:+.1f}, evidence {r['evidence']:.0%})", file=file)
+                      f"{r['delta_ebic']:+.1f}, {weight})", file=file)
+        for g in summary.get("combined", []):
+            print(f"  steps {' and '.join(map(str, g['steps']))}, {g['span_mm']:.0f} mm apart, are one {g['type']} of "
+                  f"{g['value']:.4g} {g['unit']} between their nodes, at ({', '.join(f'{x:.3f}' for x in g['position_m'])})"
+                  " m", file=file)
         for s in summary.get("swaps", []):
             print(f"  swapped: {s}", file=file)
         for e in summary.get("implausible", []):

@@ -10,7 +10,7 @@ import pandas as pd
 
 from fe_core.closure import fits, screening
 from fe_core.closure.decisions import bound_hit
-from fe_core.closure.identify import IDENTIFIED, spread_mm
+from fe_core.closure.identify import IDENTIFIED, combined, spread_mm
 from fe_core.inference.residual import overall_error, per_sensor_error
 
 __all__ = ["CANDIDATES_IN_JSON", "LOCATIONS_IN_JSON"]
@@ -71,11 +71,20 @@ def _verdict_json(verdict: str, steps: list, implausible: list, library: dict, f
                  "evidence": w, "located": bool(at), "identified": bool(w >= IDENTIFIED and at),
                  "rivals": [{"type": r.effect, "location": r.location, "value": float(r.values[0]),
                              "unit": _unit(library[r.effect], r.location), "delta_ebic": r.delta_ebic,
-                             "evidence": r.weight} for r in rv],
+                             "evidence": r.weight, "negligible": r.negligible} for r in rv],
                  "locations_95": len(sp), "spread_mm": spread_mm(library[c.effect], c.location, sp) if sp else None,
                  "locations": [{"location": loc, "evidence": wl} for loc, wl in sp[:LOCATIONS_IN_JSON]]}
         effects.append(entry)
-    return {"verdict": verdict, "effects": effects,
+    together = []
+    model = next(iter(library.values())).model if library else None  # every effect of the library is built on it
+    for g in combined(model, final.applied if steps else []):  # found as two beside each other: one between nodes
+        eff = library[g.effect]
+        together.append({"type": g.effect, "locations": g.locations, "steps": [i + 1 for i in g.indices],
+                         "value": g.value, "unit": _unit(eff, g.locations[0]),
+                         "position_m": [float(x) for x in g.position], "span_mm": g.span_mm})
+        for i in g.indices:
+            effects[i]["combined"] = len(together) - 1
+    return {"verdict": verdict, "effects": effects, "combined": together,
             "implausible": [{**_effect_entry(c, library), "explained": c.explained} for c in implausible],
             "swaps": list(sel.swaps) if sel is not None else [], "moves": list(sel.moves) if sel is not None else []}
 
@@ -93,13 +102,18 @@ def effect_status(verdict: str) -> str:
     return {"explained": "finding", "ambiguous": "ambiguous"}.get(verdict, "candidate")
 
 
-def decision_text(verdict: str, effects: list[dict], before, analysis_after, moves=()) -> str:
+def decision_text(verdict: str, effects: list[dict], before, analysis_after, moves=(), combined_groups=()) -> str:
     """The closure's headline, from the final effects (their places after every move and swap); ``moves`` says
-    whether the backward check dropped effects that did not carry over across the band."""
+    whether the backward check dropped effects that did not carry over across the band; ``combined_groups``
+    (closure.json's ``combined``) names effects found beside each other that are one between nodes."""
     if effects:
         added = "; ".join(f"{STATUSES[e['status']].split(' (')[0]} {e['type']} at {e['location']}"
                           + (f" (moved from {', '.join(e['moved_from'])})" if e.get("moved_from") else "")
                           for e in effects)
+        for g in combined_groups or ():
+            added += (f" ({' and '.join(g['locations'])}, {g['span_mm']:.0f} mm apart, are one {g['type']} of "
+                      f"{g['value']:.4g} {g['unit']} between them, at ({', '.join(f'{x:.3f}' for x in g['position_m'])})"
+                      " m)")
         return (f"{added}: the residual before is structure (chi-square p = {before.p_chi2:.3g}); after: "
                 f"{'noise' if not analysis_after.structured else 'structure remains'} "
                 f"(p = {analysis_after.p_chi2:.3g}); verdict {verdict}")
@@ -160,7 +174,8 @@ def _closure_json(store, settings, run_info, base, final, before, after, ranked,
         "measured": settings["measured"],
         "settings": dict(settings),
         **verdict_part,
-        "decision": decision_text(verdict_part["verdict"], effects, before, after, verdict_part.get("moves", ())),
+        "decision": decision_text(verdict_part["verdict"], effects, before, after, verdict_part.get("moves", ()),
+                                  verdict_part.get("combined", ())),
         "effect": dict(effects[0]) if effects else None,  # the first effect added, as closure.json's effects[0]
         "error_metric": (f"Eq. (6b) of the relative amplitude residual over the closure's {u.size} values (the lines "
                          "where every channel is kept)"),

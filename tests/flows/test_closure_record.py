@@ -47,6 +47,19 @@ def test_the_run_has_moves_and_every_swap_changes_something(closure):
 
 
 @pytest.mark.slow
+def test_effects_found_beside_each_other_are_printed_as_recorded(closure):
+    """This run's effects lie apart (``combined`` empty); a group is written in as the closure writes it."""
+    _, record, on_disk, _ = closure
+    assert on_disk["combined"] == [] and all("combined" not in e for e in on_disk["effects"])
+    group = {"type": "point_mass", "locations": ["node 337", "node 307"], "steps": [1, 2], "value": 0.2,
+             "unit": "kg", "position_m": [0.1, 0.2, 0.0], "span_mm": 14.4}
+    out = io.StringIO()
+    dg.print_closure({**record, "combined": [group]}, file=out)
+    assert "  steps 1 and 2, 14 mm apart, are one point_mass of 0.2 kg between their nodes, at (0.100, 0.200, 0.000) m" \
+        in out.getvalue().splitlines()
+
+
+@pytest.mark.slow
 def test_a_swap_is_printed_as_recorded(closure):
     """Since the selection checks the exact search's candidates first (issue 40), this run makes moves but no
     swap; the printout of swaps is checked on its own record with one written in as the selection writes them."""

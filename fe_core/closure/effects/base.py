@@ -83,6 +83,9 @@ class Effect(abc.ABC):
     scale: tuple[float, ...] = ()
     #: Bounds that must be strictly avoided (factor > -1) are moved inward by this much.
     margin: tuple[float, ...] = ()
+    #: One value that adds up when two lie at one place (a mass, a spring to ground along an axis): two found close
+    #: together are one between nodes (:func:`fe_core.closure.identify.combined`).
+    additive: bool = False
 
     def __init__(self, model: ParametricModel):
         self.model = model

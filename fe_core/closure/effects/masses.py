@@ -45,6 +45,7 @@ class PointMass(_NodalEffect):
     """A point mass at a node (translational, on u_x, u_y and u_z); at most :data:`MASS_SHARE` of the model."""
 
     kind = "point_mass"
+    additive = True
     parameters = ("mass",)
     units = ("kg",)
     lower = (0.0,)

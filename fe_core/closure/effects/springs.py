@@ -16,6 +16,7 @@ class GroundedSpring(_NodalEffect):
     """A translational spring from a node to ground, along one axis (u_z by default)."""
 
     kind = "grounded_spring"
+    additive = True
     parameters = ("k",)
     units = ("N/m",)
     lower = (0.0,)
