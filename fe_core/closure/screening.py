@@ -243,11 +243,28 @@ def second_wave(rest: Sequence[Candidate], first_rss: Iterable[float], base_rss:
     return [] if made else list(rest)
 
 
+def check_all(model: ParametricModel, freqs_hz, amplitude, base: Fit, pairs, max_moves: int,
+              alpha_bounds: tuple[float, float], max_evaluations: int) -> list[Candidate]:
+    """:func:`check` of each ``(effect, candidate)`` of ``pairs`` from ``base``, in order, in this process: what a
+    caller's ``check_many`` (same arguments and result, the candidates filled) does on several
+    (``tasks.closure.parallel``)."""
+    return [check(model, freqs_hz, amplitude, base, effect, c, max_moves, alpha_bounds, max_evaluations=max_evaluations)
+            for effect, c in pairs]
+
+
 def check_in_waves(model: ParametricModel, freqs_hz, amplitude, base: Fit, by_kind: dict, first, rest,
                    max_moves: int, alpha_bounds: tuple[float, float], max_evaluations: int,
-                   out_of_time=None) -> list[Candidate]:
+                   out_of_time=None, check_many=None) -> list[Candidate]:
     """:func:`check` of the candidates of ``first``, then of those :func:`second_wave` takes from ``rest``;
-    no further check is started once ``out_of_time()`` is true (the checks made so far are returned)."""
+    no further check is started once ``out_of_time()`` is true (the checks made so far are returned).
+    ``check_many`` (:func:`check_all`'s arguments): each wave in one call, all its checks started together."""
+    if check_many is not None:
+        late = out_of_time if out_of_time is not None else (lambda: False)
+        done = [] if late() else check_many(model, freqs_hz, amplitude, base, [(by_kind[c.effect], c) for c in first],
+                                            max_moves, alpha_bounds, max_evaluations)
+        more = [] if late() else second_wave(rest, [c.fit.rss for c in done], base.rss)
+        return done + (check_many(model, freqs_hz, amplitude, base, [(by_kind[c.effect], c) for c in more],
+                                  max_moves, alpha_bounds, max_evaluations) if more else [])
     checked: list[Candidate] = []
 
     def waves():

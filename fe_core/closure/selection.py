@@ -27,7 +27,7 @@ import numpy as np
 
 from .decisions import decide, dedupe, merge, rank, score
 from .fits import ALPHA_BOUNDS, Fit, checks_per_type, far_off, fit_update
-from .screening import (Candidate, _relocation_target, _start_value, check, check_in_waves,
+from .screening import (Candidate, _relocation_target, _start_value, check_all, check_in_waves,
                         pick_for_check, pick_in_waves, screen)
 from .effects import Effect
 from ..inference.residual import ResidualAnalysis, analyse_residual
@@ -215,7 +215,7 @@ def _sync(steps: list[Candidate], fit: Fit) -> list[Candidate]:
 
 def swap_pass(model, freqs_hz, amplitude, current: Fit, steps: list[Candidate], library: Sequence[Effect], *,
               per_type: int = 1, max_moves: int = 6, alpha_bounds=ALPHA_BOUNDS, always: Sequence[str] = (),
-              places: Sequence[int] | None = None, sigma=None):
+              places: Sequence[int] | None = None, sigma=None, check_many=None):
     """Each added effect (at ``places``, all by default) taken out and the best replacement put back.
 
     For place ``j``: alpha and the other effects are refitted without it,
@@ -232,8 +232,11 @@ def swap_pass(model, freqs_hz, amplitude, current: Fit, steps: list[Candidate], 
     others is (:func:`fe_core.closure.far.plausible.mark_negligible`, with
     ``sigma`` the noise for a sensor's gain): held-out hc14's point mass was
     swapped for a patch that shifts no mode by 0.2 %.
+
+    ``check_many``: the checks of a place in one call (:func:`fe_core.closure.screening.check_all`, the default).
     """
     by_kind = {e.kind: e for e in library}
+    check_many = check_all if check_many is None else check_many
     u = np.asarray(amplitude, float)
     steps = list(steps)
     rivals: list[list[Candidate] | None] = [None for _ in steps]
@@ -244,10 +247,10 @@ def swap_pass(model, freqs_hz, amplitude, current: Fit, steps: list[Candidate], 
                              max_evaluations=CHECK_EVALUATIONS, tol=1e-6)
         incumbent = _incumbent(current, j, steps[j])
         screened = screen(model, freqs_hz, without, library)
-        checked = [check(model, freqs_hz, u, without, by_kind[c.effect], c, max_moves, alpha_bounds,
-                         max_evaluations=CHECK_EVALUATIONS)
-                   for c in pick_for_check(screened, per_type, always=always)
-                   if (c.effect, c.location) != (incumbent.effect, incumbent.location)]
+        checked = check_many(model, freqs_hz, u, without,
+                             [(by_kind[c.effect], c) for c in pick_for_check(screened, per_type, always=always)
+                              if (c.effect, c.location) != (incumbent.effect, incumbent.location)],
+                             max_moves, alpha_bounds, CHECK_EVALUATIONS)
         checked = [c for c in dedupe(checked) if (c.effect, c.location) != (incumbent.effect, incumbent.location)]
         score(without, checked + [incumbent])
         moves += _judge_and_refine(model, freqs_hz, u, without, checked, max_moves, alpha_bounds, sigma,
@@ -276,7 +279,8 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
                    max_effects: int = 3, times: dict | None = None, steps: Sequence[Candidate] = (),
                    rounds: Sequence[list[Candidate]] = (), swaps: bool = True,
                    always: Sequence[str] = ("sensor_mass",), search: bool = True,
-                   baseline: Fit | None = None, out_of_time: Callable[[], bool] | None = None) -> Selection:
+                   baseline: Fit | None = None, out_of_time: Callable[[], bool] | None = None,
+                   check_many: Callable | None = None) -> Selection:
     """Add effects one at a time from ``start`` (a fit with or without effects, ``analysis`` its residual).
 
     Each round screens every candidate with the effects so far in the model,
@@ -307,6 +311,11 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
     decided on part of its checks (its ranking is kept). The effects added so far go through the backward check
     as usual and ``Selection.stopped`` is ``"time limit"``. Stopped at ``max_effects``, a backward check that drops
     the last effect added makes it ``"nothing stands out"``: the best of the last round did not.
+
+    ``check_many``: how a set of full checks is made (:func:`fe_core.closure.screening.check_all`'s arguments and
+    result; by default one after another here): a round's wave or a swap place's checks in one call, so that a
+    caller can spread them over processes (``tasks.closure.parallel``). With it a wave's checks start together
+    (``out_of_time`` is asked between waves).
     """
     times = {} if times is None else times
     late = out_of_time if out_of_time is not None else (lambda: False)
@@ -361,7 +370,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
                 times["search"] = times.get("search", 0.0) + time.perf_counter() - t_search
                 first, rest = found, first + rest
             checked = check_in_waves(model, freqs, u, current, by_kind, first, rest, max_moves, alpha_bounds,
-                                     CHECK_EVALUATIONS, out_of_time=late)
+                                     CHECK_EVALUATIONS, out_of_time=late, check_many=check_many)
         checked = dedupe(checked)
         times["check"] = times.get("check", 0.0) + time.perf_counter() - t
         judged = False
@@ -408,7 +417,8 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
                 current, steps, tried, made, moved = swap_pass(model, freqs, u, current, steps, library,
                                                                per_type=per_type, max_moves=max_moves,
                                                                alpha_bounds=alpha_bounds, always=always,
-                                                               places=stale[:1], sigma=analysis.sigma)
+                                                               places=stale[:1], sigma=analysis.sigma,
+                                                               check_many=check_many)
                 j = stale[0]
                 rivals[j], keys[j] = tried[j], _key(current, j)
                 note_implausible(tried[j])

@@ -17,7 +17,7 @@ from prefect import task
 from prefect.cache_policies import NO_CACHE
 
 from fe_core.closure import decisions, fits, screening
-from fe_core.closure.effects import build_library, extended_frf, registered_effects
+from fe_core.closure.effects import extended_frf
 from fe_core.closure.far.misfit import judge_misfit
 from fe_core.closure.far.plausible import mark_first_negligible
 from fe_core.closure.far.search import alpha_restarts
@@ -35,6 +35,8 @@ from tasks.closure.store import (
     _screened,
     residual_table,
 )
+from tasks.closure.library import cached_library as _cached_library
+from tasks.closure.parallel import process_checks
 from tasks.closure.summary import _candidates_frame, _closure_json, _verdict_json
 from tasks.common import beating, heartbeat
 from tasks.fe_runs import run_cores
@@ -86,16 +88,6 @@ def effect_library(model, effects=None) -> dict:
     """The effect library of a model (``ValueError`` for an effect that does not apply to it), built once per
     process."""
     return _cached_library(model, effects)
-
-
-def _cached_library(model, effects) -> dict:
-    """The effect library by kind, built once per model and effect list in a process (the screen,
-    every check and the decision of a closure use the same; 320 patches take a second to build)."""
-    cache = model.__dict__.setdefault("_closure_libraries", {})
-    key = (tuple(registered_effects()), None if effects is None else tuple(effects))
-    if key not in cache:
-        cache[key] = {e.kind: e for e in build_library(model, effects)}
-    return cache[key]
 
 
 def noise_of(problem, settings: dict):
@@ -411,7 +403,8 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
                              max_moves=settings["max_moves"], alpha_bounds=tuple(settings["alpha_bounds"]),
                              max_effects=settings.get("max_effects", 3), steps=[chosen], rounds=[ranked],
                              baseline=base, times=times, out_of_time=None if deadline is None else
-                             (lambda: time.time() > deadline))
+                             (lambda: time.time() > deadline),
+                             check_many=process_checks(problem, settings, library))
         _logger().info("closure: forward selection %s", ", ".join(f"{k} {v:.0f} s" for k, v in times.items()))
         steps = sel.steps
         implausible += [c for c in sel.implausible if all(c is not d for d in implausible)]
