@@ -13,7 +13,7 @@ found are one of many that fit (a point mass of 0.064 kg 50 mm from a true one o
 
 Effects of one additive kind (point masses; springs to ground along one axis) added within that same share of the
 structure's size of one another are one effect between nodes (:func:`combined`): the model places them at nodes
-only, so a mass between two nodes is found as two (held-out hd02: 0.145 and 0.095 kg 16 mm apart for one of 0.243
+only, so a mass between two nodes is found as two (held-out hd02: 0.145 and 0.095 kg 15 mm apart for one of 0.243
 kg between them). Their sum at their value-weighted centre (the mass's first moment; the springs' resultant) is
 what the data say.
 """
