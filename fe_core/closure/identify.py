@@ -170,8 +170,9 @@ def combined(model, applied: Sequence) -> list[Combined]:
     out = []
     kinds = {a.effect.kind for a in applied if getattr(a.effect, "additive", False)}
     for kind in sorted(kinds):
-        idx = [i for i, a in enumerate(applied) if a.effect.kind == kind and a.effect.position(a.location) is not None]
-        pos = {i: np.asarray(applied[i].effect.position(applied[i].location), float) for i in idx}
+        where = {i: a.effect.position(a.location) for i, a in enumerate(applied) if a.effect.kind == kind}
+        pos = {i: np.asarray(p, float) for i, p in where.items() if p is not None}
+        idx = list(pos)
         groups: list[list[int]] = []
         for i in idx:  # single linkage
             near = [g for g in groups if any(np.linalg.norm(pos[i] - pos[j]) <= reach for j in g)]
