@@ -106,6 +106,10 @@ def make_case(spec: dict, root: Path = cs.ROOT) -> dict:
         if _mesh_hash(s) != info["mesh_hash"]:
             raise RuntimeError(f"{spec['structure']}: gmsh made another mesh than the committed model's "
                                "(rebuild the structures and every case with --structures)")
+        if spec.get("data_mesh", "fine") == "model":
+            from benchmarks.make.cases.solids import on_model_mesh
+
+            s = on_model_mesh(s)
         src = cs._solid(spec, s, dr, info)
         systems = {}
         for key, (xK, xM) in {"with": (src["extra_K"], src["extra_M"]), "without": (None, None)}.items():
@@ -147,7 +151,7 @@ def make_case(spec: dict, root: Path = cs.ROOT) -> dict:
     shift = (sp_with["f"][:n_cmp] - sp_without["f"][:n_cmp])
     truth = {
         "case": spec["id"], "set": spec["set"], "seed": spec["seed"], "structure": spec["structure"],
-        "points": spec.get("points", "vertex"),
+        "points": spec.get("points", "vertex"), "data_mesh": spec.get("data_mesh", "fine"),
         "model": info["model"], "measured": _rel(folder / "measured.csv"), "measured_sha256": sha,
         "expected": spec["expected"], "in_library": spec["kind"] in ("point_mass", "mount", "patch"),
         "segments": info["segments"], "factors": np.round(src["alpha"], 6).tolist(),
