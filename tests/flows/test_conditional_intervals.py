@@ -72,3 +72,18 @@ def test_status_rules():
     # the paper loop's budget stop alone: its threshold is an error level, the residual check decides
     assert interval_status({"residual_check": noise, "strategy": "adaptive", "converged": False}) == {
         "interval_status": "95 %"}
+
+
+def test_no_posterior_is_sampled_for_a_model_that_does_not_explain_the_data():
+    """The sampled posterior (400 FE runs by default) is kept for runs whose intervals can be 95 % intervals: not a
+    run stopped on the evidence of a missing effect, nor a hybrid run that did not converge (its intervals are
+    conditional whatever their method); a paper-loop run's budget stop alone is no reason (as above)."""
+    from flows.summary import posterior_not_sampled
+
+    assert posterior_not_sampled({"strategy": "hybrid", "converged": True}) == ""
+    assert posterior_not_sampled({"strategy": "adaptive", "converged": False}) == ""
+    why = posterior_not_sampled({"strategy": "hybrid", "converged": False})
+    assert why.startswith("the run did not converge") and "conditional" in why
+    assert interval_status({"strategy": "hybrid", "converged": False})["interval_status"] == "conditional"
+    why = posterior_not_sampled({"strategy": "hybrid", "converged": False, "evidence": {"choice": "closure"}})
+    assert why.startswith("the run stopped on the evidence of a missing effect")
