@@ -97,6 +97,11 @@ INTERVALS_AT_LEVEL, INTERVALS_CONDITIONAL = "95 %", "conditional"
 CONDITIONAL_WORDS = "conditional on a model that does not explain the data"
 
 
+def _hybrid_not_converged(summary: dict) -> bool:
+    """A hybrid run that did not converge: its intervals are conditional, and so not worth a sampled posterior."""
+    return summary.get("strategy") == "hybrid" and not summary.get("converged", True)
+
+
 def interval_status(summary: dict) -> dict:
     """``interval_status`` and, when conditional, ``conditional_on`` (the reasons, in words).
 
@@ -110,7 +115,7 @@ def interval_status(summary: dict) -> dict:
     check = summary.get("residual_check")
     if check and check["structured"]:
         reasons.append(f"the residual at the estimate is structure, not noise ({check['text']})")
-    if summary.get("strategy") == "hybrid" and not summary.get("converged", True):
+    if _hybrid_not_converged(summary):
         reasons.append(f"the run did not converge ({summary.get('stop_reason', '')})")
     if not reasons:
         return {"interval_status": INTERVALS_AT_LEVEL}
@@ -140,7 +145,7 @@ def posterior_not_sampled(summary: dict) -> str:
     if evidence.get("choice") == "closure":
         return ("the run stopped on the evidence of a missing effect; these intervals are conditional on a model "
                 "that lacks it")
-    if summary.get("strategy") == "hybrid" and not summary.get("converged", True):
+    if _hybrid_not_converged(summary):
         return ("the run did not converge; these intervals are conditional on a model that does not explain the data, "
                 "whose posterior is not worth the sampling's FE runs")
     return ""

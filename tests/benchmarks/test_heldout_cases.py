@@ -179,7 +179,7 @@ def test_the_second_held_out_set_takes_the_data_at_the_tools_node_points():
     assert d["load"] @ u == pytest.approx(field(at, direction), rel=1e-12)
     assert {c["points"] for s in ("heldout2", "heldout3", "heldout4") for c in sets.cases(s)} == {"model"}
     assert {c["points"] for c in sets.cases("heldout") + sets.cases("dev")} == {"vertex"}
-    seeds = [{c["seed"] for c in sets.cases(s)} for s in ("dev", "heldout", "heldout2", "heldout3", "heldout4")]
+    seeds = [{c["seed"] for c in sets.cases(s)} for s in sets.SETS]
     assert sum(map(len, seeds)) == len(set().union(*seeds))  # no seed in two sets
 
 
