@@ -34,6 +34,7 @@ from flows import environment  # noqa: F401  (first: the environment Prefect sta
 import argparse  # noqa: E402
 import datetime as dt  # noqa: E402
 import sys  # noqa: E402
+import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from prefect import flow  # noqa: E402
@@ -106,6 +107,7 @@ def _rerun_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    started = time.monotonic()  # --close-loop's closure gets what is left of the command's 15 minutes
     argv = sys.argv[1:] if argv is None else argv
     if not (argv and argv[0] == "rerun"):
         from flows.modal_update import route  # a file of measured modes takes the modal path
@@ -168,11 +170,16 @@ def main(argv: list[str] | None = None) -> int:
         lock.release()
     print_summary(summary)
     if args.close_loop:
-        from flows.diagnose import DiagnoseError, closure_options, diagnose, print_closure
+        from flows.diagnose import DiagnoseError, closure_minutes_left, closure_options, diagnose, print_closure
 
+        options = closure_options(args)
+        if options["max_minutes"] is None:
+            options["max_minutes"] = closure_minutes_left(time.monotonic() - started)
+            print(f"closure: time limit {options['max_minutes']:g} min (what is left of 15 min since the command "
+                  "began, at least 5; --closure-minutes sets it)")
         try:
             closure = diagnose(config.run_id, config.runs_dir, args.closure_name or "closure", problem=problem,
-                               **closure_options(args))
+                               **options)
         except (DiagnoseError, MeasuredDataError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

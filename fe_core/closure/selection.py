@@ -104,7 +104,7 @@ def _reordered(fit: Fit, order: Sequence[int]) -> Fit:
 
 
 def refine(model, freqs_hz, amplitude, fit: Fit, *, max_moves: int = 6, alpha_bounds=ALPHA_BOUNDS,
-           fixed: Sequence[int] = ()) -> tuple[Fit, list[str]]:
+           fixed: Sequence[int] = (), late: Callable[[], bool] | None = None) -> tuple[Fit, list[str]]:
     """Move the fit's effects, one at a time, while a move lowers the residual (joint relocation).
 
     Each effect of a searched kind (one value, many locations), except those
@@ -114,7 +114,8 @@ def refine(model, freqs_hz, amplitude, fit: Fit, *, max_moves: int = 6, alpha_bo
     move is fitted in full and kept if it lowers the residual sum of squares.
     Passes over the effects repeat until none moves or ``max_moves`` moves
     were made. Returns the fit (effects in their original order) and the
-    moves as text.
+    moves as text. ``late`` (the closure's time limit): once it returns True
+    no further move is fitted; the moves made so far are kept.
     """
     u = np.asarray(amplitude, float)
     moves: list[str] = []
@@ -125,6 +126,8 @@ def refine(model, freqs_hz, amplitude, fit: Fit, *, max_moves: int = 6, alpha_bo
         for i, a in enumerate(fit.applied):
             if i in fixed or not searched(a.effect) or len(moves) >= max_moves:
                 continue
+            if late is not None and late():
+                return fit, moves
             taken = {b.location for b in fit.applied if b.effect.kind == a.effect.kind}
             others = [loc for loc in a.effect.locations() if loc not in taken and (i, loc) not in tried]
             if not others:
@@ -148,10 +151,11 @@ def refine(model, freqs_hz, amplitude, fit: Fit, *, max_moves: int = 6, alpha_bo
 
 
 def _refine_contenders(model, freqs_hz, u, base: Fit, checked: list[Candidate], max_moves, alpha_bounds,
-                       reference: float | None = None) -> list[str]:
+                       reference: float | None = None, late: Callable[[], bool] | None = None) -> list[str]:
     """Refine (:func:`refine`) every plausible checked candidate not negligible in size within
     :data:`REFINE_WINDOW` of the best such one's extended BIC (or of ``reference``, if lower), the earlier effects
-    included, and score them again; returns the moves made."""
+    included, and score them again; returns the moves made. Once ``late()`` no further refinement starts (held-out
+    hd04: 402 s of refinements began before its time limit, for a round then left undecided)."""
     score(base, checked)
     plausible = [c for c in checked if not c.implausible and not c.negligible]
     if not plausible or not base.applied:
@@ -159,8 +163,10 @@ def _refine_contenders(model, freqs_hz, u, base: Fit, checked: list[Candidate], 
     best = min([c.ebic for c in plausible] + ([] if reference is None else [reference]))
     moves = []
     for c in plausible:
+        if late is not None and late():
+            break
         if c.ebic <= best + REFINE_WINDOW:
-            fit, made = refine(model, freqs_hz, u, c.fit, max_moves=max_moves, alpha_bounds=alpha_bounds)
+            fit, made = refine(model, freqs_hz, u, c.fit, max_moves=max_moves, alpha_bounds=alpha_bounds, late=late)
             if made:
                 c.fit = fit
                 c.location = fit.applied[-1].location
@@ -170,7 +176,7 @@ def _refine_contenders(model, freqs_hz, u, base: Fit, checked: list[Candidate], 
 
 
 def _judge_and_refine(model, freqs_hz, u, base: Fit, checked: list[Candidate], max_moves, alpha_bounds, sigma,
-                      reference: float | None = None) -> list[str]:
+                      reference: float | None = None, late: Callable[[], bool] | None = None) -> list[str]:
     """The checked candidates judged on their size (:func:`fe_core.closure.far.plausible.mark_negligible`, at
     ``base``) and refined (:func:`_refine_contenders`); returns the moves made.
 
@@ -181,7 +187,8 @@ def _judge_and_refine(model, freqs_hz, u, base: Fit, checked: list[Candidate], m
     once refined)."""
     mark_negligible(model, freqs_hz, base, checked, min_shift=REFINE_SHARE * MIN_SHIFT, sigma=sigma)
     fits = {id(c): c.fit for c in checked}
-    moves = _refine_contenders(model, freqs_hz, u, base, checked, max_moves, alpha_bounds, reference=reference)
+    moves = _refine_contenders(model, freqs_hz, u, base, checked, max_moves, alpha_bounds, reference=reference,
+                               late=late)
     moved = [c for c in checked if c.fit is not fits[id(c)]]
     mark_negligible(model, freqs_hz, base, moved, sigma=sigma)
     for c in checked:
@@ -215,7 +222,8 @@ def _sync(steps: list[Candidate], fit: Fit) -> list[Candidate]:
 
 def swap_pass(model, freqs_hz, amplitude, current: Fit, steps: list[Candidate], library: Sequence[Effect], *,
               per_type: int = 1, max_moves: int = 6, alpha_bounds=ALPHA_BOUNDS, always: Sequence[str] = (),
-              places: Sequence[int] | None = None, sigma=None, check_many=None):
+              places: Sequence[int] | None = None, sigma=None, check_many=None,
+              late: Callable[[], bool] | None = None):
     """Each added effect (at ``places``, all by default) taken out and the best replacement put back.
 
     For place ``j``: alpha and the other effects are refitted without it,
@@ -234,6 +242,7 @@ def swap_pass(model, freqs_hz, amplitude, current: Fit, steps: list[Candidate], 
     swapped for a patch that shifts no mode by 0.2 %.
 
     ``check_many``: the checks of a place in one call (:func:`fe_core.closure.screening.check_all`, the default).
+    ``late``: the closure's time limit, asked before each refinement of a contender.
     """
     by_kind = {e.kind: e for e in library}
     check_many = check_all if check_many is None else check_many
@@ -254,7 +263,7 @@ def swap_pass(model, freqs_hz, amplitude, current: Fit, steps: list[Candidate], 
         checked = [c for c in dedupe(checked) if (c.effect, c.location) != (incumbent.effect, incumbent.location)]
         score(without, checked + [incumbent])
         moves += _judge_and_refine(model, freqs_hz, u, without, checked, max_moves, alpha_bounds, sigma,
-                                   reference=incumbent.ebic)
+                                   reference=incumbent.ebic, late=late)
         score(without, checked + [incumbent])
         rivals[j] = checked + [incumbent]
         # A contender moved onto the incumbent's own place is the incumbent again, not a swap.
@@ -379,7 +388,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
             # before the contenders are refined, so that those far too small are not (_judge_and_refine).
             t = time.perf_counter()
             move_log += _judge_and_refine(model, freqs, u, current, checked, max_moves, alpha_bounds,
-                                          analysis.sigma)
+                                          analysis.sigma, late=late)
             judged = True
             times["refine"] = times.get("refine", 0.0) + time.perf_counter() - t
         if late():  # cut short: not decided on part of the round's checks
@@ -418,7 +427,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
                                                                per_type=per_type, max_moves=max_moves,
                                                                alpha_bounds=alpha_bounds, always=always,
                                                                places=stale[:1], sigma=analysis.sigma,
-                                                               check_many=check_many)
+                                                               check_many=check_many, late=late)
                 j = stale[0]
                 rivals[j], keys[j] = tried[j], _key(current, j)
                 note_implausible(tried[j])

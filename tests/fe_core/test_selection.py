@@ -113,6 +113,8 @@ def test_an_earlier_effect_placed_wrong_is_moved_back_by_the_joint_relocation(be
     u = np.abs(extended_frf(benchmark_model, ALPHA_ACTUAL, F, truth, method="direct"))
     start = fit_update(benchmark_model, F, u, ALPHA_ACTUAL, gs, "node 919", [4e5],
                        prior=[Applied(pm, "node 457", np.array([0.06]))])
+    late, late_moves = refine(benchmark_model, F, u, start, late=lambda: True)  # the closure's time is up
+    assert late is start and late_moves == []
     moved, moves = refine(benchmark_model, F, u, start)
     assert moves and [a.location for a in moved.applied] == ["node 337", "node 919"]
     assert moved.rss < 1e-4 * start.rss  # noise-free: the truth fits to round-off of the fit's tolerance

@@ -254,3 +254,32 @@ def test_a_closure_run_is_reported_and_its_stages_rerun(diagnosed, capsys):
     out = update.rerun_stage(root, 1, "train", trainer="sao")
     assert store.stage_info(1, out.name.split("=", 1)[1])["trainer"] == "sao"
     pd.testing.assert_frame_equal(store.read_table(1, "train", "hyperparameters"), original)
+
+
+@pytest.mark.parametrize("update_minutes, flag, limit", [(3.0, [], 12.0), (11.0, [], 5.0),
+                                                         (11.0, ["--closure-minutes", "20"], 20.0)])
+def test_close_loop_gives_its_closure_what_is_left_of_the_commands_fifteen_minutes(tmp_path, monkeypatch, capsys,
+                                                                                   update_minutes, flag, limit):
+    """Issue 40's 15 minutes per case: the update's time comes off the closure's limit (at least 5 min are left
+    to it), unless --closure-minutes says otherwise. The update and the closure are stand-ins that only pass time;
+    the model and data are read for real (the cantilever as matrices)."""
+    from types import SimpleNamespace
+
+    clock = [1000.0]
+    monkeypatch.setattr(update, "time", SimpleNamespace(monotonic=lambda: clock[0]))
+
+    def an_update(config, problem):
+        clock[0] += 60.0 * update_minutes
+        return {}
+
+    seen = {}
+    monkeypatch.setattr(update, "update_flow", an_update)
+    monkeypatch.setattr(update, "print_summary", lambda summary: None)
+    monkeypatch.setattr(dg, "diagnose", lambda *a, **k: seen.update(k) or {})
+    monkeypatch.setattr(dg, "print_closure", lambda closure: None)
+    matrices = REPO / "data" / "examples" / "cantilever_matrices"
+    code = update.main(["--model", str(matrices / "model.toml"), "--measured", str(matrices / "measured.csv"),
+                        "--runs-dir", str(tmp_path), "--run-id", "timed", "--close-loop", *flag])
+    out = capsys.readouterr().out
+    assert code == 0 and seen["max_minutes"] == pytest.approx(limit)
+    assert (f"closure: time limit {limit:g} min" in out) == (not flag), out
