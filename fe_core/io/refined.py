@@ -1,0 +1,93 @@
+"""A model file of the same structure on its once-refined mesh (ten-node tetrahedra, :func:`fe_core.refine.refine_tet10`).
+
+``write_refined(model_toml, out_dir)`` writes ``out_dir/refined.vtu`` and ``out_dir/model.toml``: the model file's text
+with its ``mesh`` pointing to the refined mesh, everything else as written (materials, segments by cell set,
+supports, sensors, damping). The refined mesh keeps the coarse file's node numbers (a support or sensor given by
+node number means the same node), its new nodes after them; cell sets and node sets are written as 0/1 cell and
+point data, which :func:`fe_core.io.mesh_file.read_mesh` reads back as sets. A ``point`` placed at its nearest node
+(``point_placement = "nearest"``, the default) becomes that coarse node (``node = N``): the refined mesh has nodes
+nearer the point, and a sensor or hammer moved by part of an element would change the FRF by more than the mesh
+does (on the generator's block, 9-15 % rms of ln|H| against 0.1-0.3 % from the mesh at the resonances); the
+refined model is to differ from the model by its discretisation alone.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from ..refine import refine_tet10
+from .mesh_file import read_mesh
+from .model_toml.spec import ModelFileError, _load
+
+__all__ = ["write_refined", "RefinementError"]
+
+_MESH_KEY = re.compile(r"""^(?P<key>[ \t]*mesh[ \t]*=[ \t]*)(?P<q>["']).*?(?P=q)""", re.MULTILINE)
+_POINT_KEY = re.compile(r"^(?P<indent>[ \t]*)point[ \t]*=[ \t]*(?P<value>\[[^\]\n]*\])", re.MULTILINE)
+
+
+class RefinementError(ValueError):
+    """A model that cannot be refined (not a mesh model, not ten-node tetrahedra); the message names the file."""
+
+
+def write_refined(model_toml: str | Path, out_dir: str | Path) -> Path:
+    """Write the model file on the once-refined mesh into ``out_dir``; returns its ``model.toml``.
+
+    Raises :class:`RefinementError` for a model file without a mesh (matrices, a solver deck) or a mesh of other
+    cells than ``tetra10``; an existing refinement of the same model file (same text and mesh) is kept.
+    """
+    import meshio
+
+    model_toml = Path(model_toml).resolve()
+    out_dir = Path(out_dir)
+    spec = _load(model_toml)
+    if "mesh" not in spec.data:
+        raise RefinementError(f"{model_toml}: the model has no mesh file (matrices or a solver deck): its own "
+                              "discretisation error is not measured by refinement")
+    mesh_path = spec.file("mesh", spec.data["mesh"])
+    text = model_toml.read_text()
+    stamp = {"model": str(model_toml), "model_text": text, "mesh_bytes": mesh_path.stat().st_size,
+             "mesh_mtime_ns": mesh_path.stat().st_mtime_ns}
+    target, vtu, record = out_dir / "model.toml", out_dir / "refined.vtu", out_dir / "refined.json"
+    if target.is_file() and vtu.is_file() and record.is_file() and json.loads(record.read_text()) == stamp:
+        return target
+    mf = read_mesh(mesh_path)
+    if mf.cell_type != "tetra10":
+        raise RefinementError(f"{model_toml}: its mesh {mesh_path.name} has {mf.cell_type} cells; refinement is "
+                              "implemented for ten-node tetrahedra (tetra10)")
+    coarse = mf.mesh
+    fine = refine_tet10(coarse)
+    n_coarse, n_file = coarse.n_nodes, int(mf.file_node.max()) + 1
+    file_index = np.concatenate([mf.file_node, n_file + np.arange(fine.n_nodes - n_coarse)])
+    points = np.zeros((n_file + fine.n_nodes - n_coarse, 3))
+    points[:n_file] = coarse.nodes[0]  # gaps (file nodes in no volume cell) hold a used node's place: read drops them
+    points[file_index] = fine.nodes
+    cell_data, point_data = {}, {}
+    for name, idx in fine.cell_sets.items():
+        flag = np.zeros(fine.n_cells, np.int8)
+        flag[idx] = 1
+        cell_data[name] = [flag]
+    for name, idx in fine.node_sets.items():
+        flag = np.zeros(len(points), np.int8)
+        flag[file_index[idx]] = 1
+        point_data[name] = flag
+    out_dir.mkdir(parents=True, exist_ok=True)
+    meshio.write(vtu, meshio.Mesh(points, [("tetra10", file_index[fine.cells])], cell_data=cell_data,
+                                  point_data=point_data))
+    new_text, n = _MESH_KEY.subn(lambda m: f'{m["key"]}"{vtu.resolve().as_posix()}"', text, count=1)
+    if spec.data.get("point_placement", "nearest") == "nearest":
+        def at_node(m):
+            point = np.asarray(tomllib.loads(f"p = {m['value']}")["p"], float)
+            i = int(np.argmin(np.linalg.norm(coarse.nodes - point, axis=1)))
+            return f"{m['indent']}node = {int(mf.file_node[i])}  # point = {m['value']}: its nearest node"
+        new_text = _POINT_KEY.sub(at_node, new_text)
+    if n != 1:
+        raise ModelFileError(f"{model_toml}: no top-level 'mesh = \"...\"' line to point at the refined mesh")
+    target.write_text(f"# {model_toml} on its once-refined mesh (python -m flows.model_error; fe_core.io.refined)\n"
+                      + new_text)
+    record.write_text(json.dumps(stamp))
+    return target
