@@ -24,7 +24,8 @@ from prefect import flow  # noqa: E402
 
 from fe_core.closure.fits import ALPHA_BOUNDS  # noqa: E402
 from fe_core.io.refined import RefinementError  # noqa: E402
-from flows.diagnose import DiagnoseError, closure_data, run_folder, run_problem  # noqa: E402
+from flows.diagnose import (MASS_FACTORS_REFUSED, DiagnoseError, closure_data, run_folder,  # noqa: E402
+                            run_problem)
 from tasks.io.measured import MeasuredDataError  # noqa: E402
 from tasks.model_error import own_error_task, refine_task  # noqa: E402
 from tasks.runstore import atomic_write_bytes, atomic_write_json  # noqa: E402
@@ -84,6 +85,9 @@ def main(argv: list[str] | None = None) -> int:
         root, summary, manifest = run_folder(args.run_id, args.runs_dir)
         cfg = manifest.get("config", {})
         problem = run_problem(cfg)
+        gammas = [k for k in summary["parameters"] if k.startswith("gamma_")]
+        if gammas:  # the model's fits here refit alpha only, as the closure's do
+            raise DiagnoseError(f"{root / 'summary.json'}: {MASS_FACTORS_REFUSED.format(names=', '.join(gammas))}")
         names = [f"alpha_{i + 1}" for i in range(problem.model.n_segments)]
         missing = [n for n in names if n not in summary["parameters"]]
         if missing:
