@@ -7,7 +7,9 @@ state a bound the run does not meet. Tables printed by the benchmarks repeat col
 
 from __future__ import annotations
 
+import json
 import math
+import shutil
 
 import pytest
 
@@ -76,3 +78,35 @@ def test_a_row_under_the_invocations_lock_is_recorded_as_locked(tmp_path, monkey
     lock = tmp_path / "lock"
     lock.touch()
     assert H.run_row(row, lock)["locked"]
+
+
+def test_only_some_rows_keeps_the_others_as_the_page_had_them(tmp_path, monkeypatch):
+    """``--only ROW`` on a clone with no stored runs rewrote the page from that row alone (673 lines of other rows
+    were lost): the page's records are committed beside it, and each row shows the newer of its local run and them."""
+    from types import SimpleNamespace
+
+    import benchmarks.headline as H
+    import benchmarks.headline.__main__ as M
+
+    for mod in (H, M):
+        monkeypatch.setattr(mod, "REPO", tmp_path)
+        monkeypatch.setattr(mod, "WORK", tmp_path / "runs" / "headline")
+        monkeypatch.setattr(mod, "PAGE", tmp_path / "headline.md")
+    monkeypatch.setattr(H, "RECORDS", tmp_path / "headline.json")
+    monkeypatch.setattr(H, "README", tmp_path / "README.md")
+    rows = [SimpleNamespace(key=k, what=k, details="d", note="", env={}, commands=[(["json.tool", "--help"], {})],
+                            summarise=lambda out, log, timing, k=k: (f"result of {k}", {"k": k})) for k in "ab"]
+    monkeypatch.setattr("benchmarks.headline.rows.ROWS", rows)
+    old = {k: {**H.run_row(r, None), "date": "2020-01-01 00:00 UTC", "commit": "old"} for k, r in zip("ab", rows)}
+    (tmp_path / "headline.json").write_text(json.dumps(old))
+    shutil.rmtree(tmp_path / "runs")                                    # a fresh clone: nothing stored here
+    assert M.main(["--only", "b", "--lock", "none", "--no-readme"]) == 0
+    page = (tmp_path / "headline.md").read_text()
+    assert "result of a" in page and "`old`" in page                   # row a as the page had it
+    assert page.count("result of b") == 2 and page.count("`old`") == 3 # b rerun; `old` in header, a's cell, a's section
+    kept = json.loads((tmp_path / "headline.json").read_text())
+    assert kept["a"]["commit"] == "old" and kept["b"]["commit"] != "old"
+    stale = {**old["a"], "date": "2019-01-01 00:00 UTC", "result": "stale"}  # an older local run loses to the page
+    (tmp_path / "runs" / "headline" / "a").mkdir(parents=True)
+    (tmp_path / "runs" / "headline" / "a" / "row.json").write_text(json.dumps(stale))
+    assert H.current(["a"])["a"]["result"] == "result of a"

@@ -15,8 +15,10 @@ the peak resident memory (``os.wait4``) are measured; the load average before an
 and logs go to ``runs/headline/<row>/``; ``row.json`` there holds the row's commit (``git rev-parse
 --short HEAD``), whether the tree was clean, the date, the timings and the figures read from the outputs.
 
-The page is written from every stored ``row.json`` (so ``--only`` and ``--keep`` resume a partial run), and
-the README's headline table is rewritten from the same figures (``--no-readme`` leaves it): the README's
+The page is written from the rows' records: each row's newer of its ``row.json`` here and its record in
+``docs/results/headline.json`` (committed beside the page, rewritten with it), so ``--only`` on a fresh clone
+reruns some rows and keeps the others as the page had them; ``--keep`` resumes a partial run. The README's
+headline table is rewritten from the same figures (``--no-readme`` leaves it): the README's
 result column is then exactly what the page measured. ``tests/test_docs.py`` checks that every number of
 that column is on the page and that the page's commits are at most 40 commits of code or data behind HEAD.
 """
@@ -37,6 +39,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 PAGE = REPO / "docs" / "results" / "headline.md"
+RECORDS = REPO / "docs" / "results" / "headline.json"     # the page's rows, committed: what --only keeps
 README = REPO / "README.md"
 WORK = REPO / "runs" / "headline"
 DEFAULT_LOCK = Path("/work/locks/heavy")
@@ -126,8 +129,24 @@ def read_row(row, out: Path, timing: list[dict]) -> dict:
 
 
 def stored(key: str) -> dict | None:
+    """The row's result stored in this tree's ``runs/headline`` (what ``--keep`` resumes from), or None."""
     path = WORK / key / "row.json"
     return json.loads(path.read_text()) if path.exists() else None
+
+
+def committed() -> dict:
+    """The records the committed page was written from (``docs/results/headline.json``), by row key."""
+    return json.loads(RECORDS.read_text()) if RECORDS.exists() else {}
+
+
+def current(keys, page: dict | None = None) -> dict:
+    """Per row the newer (by date) of this tree's stored result and the committed page's, or None."""
+    page = committed() if page is None else page
+    out = {}
+    for key in keys:
+        have = [r for r in (stored(key), page.get(key)) if r]
+        out[key] = max(have, key=lambda r: r["date"]) if have else None
+    return out
 
 
 def _page_link(details: str) -> str:
@@ -194,6 +213,8 @@ def write_page(rows, records: dict, total: dict) -> str:
             lines += [f"Result: {rec['result']}", "", "Figures:", "", "```json",
                       json.dumps(rec["figures"], indent=1, default=str), "```", ""]
     PAGE.write_text("\n".join(lines) + "\n")
+    RECORDS.write_text(json.dumps({r.key: records[r.key] for r in rows if records.get(r.key)}, indent=1,
+                                  default=str) + "\n")
     return PAGE.read_text()
 
 

@@ -8,8 +8,8 @@ import sys
 import time
 from pathlib import Path
 
-from benchmarks.headline import (DEFAULT_LOCK, PAGE, REPO, SECTION, WORK, locked, read_row, run_row, stored,
-                                 write_page, write_readme)
+from benchmarks.headline import (DEFAULT_LOCK, PAGE, REPO, SECTION, WORK, current, locked, read_row, run_row,
+                                 stored, write_page, write_readme)
 import benchmarks.headline as headline
 
 
@@ -52,11 +52,12 @@ def main(argv: list[str] | None = None) -> int:
                     rec["lock_wait_s"] = round(waited, 1)
                 ran.append(rec)
                 print(f"[{r.key}] {rec['wall_s']:.0f} s: {rec['result'] or rec['error']}", flush=True)
-    records = {r.key: stored(r.key) for r in ROWS}
+    records = current([r.key for r in ROWS])
     if args.reread:
         for r in ROWS:
-            rec = records[r.key]
+            rec = stored(r.key)
             if rec:
+                records[r.key] = rec
                 rec.update(read_row(r, WORK / r.key, rec["commands"]))
                 (WORK / r.key / "row.json").write_text(json.dumps(rec, indent=1, default=str))
     total = {}
