@@ -73,9 +73,9 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
         size: :func:`strategies.closure_emulator.first_round`, handed in since this package knows no MRGP);
         an explicit option, off by default.
     max_minutes : float, optional
-        Time limit of the closure from this call: the forward selection starts no further round, check or swap
-        after it (:func:`fe_core.closure.selection.forward_select`'s ``out_of_time``); the baseline and a
-        round's check under way finish first.
+        Time limit of the closure from this call: the forward selection starts a round or swap only while it and
+        the backward check after it fit (:func:`fe_core.closure.selection.forward_select`'s ``out_of_time``,
+        :class:`fe_core.closure.budget.Budget`); the baseline and a check under way finish first.
     """
     times = {"baseline": 0.0, "screen": 0.0, "check": 0.0}
     t = time.perf_counter()
@@ -97,7 +97,7 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     sel = forward_select(model, freqs, u, handed.pop("start", base), handed.pop("analysis", before), library,
                          significance=significance, per_type=per_type, max_moves=max_moves, check_noise=check_noise,
                          alpha_bounds=alpha_bounds, max_effects=max_effects, times=times, swaps=swaps, baseline=base,
-                         out_of_time=None if deadline is None else (lambda: time.perf_counter() > deadline), **handed)
+                         out_of_time=None if deadline is None else (lambda margin=0.0: time.perf_counter() + margin > deadline), **handed)
     for c in (handed.get("rounds") or [[]])[0]:  # the implausible fits of a first round made with the emulator
         if c.fit is not None and c.implausible and all(c is not d for d in sel.implausible):
             sel.implausible.insert(0, c)

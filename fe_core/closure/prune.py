@@ -46,8 +46,12 @@ def _refit(model, freqs_hz, amplitude, alpha, applied, alpha_bounds, restart=Non
         return fit_update(model, freqs_hz, amplitude, start, last.effect, last.location, last.values,
                           prior=applied[:-1], alpha_bounds=alpha_bounds)
     best = from_(alpha)
+    log.info("backward check: refit with %d effect(s): %d evaluations, %.1f s", len(applied), best.evaluations,
+             best.seconds)   # the cost fe_core.closure.budget reserves for
     if restart is not None and not np.allclose(restart, alpha, rtol=0.0, atol=1e-9):
         other = from_(np.asarray(restart, float))
+        log.info("backward check: refit from the alpha-only fit's alpha: %d evaluations, %.1f s", other.evaluations,
+                 other.seconds)
         if other.rss < best.rss:
             log.info("backward check: the refit from the alpha-only fit's alpha is better (sum of squares %.4g "
                      "against %.4g)", other.rss, best.rss)

@@ -22,9 +22,11 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
+from .budget import Budget
 from .decisions import decide, dedupe, merge, rank, score
 from .fits import ALPHA_BOUNDS, Fit, checks_per_type, far_off, fit_update
 from .screening import (Candidate, _relocation_target, _start_value, check_all, check_in_waves,
@@ -242,7 +244,8 @@ def swap_pass(model, freqs_hz, amplitude, current: Fit, steps: list[Candidate], 
     swapped for a patch that shifts no mode by 0.2 %.
 
     ``check_many``: the checks of a place in one call (:func:`fe_core.closure.screening.check_all`, the default).
-    ``late``: the closure's time limit, asked before each refinement of a contender.
+    ``late``: the closure's time limit, asked before a place's checks (a place not checked is left as it is, its
+    rivals None) and before each refinement of a contender.
     """
     by_kind = {e.kind: e for e in library}
     check_many = check_all if check_many is None else check_many
@@ -256,6 +259,8 @@ def swap_pass(model, freqs_hz, amplitude, current: Fit, steps: list[Candidate], 
                              max_evaluations=CHECK_EVALUATIONS, tol=1e-6)
         incumbent = _incumbent(current, j, steps[j])
         screened = screen(model, freqs_hz, without, library)
+        if late is not None and late():
+            break
         checked = check_many(model, freqs_hz, u, without,
                              [(by_kind[c.effect], c) for c in pick_for_check(screened, per_type, always=always)
                               if (c.effect, c.location) != (incumbent.effect, incumbent.location)],
@@ -288,7 +293,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
                    max_effects: int = 3, times: dict | None = None, steps: Sequence[Candidate] = (),
                    rounds: Sequence[list[Candidate]] = (), swaps: bool = True,
                    always: Sequence[str] = ("sensor_mass",), search: bool = True,
-                   baseline: Fit | None = None, out_of_time: Callable[[], bool] | None = None,
+                   baseline: Fit | None = None, out_of_time: Callable[[float], bool] | None = None,
                    check_many: Callable | None = None) -> Selection:
     """Add effects one at a time from ``start`` (a fit with or without effects, ``analysis`` its residual).
 
@@ -316,9 +321,12 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
     ``baseline``: the alpha-only fit; once the misfit left is the model's own level, a further effect must take out
     most of it (:func:`fe_core.closure.far.misfit.mark_polish`).
 
-    ``out_of_time``: once it returns True no further round, check or swap is started; a round cut short is not
-    decided on part of its checks (its ranking is kept). The effects added so far go through the backward check
-    as usual and ``Selection.stopped`` is ``"time limit"``. Stopped at ``max_effects``, a backward check that drops
+    ``out_of_time(margin)``: whether fewer than ``margin`` seconds are left of the closure's time (None: no limit).
+    A round or swap pass starts only if the time a round or pass took last, and the backward check after it
+    (:class:`.budget.Budget`: its refits at the seconds per evaluation measured on the fits so far), are left; no
+    check or refinement starts once the backward check alone no longer fits. A round cut short is not decided on
+    part of its checks (its ranking is kept). The effects added so far go through the backward check as usual and
+    ``Selection.stopped`` is ``"time limit"``. Stopped at ``max_effects``, a backward check that drops
     the last effect added makes it ``"nothing stands out"``: the best of the last round did not.
 
     ``check_many``: how a set of full checks is made (:func:`fe_core.closure.screening.check_all`'s arguments and
@@ -327,7 +335,8 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
     (``out_of_time`` is asked between waves).
     """
     times = {} if times is None else times
-    late = out_of_time if out_of_time is not None else (lambda: False)
+    budget = Budget(out_of_time, restart=baseline is not None or not start.applied)
+    budget.see([start])
     searches: list[dict] = []
     freqs = np.asarray(freqs_hz, float)
     u = np.asarray(amplitude, float)
@@ -353,11 +362,13 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         implausible.extend(c for c in cands if c.implausible and id(c) not in seen)
 
     while len(steps) < max_effects:
-        if analysis.structured and late():  # at noise the round below only screens, and stops at "noise"
-            log.info("the closure's time limit: no further round after %d effect(s)", len(steps))
+        if analysis.structured and budget.late(len(steps) + 1, "round"):  # at noise a round only screens
+            log.info("the closure's time limit: no further round after %d effect(s) (%s, and %.0f s for a round)",
+                     len(steps), budget.reserve_text(len(steps) + 1), budget.step_seconds.get("round", 0.0))
             stopped = "time limit"
             break
-        t = time.perf_counter()
+        late = partial(budget.late, len(steps) + 1)   # the round's checks, as long as the backward check fits
+        t = t_round = time.perf_counter()
         screened = screen(model, freqs, current, library)
         times["screen"] = times.get("screen", 0.0) + time.perf_counter() - t
         if baseline is not None and steps and analysis.structured and not worth_checking(
@@ -381,6 +392,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
             checked = check_in_waves(model, freqs, u, current, by_kind, first, rest, max_moves, alpha_bounds,
                                      CHECK_EVALUATIONS, out_of_time=late, check_many=check_many)
         checked = dedupe(checked)
+        budget.see(c.fit for c in checked)
         times["check"] = times.get("check", 0.0) + time.perf_counter() - t
         judged = False
         if steps and analysis.structured and not late():
@@ -405,6 +417,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
         if baseline is not None and steps:  # at the model's own misfit a further effect must take out most of it
             mark_polish(baseline.residual, current.residual, checked, analysis.sigma)
         chosen = decide(current, analysis, checked)
+        budget.step_seconds["round"] = time.perf_counter() - t_round
         note_implausible(checked)
         rounds.append(rank(merge(checked, screened)))
         if chosen is None:
@@ -421,14 +434,19 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
             t = time.perf_counter()
             for _ in range(MAX_SWAPS * len(steps)):
                 stale = [j for j in range(len(steps)) if keys[j] != _key(current, j)]
-                if not stale or late():
+                if not stale or budget.late(len(steps), "swap"):
                     break
+                t_swap = time.perf_counter()
                 current, steps, tried, made, moved = swap_pass(model, freqs, u, current, steps, library,
                                                                per_type=per_type, max_moves=max_moves,
                                                                alpha_bounds=alpha_bounds, always=always,
                                                                places=stale[:1], sigma=analysis.sigma,
-                                                               check_many=check_many, late=late)
+                                                               check_many=check_many,
+                                                               late=partial(budget.late, len(steps)))
+                budget.step_seconds["swap"] = time.perf_counter() - t_swap
                 j = stale[0]
+                if tried[j] is None:  # out of time before its checks: the place stays as it was
+                    break
                 rivals[j], keys[j] = tried[j], _key(current, j)
                 note_implausible(tried[j])
                 swap_log += made

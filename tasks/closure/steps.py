@@ -403,7 +403,7 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
                              max_moves=settings["max_moves"], alpha_bounds=tuple(settings["alpha_bounds"]),
                              max_effects=settings.get("max_effects", 3), steps=[chosen], rounds=[ranked],
                              baseline=base, times=times, out_of_time=None if deadline is None else
-                             (lambda: time.time() > deadline),
+                             (lambda margin=0.0: time.time() + margin > deadline),
                              check_many=process_checks(problem, settings, library))
         _logger().info("closure: forward selection %s", ", ".join(f"{k} {v:.0f} s" for k, v in times.items()))
         steps = sel.steps

@@ -225,7 +225,7 @@ def test_the_time_limit_stops_the_selection_between_checks_and_leaves_the_round_
     real = screening.check
     monkeypatch.setattr(screening, "check", lambda *a, **k: made.append(a[5]) or real(*a, **k))
     sel = forward_select(benchmark_model, m.frequencies_hz, m.amplitude, base, before, library, per_type=2,
-                         out_of_time=lambda: len(made) >= 2, search=False)
+                         out_of_time=lambda margin=0.0: len(made) >= 2, search=False)
     assert len(made) == 2 and sel.stopped == "time limit" and not sel.steps
     kept = {id(c) for c in sel.rounds[-1] if c.fit is not None}  # the two fits (one, if they met at one node)
     assert kept and kept <= {id(c) for c in made} and all(c.fit is not None for c in made)
@@ -307,3 +307,51 @@ def test_a_selection_at_its_most_effects_whose_last_effect_is_dropped_stopped_be
         assert not sel.steps and sel.stopped == "nothing stands out"
     else:
         assert len(sel.steps) == 1 and sel.stopped == "most effects"
+
+
+def test_the_budget_counts_the_backward_checks_refits_at_the_seconds_measured_on_the_fits():
+    from fe_core.closure.budget import REFIT_EVALUATIONS, Budget, backward_refits
+
+    # one effect: only the refit after a drop across the band; two or more: one (two with a restart) without each
+    assert [backward_refits(n, restart=True) for n in range(4)] == [0, 1, 5, 7]
+    assert [backward_refits(n, restart=False, across=False) for n in range(4)] == [0, 0, 2, 3]
+    asked = []
+    b = Budget(lambda margin: asked.append(margin) or margin > 100.0, restart=True)
+    fit = lambda s, e: Fit(alpha=np.zeros(1), effect=None, location=None, values=np.zeros(0), model_amplitude=None,
+                           residual=np.zeros((1, 1)), evaluations=e, seconds=s)
+    b.see([fit(8.0, 4), None, fit(1.0, 0), fit(3.0, 3)])   # the slowest per evaluation: 2 s
+    assert b.per_evaluation == 2.0 and b.backward_seconds(2) == 5 * REFIT_EVALUATIONS * 2.0
+    assert not b.late(0) and asked[-1] == 0.0
+    b.step_seconds["round"] = 30.0
+    assert b.late(1, "round") == (REFIT_EVALUATIONS * 2.0 + 30.0 > 100.0) and asked[-1] == REFIT_EVALUATIONS * 2.0 + 30
+    assert not Budget(None, restart=True).late(3, "round")
+
+
+def test_a_round_starts_only_if_the_backward_check_after_it_fits_in_the_time_left(benchmark_model, monkeypatch):
+    """two_effects.csv from the true alpha: with time for the backward check of one effect but not of two, the
+    selection adds the first effect and stops (held-out he07 began a second round and a swap it could not afford:
+    the backward check of its two effects then took 329 s past the limit); with time for both, it adds two."""
+    from fe_core.closure import budget as B
+    from fe_core.closure.fits import baseline
+    from fe_core.closure.selection import forward_select
+
+    monkeypatch.setattr(B.Budget, "see", lambda self, fits: setattr(self, "per_evaluation", 1.0))  # 1 s each
+    truth = TRUTH2["two_effects.csv"]
+    m = read_measured(DATA2 / "two_effects.csv")
+    library = build_library(benchmark_model, ["point_mass", "grounded_spring"])
+    base, before = baseline(benchmark_model, m.frequencies_hz, m.amplitude, truth["alpha"], noise=0.005)
+    one = B.backward_refits(1, restart=True) * B.REFIT_EVALUATIONS   # 60 s
+    two = B.backward_refits(2, restart=True) * B.REFIT_EVALUATIONS   # 300 s
+
+    def select(seconds_left):
+        return forward_select(benchmark_model, m.frequencies_hz, m.amplitude, base, before, library, per_type=1,
+                              max_effects=2, search=False, swaps=False, baseline=base,
+                              out_of_time=lambda margin: margin > seconds_left)
+    short = select(0.5 * (one + two))
+    # one round, its effect added (the backward check may then drop it: alone, the mass does not carry over
+    # across the band on these data), no second round
+    assert short.stopped == "time limit" and len(short.rounds) == 1 and len(short.steps) <= 1
+    assert any(c.fit is not None for c in short.rounds[0])
+    free = select(10.0 * two)
+    assert free.stopped != "time limit" and len(free.rounds) == 2 and len(free.steps) == 2
+    assert select(0.5 * one).rounds == [] and select(0.5 * one).stopped == "time limit"
