@@ -230,6 +230,9 @@ def print_closure(summary: dict, file=None) -> None:
     verdict = summary.get("verdict")
     if verdict is not None:
         print(f"verdict: {verdict}", file=file)
+        for e in summary.get("not_claimed") or []:   # fitted within the model's own error, short of the noise
+            print(f"  not claimed: {e['type']} at {e['location']}, {e['parameter']} = {e['value']:.4g} {e['unit']}",
+                  file=file)
         for e in summary.get("effects", []):
             evidence = (f", evidence {e['evidence']:.0%} ("
                         f"{'singled out' if e['identified'] else 'not singled out'} among the rivals checked there)")

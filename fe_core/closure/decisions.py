@@ -72,8 +72,13 @@ class ClosureResult:
     misfit: object = None
     searches: list = field(default_factory=list)
     #: Why the forward selection stopped (:attr:`fe_core.closure.selection.Selection.stopped`): "noise",
-    #: "nothing stands out", "most effects" or "time limit".
+    #: "nothing stands out", "most effects" or "time limit"; "the model's own error" when it did not start.
     stopped: str = ""
+    #: The baseline's misfit as per-mode frequency shifts, and whether it is within the model's own error
+    #: (:class:`fe_core.closure.far.shifts.ModeShifts`; None when the baseline is noise).
+    own_error: object = None
+    #: Effects the selection fitted but the closure does not claim (:func:`fe_core.closure.far.shifts.unclaimed`).
+    unclaimed: list = field(default_factory=list)
 
 
 def at_bound(effect: Effect, location: str, values, rtol: float = 1e-2) -> bool:
@@ -151,14 +156,15 @@ def stands_out(base: Fit, candidate: Candidate, noise=None) -> bool:
 
 
 def verdict(before: ResidualAnalysis, after: ResidualAnalysis, n_added: int, identified: bool = True,
-            own_misfit: bool = False) -> str:
+            own_misfit: bool = False, own_error: bool = False) -> str:
     """``noise`` (nothing to explain), ``explained`` (effects added, noise after, or a structure left that is the
     model's own misfit (``own_misfit``, :func:`fe_core.closure.far.misfit.judge_misfit`), each effect singled out
     by the data), ``ambiguous`` (explained so, but a rival explanation fits about as well), ``partly explained``
     (effects added, structure remains beyond the model's own misfit) or ``not explained`` (structure, and no effect
     of the library stands out from it: the model's own error or an effect outside the library; as the modal
-    closure says, :mod:`fe_core.modal_update.closure`)."""
-    if not before.structured:
+    closure says, :mod:`fe_core.modal_update.closure`). ``own_error``: the structure before is within the model's
+    own error and nothing is claimed (:func:`fe_core.closure.far.shifts.unclaimed`): ``noise``."""
+    if not before.structured or (own_error and n_added == 0):
         return "noise"
     if n_added == 0:
         return "not explained"

@@ -18,6 +18,7 @@ from .effects import Effect, build_library
 from .decisions import ClosureResult, verdict
 from .fits import ALPHA_BOUNDS, baseline, far_off
 from .far.misfit import judge_misfit
+from .far.shifts import own_error, unclaimed
 from .far.search import alpha_restarts
 from .selection import forward_select
 
@@ -87,6 +88,10 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
                             far_restarts=alpha_restarts)
     times["baseline"] = time.perf_counter() - t
     log.info("baseline: %s", before.summary())
+    # Structure no larger than one mode half a per cent off: the model's own error, unless effects take it to the noise.
+    shifts = own_error(model, freqs, u, base, before.sigma) if before.structured else None
+    if shifts is not None:
+        log.info("baseline: %s", shifts.reason())
     handed = {}
     if emulator is not None and before.structured and far_off(base):
         t = time.perf_counter()
@@ -97,14 +102,24 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     sel = forward_select(model, freqs, u, handed.pop("start", base), handed.pop("analysis", before), library,
                          significance=significance, per_type=per_type, max_moves=max_moves, check_noise=check_noise,
                          alpha_bounds=alpha_bounds, max_effects=max_effects, times=times, swaps=swaps, baseline=base,
-                         out_of_time=None if deadline is None else (lambda margin=0.0: time.perf_counter() + margin > deadline), **handed)
+                         out_of_time=None if deadline is None else
+                         (lambda margin=0.0: time.perf_counter() + margin > deadline), **handed)
     for c in (handed.get("rounds") or [[]])[0]:  # the implausible fits of a first round made with the emulator
         if c.fit is not None and c.implausible and all(c is not d for d in sel.implausible):
             sel.implausible.insert(0, c)
+    left, not_claimed = unclaimed(shifts, len(sel.steps), sel.after.structured, sel.stopped != "time limit"), []
+    if left:   # nothing claimed: the alpha-only fit is the model after, the effects fitted are listed as not claimed
+        log.info("closure: %s; %s", shifts.reason(), "no effect stands out" if not sel.steps else
+                 f"the {len(sel.steps)} effect(s) fitted leave structure: not claimed")
+        not_claimed, sel.steps, sel.final, sel.after = sel.steps, [], base, before
+        sel.weights, sel.rivals, sel.spreads, sel.located = [], [], [], []
+        sel.stopped = "the model's own error"
     misfit = judge_misfit(base.residual, sel.final.residual, sel.after.sigma, sel.stopped == "nothing stands out")
     result = ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
                            sel.final, sel.after, times, sel.steps,
-                           verdict(before, sel.after, len(sel.steps), sel.identified, misfit.own), sel.implausible,
-                           sel.rounds, sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads, sel.located)
+                           verdict(before, sel.after, len(sel.steps), sel.identified, misfit.own, left),
+                           sel.implausible, sel.rounds, sel.weights, sel.rivals, sel.swaps, sel.moves, sel.spreads,
+                           sel.located)
     result.misfit, result.searches, result.stopped = misfit, sel.searches, sel.stopped
+    result.own_error, result.unclaimed = shifts, not_claimed
     return result

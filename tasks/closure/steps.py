@@ -20,6 +20,7 @@ from fe_core.closure import decisions, fits, screening
 from fe_core.closure.effects import extended_frf
 from fe_core.closure.far.misfit import judge_misfit
 from fe_core.closure.far.plausible import mark_first_negligible
+from fe_core.closure.far.shifts import own_error
 from fe_core.closure.far.search import alpha_restarts
 from fe_core.closure.selection import forward_select
 from fe_core.inference.residual import analyse_residual, log_residual
@@ -136,10 +137,13 @@ def baseline_task(root: str, problem, settings: dict) -> dict:
         store.write_table("baseline", "baseline", _param_table(fit, {}))
         store.write_table("baseline", "residual_before",
                           residual_table(freqs, sensors, fit.relative(u), fit.residual))
+        # Structure no larger than one mode half a per cent off: the model's own error, unless effects take it to the
+        # noise (fe_core.closure.far.shifts.unclaimed, in the decision).
+        shifts = own_error(model, freqs, u, fit, analysis.sigma) if analysis.structured else None
         store.finish("baseline", ["baseline", "residual_before"],
                      {"analysis": analysis.to_dict(), "evaluations": fit.evaluations, "seconds": fit.seconds,
-                      "message": fit.message})
-        _logger().info("closure baseline: %s", analysis.summary())
+                      "message": fit.message, "own_error": None if shifts is None else shifts.to_dict()})
+        _logger().info("closure baseline: %s%s", analysis.summary(), "" if shifts is None else f"; {shifts.reason()}")
     return store.info("baseline")
 
 
@@ -409,12 +413,20 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
         steps = sel.steps
         implausible += [c for c in sel.implausible if all(c is not d for d in implausible)]
         final, after = sel.final, sel.after
+    own = store.info("baseline").get("own_error") or {}
+    left = (bool(own.get("within")) and (not steps or after.structured)   # fe_core.closure.far.shifts.unclaimed
+            and (sel is None or sel.stopped != "time limit"))
+    not_claimed = _verdict_json("noise", steps, [], library, final, sel)["effects"] if left and steps else []
+    for e in not_claimed:
+        e["status"] = "not claimed (within the model's own error)"
+    if left:  # nothing claimed: the alpha-only fit is the model after; the effects fitted are listed, not claimed
+        steps, final, after, sel = [], base, before, None
     # The structure left beyond the noise: the model's own misfit when nothing more stands out from it and it is small
     # beside what the effects explained (fe_core.closure.far.misfit.judge_misfit); closure.json reports its size.
     misfit = judge_misfit(base.residual, final.residual, after.sigma, sel is not None and sel.stopped ==
                           "nothing stands out")
     verdict = decisions.verdict(before, after, len(steps), True if sel is None else sel.identified,
-                                misfit.own and after.structured)
+                                misfit.own and after.structured, left)
     cand_df = _candidates_frame(ranked, library)
     if not store.is_finished("decide"):
         store.write_table("decide", "candidates", cand_df)
@@ -433,9 +445,13 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
                             freqs, _verdict_json(verdict, steps, implausible, library, final, sel),
                             float(np.mean(np.abs(at_run))))
     summary.update(misfit.to_dict())
+    summary["own_error"], summary["not_claimed"] = own or None, not_claimed
     if steps and after.structured:
         summary["decision"] += f"; {misfit.reason}"
-    summary["selection_stopped"] = sel.stopped if sel is not None else None
+    elif left:
+        summary["decision"] += f"; {own['reason']}" + (
+            f" ({len(not_claimed)} effect(s) fitted leave structure: not claimed, see not_claimed)" if not_claimed else "")
+    summary["selection_stopped"] = "the model's own error" if left else sel.stopped if sel is not None else None
     summary["selection_seconds"] = {k: round(v, 1) for k, v in times.items()}  # per stage of the forward selection
     summary["max_minutes"] = settings.get("max_minutes")
     if sel is not None and sel.stopped == "time limit":
