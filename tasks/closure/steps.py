@@ -448,8 +448,8 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
     summary["own_error"], summary["not_claimed"] = own or None, not_claimed
     if steps and after.structured:
         summary["decision"] += f"; {misfit.reason}"
-    elif left:
-        summary["decision"] += f"; {own['reason']}" + (
+    elif left:   # not "no checked candidate lowers the extended BIC": some may have, short of the noise
+        summary["decision"] = f"no effect claimed: {own['reason']}" + (
             f" ({len(not_claimed)} effect(s) fitted leave structure: not claimed, see not_claimed)" if not_claimed else "")
     summary["selection_stopped"] = "the model's own error" if left else sel.stopped if sel is not None else None
     summary["selection_seconds"] = {k: round(v, 1) for k, v in times.items()}  # per stage of the forward selection

@@ -161,7 +161,7 @@ def test_within_the_models_own_error_only_effects_that_take_the_residual_to_the_
     assert gain["selection_stopped"] == "the model's own error" and gain["own_error"]["within"]
     assert gain["parameters_after"] == gain["parameters_before"]
     assert gain["not_claimed"] == []
-    assert gain["own_error"]["reason"] in gain["decision"]
+    assert gain["decision"] == f"no effect claimed: {gain['own_error']['reason']}"
     out = io.StringIO()
     dg.print_closure(gain, file=out)
     assert "verdict: noise" in out.getvalue().splitlines() and "not claimed" not in out.getvalue()
