@@ -43,7 +43,7 @@ def rows(results: Path):
                   evaluations=0)
         ms = own_error(model, freqs, u, fit, sigma)
         closure = json.loads((run / "closure" / "closure.json").read_text())
-        left = unclaimed(ms, len(closure["effects"]), bool(closure["residual_after"]["structured"]))
+        left = unclaimed(ms.within, len(closure["effects"]), bool(closure["residual_after"]["structured"]))
         yield {**rec, "before_pct": 100 * ms.before, "single_pct": 100 * ms.single, "ratio": ms.before / ms.single,
                "largest_shift_pct": 100 * ms.largest, "modes": int(ms.shifts.size), "within": ms.within,
                "rule_verdict": "noise" if left else r["verdict"], "seconds": time.perf_counter() - t}

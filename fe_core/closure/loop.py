@@ -107,7 +107,8 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     for c in (handed.get("rounds") or [[]])[0]:  # the implausible fits of a first round made with the emulator
         if c.fit is not None and c.implausible and all(c is not d for d in sel.implausible):
             sel.implausible.insert(0, c)
-    left, not_claimed = unclaimed(shifts, len(sel.steps), sel.after.structured, sel.stopped != "time limit"), []
+    left, not_claimed = unclaimed(shifts is not None and shifts.within, len(sel.steps), sel.after.structured,
+                                   sel.stopped != "time limit"), []
     if left:   # nothing claimed: the alpha-only fit is the model after, the effects fitted are listed as not claimed
         log.info("closure: %s; %s", shifts.reason(), "no effect stands out" if not sel.steps else
                  f"the {len(sel.steps)} effect(s) fitted leave structure: not claimed")

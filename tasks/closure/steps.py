@@ -20,7 +20,7 @@ from fe_core.closure import decisions, fits, screening
 from fe_core.closure.effects import extended_frf
 from fe_core.closure.far.misfit import judge_misfit
 from fe_core.closure.far.plausible import mark_first_negligible
-from fe_core.closure.far.shifts import own_error
+from fe_core.closure.far.shifts import own_error, unclaimed
 from fe_core.closure.far.search import alpha_restarts
 from fe_core.closure.selection import forward_select
 from fe_core.inference.residual import analyse_residual, log_residual
@@ -414,8 +414,8 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
         implausible += [c for c in sel.implausible if all(c is not d for d in implausible)]
         final, after = sel.final, sel.after
     own = store.info("baseline").get("own_error") or {}
-    left = (bool(own.get("within")) and (not steps or after.structured)   # fe_core.closure.far.shifts.unclaimed
-            and (sel is None or sel.stopped != "time limit"))
+    left = unclaimed(own.get("within", False), len(steps), after.structured,
+                     sel is None or sel.stopped != "time limit")
     not_claimed = _verdict_json("noise", steps, [], library, final, sel)["effects"] if left and steps else []
     for e in not_claimed:
         e["status"] = "not claimed (within the model's own error)"
@@ -450,7 +450,8 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
         summary["decision"] += f"; {misfit.reason}"
     elif left:   # not "no checked candidate lowers the extended BIC": some may have, short of the noise
         summary["decision"] = f"no effect claimed: {own['reason']}" + (
-            f" ({len(not_claimed)} effect(s) fitted leave structure: not claimed, see not_claimed)" if not_claimed else "")
+            f" ({len(not_claimed)} effect(s) fitted leave structure: not claimed, see not_claimed)"
+            if not_claimed else "")
     summary["selection_stopped"] = "the model's own error" if left else sel.stopped if sel is not None else None
     summary["selection_seconds"] = {k: round(v, 1) for k, v in times.items()}  # per stage of the forward selection
     summary["max_minutes"] = settings.get("max_minutes")

@@ -81,10 +81,10 @@ def test_structure_smaller_than_one_mode_half_a_per_cent_off_is_the_models_own_e
 def test_nothing_is_claimed_only_within_the_models_own_error_and_short_of_the_noise():
     from fe_core.closure.far.shifts import ModeShifts, unclaimed
 
-    within = ModeShifts(np.ones(3), np.zeros(3), before=0.01, after=0.01, own=0.05, single=0.02)
-    beyond = ModeShifts(np.ones(3), np.zeros(3), before=0.03, after=0.03, own=0.05, single=0.02)
+    within = ModeShifts(np.ones(3), np.zeros(3), before=0.01, after=0.01, single=0.02)
+    beyond = ModeShifts(np.ones(3), np.zeros(3), before=0.03, after=0.03, single=0.02)
     assert within.within and not beyond.within
-    assert unclaimed(within, 0, True) and unclaimed(within, 2, True)   # nothing, or effects short of the noise
-    assert not unclaimed(within, 1, False)                             # an effect that takes it to the noise stands
-    assert not unclaimed(beyond, 0, True) and not unclaimed(None, 0, True)
-    assert not unclaimed(within, 0, True, finished=False)             # stopped by the time limit: not looked enough
+    assert unclaimed(within.within, 0, True) and unclaimed(within.within, 2, True)   # nothing, or short of the noise
+    assert not unclaimed(within.within, 1, False)                  # an effect that takes it to the noise stands
+    assert not unclaimed(beyond.within, 0, True)
+    assert not unclaimed(within.within, 0, True, finished=False)   # stopped by the time limit: not looked enough

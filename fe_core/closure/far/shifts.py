@@ -4,7 +4,8 @@ A model with no effect missing but its own error (mesh, geometry, parametrisatio
 fitted, each mode a little off in frequency: the residual in ``ln|Z|`` is then, to first order, a sum of the
 derivatives of ``ln|Z|`` along each mode's frequency. :func:`mode_shifts` fits those per-mode shifts (relative,
 ``d omega_r / omega_r``) to the residual by weighted nonlinear least squares on the reduced model at the fit
-(:class:`.reduced.ReducedModel`; a shift moves one eigenvalue, its vector and the damping kept) and says how much of the misfit beyond the noise they take out and how large the largest is.
+(:class:`.reduced.ReducedModel`; a shift moves one eigenvalue, its vector and the damping kept) and says how much
+of the misfit beyond the noise they take out and how large the largest is.
 
 The closure's size rule (:data:`.plausible.MIN_SHIFT`) holds half a per cent of a natural frequency for the model's
 own error: an effect that shifts no mode by that much cannot be told from it. The same bar read the other way: a
@@ -36,11 +37,9 @@ class ModeShifts:
     shifts: np.ndarray
     before: float
     after: float
-    #: The rms of ``ln|Z|`` that shifts of ``bar`` of every mode in the band, each on its own, would leave:
-    #: ``sqrt(sum_r mean(d_r^2))``, the model's own error at the size rule's bar.
-    own: float = float("nan")
-    #: The rms of ``ln|Z|`` that one mode ``bar`` off leaves, over the modes in the band (``own / sqrt(modes)``): what
-    #: an effect the size rule just accepts (one that shifts a mode by the bar) would leave.
+    #: The rms of ``ln|Z|`` that one mode ``bar`` off leaves, averaged over the modes in the band
+    #: (``sqrt(mean_r mean(d_r^2))``): what an effect the size rule just accepts (one that shifts a mode by the bar)
+    #: would leave.
     single: float = float("nan")
 
     @property
@@ -64,15 +63,11 @@ class ModeShifts:
         """Share of the sum of squares beyond the noise that the shifts take out."""
         return 1.0 - (self.after / self.before) ** 2 if self.before > 0 else 1.0
 
-    def summary(self) -> str:
-        return (f"{self.shifts.size} modes in the band, shifts of at most {self.largest:.2%} take out "
-                f"{self.taken:.0%} of the misfit beyond the noise ({self.before:.2%} -> {self.after:.2%} rms)")
-
     def to_dict(self) -> dict:
         return {"within": self.within, "reason": self.reason(),
                 "frequencies_hz": self.frequencies_hz.tolist(), "shifts": self.shifts.tolist(),
                 "largest": self.largest, "before": self.before, "after": self.after, "taken": self.taken,
-                "own": self.own, "single": self.single}
+                "single": self.single}
 
 
 def mode_shifts(rm, alpha, amplitude, sigma, bar: float = MIN_SHIFT) -> ModeShifts:
@@ -117,23 +112,22 @@ def mode_shifts(rm, alpha, amplitude, sigma, bar: float = MIN_SHIFT) -> ModeShif
             cols.append((np.real(dZ / Z) * weight).ravel())
         return np.column_stack(cols)
 
-    r0 = residual(np.zeros(len(groups))) / weight.ravel()
     lnZ0 = np.log(np.abs(response(np.zeros(len(groups)))[2]))
+    r0 = lnZ0 + log_gain - np.log(u)                     # the residual as it is
     each = []
     for k in range(band.size):
         x = np.zeros(len(groups))
         x[k] = np.log1p(bar)
         each.append(float(np.mean((np.log(np.abs(response(x)[2])) - lnZ0) ** 2)))
-    own, single = float(np.sqrt(sum(each))), float(np.sqrt(np.mean(each))) if each else float("nan")
+    single = float(np.sqrt(np.mean(each))) if each else float("nan")
     if not band.size:
-        return ModeShifts(f[band], np.zeros(0), smooth_misfit(r0.reshape(u.shape), s),
-                          smooth_misfit(r0.reshape(u.shape), s), own, single)
+        return ModeShifts(f[band], np.zeros(0), smooth_misfit(r0, s), smooth_misfit(r0, s), single)
     # shifts within a factor of two: a mode the data do not show (held-out hd04) would run off without bound
     sol = least_squares(residual, np.zeros(len(groups)), jac=jacobian, method="trf", xtol=1e-10, ftol=1e-12,
                         bounds=(-np.log(2.0), np.log(2.0)))
     left_over = sol.fun / weight.ravel()
-    return ModeShifts(f[band], np.expm1(sol.x[:band.size]), smooth_misfit(r0.reshape(u.shape), s),
-                      smooth_misfit(left_over.reshape(u.shape), s), own, single)
+    return ModeShifts(f[band], np.expm1(sol.x[:band.size]), smooth_misfit(r0, s),
+                      smooth_misfit(left_over.reshape(u.shape), s), single)
 
 
 def own_error(model, freqs_hz, amplitude, fit, sigma) -> ModeShifts:
@@ -145,11 +139,11 @@ def own_error(model, freqs_hz, amplitude, fit, sigma) -> ModeShifts:
     return mode_shifts(rm, fit.alpha, amplitude, sigma)
 
 
-def unclaimed(own: ModeShifts | None, n_added: int, after_structured: bool, finished: bool = True) -> bool:
-    """Whether a closure claims nothing: its baseline's misfit is within the model's own error (``own``,
+def unclaimed(within: bool, n_added: int, after_structured: bool, finished: bool = True) -> bool:
+    """Whether a closure claims nothing: its baseline's misfit is within the model's own error (``within``,
     :attr:`ModeShifts.within`) and the effects it added, if any, did not take the residual to the noise (they fitted
     part of that error: the fifth held-out set's clean he08 got a 2 % sensor gain so). Effects that do take it to
     the noise stand (the three-plate closure table's, from 0.6-3.1 % rms of misfit against 3.0-3.5 % for one mode
     off: on the model's own mesh a 0.15 kg mass leaves little once alpha is refitted, and is found). A selection the
     time limit stopped (``finished`` False) did not look far enough to say so."""
-    return own is not None and own.within and finished and (n_added == 0 or after_structured)
+    return bool(within) and finished and (n_added == 0 or after_structured)
