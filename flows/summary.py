@@ -60,8 +60,9 @@ def run_summary(problem, config, store: RunStore, iterations: int, outcome: dict
     }
     if "polish" in outcome:
         summary["polish"] = outcome["polish"]
-    if "evidence" in outcome:
-        summary["evidence"] = outcome["evidence"]
+    for key in ("evidence", "own_error"):
+        if key in outcome:
+            summary[key] = outcome[key]
     if config.true_parameters is not None:
         truth = np.asarray(config.true_parameters, float)
         summary["true_parameters"] = {n: float(t) for n, t in zip(names, truth)}
@@ -145,6 +146,9 @@ def posterior_not_sampled(summary: dict) -> str:
     if evidence.get("choice") == "closure":
         return ("the run stopped on the evidence of a missing effect; these intervals are conditional on a model "
                 "that lacks it")
+    if summary.get("own_error"):
+        return ("the run converged to the model's own error, above the noise; these intervals are conditional on a "
+                "model that explains the data only up to it")
     if _hybrid_not_converged(summary):
         return ("the run did not converge; these intervals are conditional on a model that does not explain the data, "
                 "whose posterior is not worth the sampling's FE runs")
@@ -279,8 +283,9 @@ def print_summary(summary: dict, file=None) -> None:
     print(f"run folder: {summary.get('run_folder', '')}", file=file)
     extra = (f" ({summary['jacobians']} with Jacobian, {summary['fe_equivalents']:g} FE-run equivalents; "
              f"{summary['rounds']} rounds)" if "jacobians" in summary else "")
-    print(f"strategy {summary['strategy']}, trainer {summary['trainer']}: "
-          f"{'converged' if summary['converged'] else 'NOT converged'} after {summary['iterations']} "
+    state = ("NOT converged" if not summary["converged"] else
+             "converged to the model's own error" if summary.get("own_error") else "converged")
+    print(f"strategy {summary['strategy']}, trainer {summary['trainer']}: {state} after {summary['iterations']} "
           f"{_round_word(summary['strategy'])}s, "
           f"{summary['fe_evaluations']} FE runs{extra}, {summary['wall_seconds']:.1f} s", file=file)
     lowest = summary.get("lowest_error")

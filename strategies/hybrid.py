@@ -9,7 +9,9 @@ adjoint on the FE model, :mod:`fe_core.solvers.sensitivity`; its cost in FE-run 
 1. **Local phase** (cycle 1, stage ``local``, :func:`.hybrid_phases.local_phase`): Gauss-Newton from the
    nominal model with exact derivatives, one FE run with its Jacobian per round.
 2. **Check** (step ``check``, :func:`.hybrid_check.check`): is what is left at the phase's best minimum noise?
-3. **Evidence** (issue 28): when cycle 1's check finds structure, the effect library is screened at the nominal
+3. **Evidence** (issue 28): when cycle 1's check finds structure, the run stops if the local fit's misfit beyond the
+   noise is within the model's own error (status "own error", converged: no larger than one mode half a per cent
+   off in frequency, :func:`fe_core.closure.evidence.own_error_at`); else the effect library is screened at the nominal
    model and at the local fit (step ``evidence`` of iteration 1, :func:`fe_core.closure.evidence.screen_points`);
    when the first global round's check finds structure too, at its best basin, and the best effect is weighed
    against the best basin found (step ``weigh`` of iteration 2): ``closure`` ends the search for basins (the
@@ -164,7 +166,11 @@ class Hybrid:
                            "floor" if verdict["at_floor"] else "budget")
             return self._finish()
         if k == 1 and verdict.get("minimum") and self.screen_model is not None:
-            self.evidence = self.memo.step(k, EVIDENCE_STAGE, lambda: self._screens(verdict["minimum"]["x"])).info
+            self.evidence = self.memo.step(k, EVIDENCE_STAGE,
+                                           lambda: self._screens(verdict["minimum"]["x"], status)).info
+            if (self.evidence.get("own_error") or {}).get("within"):
+                self.status = "own error"  # neither a basin nor an effect the closure would accept is left
+                return self._finish()
         if k == 2 and self.evidence and self.evidence.get("screens"):
             self.decision = self.memo.step(k, WEIGH_STAGE, self._weigh).info
             if self.decision["choice"] == "closure":
@@ -220,21 +226,28 @@ class Hybrid:
         return Step({CHECK_STAGE: {"at_floor": np.array([out["at_floor"]]), "reason": np.array([out["reason"]])}},
                     out, f"{words} ({out['reason']})")
 
-    def _screens(self, local_x) -> Step:
+    def _screens(self, local_x, status: str = "converged") -> Step:
+        """The evidence at the local fit: first whether its misfit is the model's own error (when the Gauss-Newton
+        run converged; then no screen follows), else the effect screens at the nominal model and at the fit."""
         import time
 
-        from fe_core.closure.evidence import screen_points
+        from fe_core.closure.evidence import own_error_at, screen_points
 
         t0 = time.perf_counter()
         model, why = self.screen_model()
-        screens = [] if model is None else screen_points(model, self.residual,
-                                                         {"nominal": self.x0, "local fit": np.asarray(local_x, float)})
+        own = None
+        if model is not None and status == "converged":
+            own = own_error_at(model, self.residual, local_x, self.options.noise, self.options.significance)
+        screens = [] if model is None or (own is not None and own.within) else screen_points(
+            model, self.residual, {"nominal": self.x0, "local fit": np.asarray(local_x, float)})
         table = {"at": np.array([s.at for s in screens], dtype=object),
                  "effect": np.array([s.effect or "" for s in screens], dtype=object),
                  "location": np.array([s.location or "" for s in screens], dtype=object),
                  **{c: np.array([getattr(s, c) for s in screens], float) for c in ("rss", "rss_alpha", "rss_effect")}}
-        note = "; ".join([s.describe() for s in screens] + ([why] if why else []))
+        note = "; ".join(([own.reason()] if own is not None else []) + [s.describe() for s in screens]
+                         + ([why] if why else []))
         return Step({"screens": table}, {"screens": [s.to_dict() for s in screens], "skipped": why,
+                                         "own_error": None if own is None else own.to_dict(),
                                          "seconds": time.perf_counter() - t0}, note)
 
     def _weigh(self) -> Step:
@@ -274,8 +287,9 @@ class Hybrid:
         reason = {"target": "a Gauss-Newton run reached the target", "floor": "the residual is noise",
                   "budget": "the budget is spent or no start was left",
                   "basin": "a global cycle found no better basin than the best found before it",
-                  "effect": "a missing effect explains the residual far better than any basin found"}[self.status]
-        return StopDecision(True, self.status in ("target", "floor"), reason)
+                  "effect": "a missing effect explains the residual far better than any basin found",
+                  "own error": "the misfit beyond the noise is within the model's own error"}[self.status]
+        return StopDecision(True, self.status in ("target", "floor", "own error"), reason)
 
     def stage_info(self, iteration: int, stage: str) -> dict:
         return dict(self.phases.get(iteration, {})) if stage in (LOCAL_STAGE, GLOBAL_STAGE) else {}
@@ -293,6 +307,11 @@ class Hybrid:
                       f"where the effect was screened ({screen['at']}, sample {sid}): run the closure from it "
                       "(--close-loop, python -m flows.diagnose)")
             return Report(reason, False, [sid], fields, k, intervals=True)
+        if self.status == "own error":  # the local fit: converged to what the model can explain
+            own = self.evidence["own_error"]
+            fields["own_error"] = own
+            return Report(f"cycle 1 (local): {status}; check: {last['reason']}; {own['reason']}", True,
+                          [int(last["sample_id"])], fields, k, intervals=True)
         ok = [i for i, run in enumerate(self.runs) if run[2] is not None]
         full = [i for i in ok if not self.ledger.reduced[i]]  # a reduced basis's results stand in until confirmed
         ok = full or ok
@@ -313,7 +332,8 @@ class Hybrid:
         screens = [{k: v for k, v in s.items() if k != "seconds"} for s in screens]  # wall time: in the records
         return {"screens": screens, "skipped": self.evidence.get("skipped", ""),
                 "choice": None if decision is None else decision["choice"],
-                "reason": ("no global round with structure followed the screen" if decision is None
+                "reason": (self.evidence["own_error"]["reason"] if self.status == "own error" else
+                           "no global round with structure followed the screen" if decision is None
                            else decision["reason"]),
                 "rss_effect": None if decision is None else decision["rss_effect"],
                 "rss_basin": None if decision is None else decision["rss_basin"]}

@@ -19,6 +19,11 @@ updating cannot tell them apart from the residual alone; the evidence can:
   :data:`FAR_BETTER` of what the best basin leaves (the effect explains the residual far better than any basin
   found): the search for basins stops and the closure takes over; ``basins`` otherwise.
 
+* :func:`own_error_at`: before any screen, whether the local fit's misfit beyond the noise is within the model's
+  own error (:func:`fe_core.closure.far.shifts.own_error`: no larger than one mode half a per cent off in
+  frequency): then neither another basin nor an effect of a size the closure would accept is what is left, and the
+  hybrid stops there instead of spending its budget on basins (issue 40's clean he08, he13, he17: 53-132 FE runs).
+
 All sums of squares are of the log amplitude residual ``ln(|Z| / u)`` on the lines where every channel is kept,
 the closure's measure, so the screen's predictions and the basins' values compare directly.
 """
@@ -34,12 +39,14 @@ import numpy as np
 from .decisions import at_bound
 from .effects import Effect, LinearisedResponse, build_library
 from .far.misfit import effective_ebic
+from .far.shifts import ModeShifts, own_error
 from .fits import Fit, far_off
 from .screening import screen
+from ..inference.residual import analyse_residual
 from ..model import ParametricModel
 
 __all__ = ["Screen", "Evidence", "screen_point", "screen_points", "exact_screen", "weigh", "weigh_round",
-           "FAR_BETTER", "CLOSE_EXACT"]
+           "own_error_at", "FAR_BETTER", "CLOSE_EXACT"]
 
 #: The closure takes over when the best effect leaves at most this share of the best basin's sum of squares.
 #: Measured: the cantilever with an undeclared 0.6 kg point mass, 2.0 % (the mass at its true node, screened at
@@ -168,6 +175,19 @@ def screen_points(model: ParametricModel, data, points: dict, library: Sequence[
     best = min(fits_, key=lambda k: fits_[k].rss) if fits_ else None
     return [screen_point(model, freqs_hz, amplitude, alpha, library, at,
                          exact=(at == best and far_off(fits_[at]))) for at, alpha in points.items()]
+
+
+def own_error_at(model: ParametricModel, data, alpha, noise=None, significance: float = 0.01) -> ModeShifts | None:
+    """Is the misfit at ``alpha`` the model's own error? The residual on the lines of ``data``
+    (:class:`fe_core.inference.frf_data.FRFData`) where every channel is kept, analysed as the closure's baseline
+    analyses it (the noise ``data.noise_spec(noise)``: configured, stated by the measurement or estimated), and the
+    per-mode frequency shifts fitted to it (:func:`fe_core.closure.far.shifts.own_error`; its ``within`` answers).
+    None when that residual is noise."""
+    freqs_hz, amplitude = data.complete()
+    point = _point_fit(model, freqs_hz, amplitude, alpha)
+    analysis = analyse_residual(point.residual, freqs_hz, point.n_parameters, data.noise_spec(noise), significance,
+                                point.relative(amplitude))
+    return own_error(model, freqs_hz, amplitude, point, analysis.sigma) if analysis.structured else None
 
 
 def _point_fit(model, freqs_hz, amplitude, alpha) -> Fit:
