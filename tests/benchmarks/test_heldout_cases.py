@@ -208,11 +208,13 @@ def test_data_on_the_tools_tetrahedra_are_the_tools_model_assembled_elsewhere(tm
     np.testing.assert_array_equal(e["xyz_m"], e["model_node_xyz_m"])
 
 
-def test_the_fifth_sets_order_is_its_seeds_permutation_of_every_case():
+@pytest.mark.parametrize("which, seed, order", [("heldout5", "HELDOUT5_SEED", "HELDOUT5_ORDER"),
+                                                 ("heldout6", "HELDOUT6_SEED", "HELDOUT6_ORDER")])
+def test_the_fifth_and_sixth_sets_orders_are_their_seeds_permutations_of_every_case(which, seed, order):
     from benchmarks.make.cases import sets
 
-    ids = [c["id"] for c in sets.cases("heldout5")]
-    order = np.random.default_rng(sets.HELDOUT5_SEED).permutation(len(ids))
-    assert list(sets.HELDOUT5_ORDER) == [ids[i] for i in order]
-    assert {c["data_mesh"] for c in sets.cases("heldout5")} == {"model"}
+    ids = [c["id"] for c in sets.cases(which)]
+    permutation = np.random.default_rng(getattr(sets, seed)).permutation(len(ids))
+    assert list(getattr(sets, order)) == [ids[i] for i in permutation]
+    assert {c["data_mesh"] for c in sets.cases(which)} == {"model"}
     assert {c["data_mesh"] for c in sets.cases("heldout4")} == {"fine"}

@@ -34,6 +34,12 @@ the noise and effect rules are judged without it. The frame (Q2 data on the tool
 modes in the tool) and the deck (ccx's matrices of a twice finer deck) keep their own error, as real models do.
 Its cases run one at a time in the order :data:`HELDOUT5_ORDER` (``numpy.random.default_rng(210_500)``'s
 permutation of the ids, fixed with the set), so that a set stopped part-way has seen every kind.
+
+The sixth held-out set (``heldout6``, ids ``hf01``-``hf24``) was fixed on 2026-12-01 (session 24, 02:22 UTC), before
+any of its cases was made or run, after the fifth's results had been seen and two rules set on them (the closure's
+own-error rule, ``ae54c5f``; the hybrid's stop at a local fit within the model's own error, ``5ae97e4``): the same
+structures, kinds and protocol as the fifth (the data at the tool's nodes, the tet10 structures' data on the tool's
+own mesh), new seeds, run in the order :data:`HELDOUT6_ORDER` (``numpy.random.default_rng(250_600)``'s permutation).
 """
 
 from __future__ import annotations
@@ -46,6 +52,7 @@ EXPECTED = {**{k: "explained" for k in IN_LIBRARY}, "none": "noise", **{k: "not 
 
 DEV_SEED, HELDOUT_SEED, HELDOUT2_SEED, HELDOUT3_SEED, HELDOUT4_SEED, HELDOUT5_SEED = (40_100, 70_200, 90_200, 130_300,
                                                                                       170_400, 210_500)
+HELDOUT6_SEED = 250_600
 
 DEV = [("holed_plate", "point_mass"), ("holed_plate", "patch"), ("holed_plate", "none"),
        ("ribbed_panel", "mount"), ("ribbed_panel", "point_mass"), ("ribbed_panel", "mass_layer"),
@@ -67,14 +74,19 @@ HELDOUT = [("holed_plate", "mount"), ("holed_plate", "point_mass"), ("holed_plat
 #: vertex nearest the structure's point; ``"model"``, the point of the tool's node there).
 SETS = {"dev": (DEV, DEV_SEED, "dev", "vertex"), "heldout": (HELDOUT, HELDOUT_SEED, "ho", "vertex"),
         "heldout2": (HELDOUT, HELDOUT2_SEED, "hb", "model"), "heldout3": (HELDOUT, HELDOUT3_SEED, "hc", "model"),
-        "heldout4": (HELDOUT, HELDOUT4_SEED, "hd", "model"), "heldout5": (HELDOUT, HELDOUT5_SEED, "he", "model")}
+        "heldout4": (HELDOUT, HELDOUT4_SEED, "hd", "model"), "heldout5": (HELDOUT, HELDOUT5_SEED, "he", "model"),
+        "heldout6": (HELDOUT, HELDOUT6_SEED, "hf", "model")}
 
 #: The fifth set's run order (see the module's docstring).
 HELDOUT5_ORDER = ("he21 he24 he12 he15 he10 he17 he06 he20 he08 he07 he23 he03 he18 he09 he01 he14 he02 he22 he13 "
                   "he04 he05 he19 he11 he16").split()
 
+#: The sixth set's run order.
+HELDOUT6_ORDER = ("hf04 hf08 hf12 hf11 hf19 hf10 hf01 hf15 hf09 hf22 hf17 hf05 hf20 hf02 hf06 hf24 hf23 hf16 hf03 hf21 "
+                  "hf14 hf07 hf18 hf13").split()
+
 #: The sets whose solid structures' data are assembled on the tool's own mesh (default: a mesh of half its size).
-DATA_MESH = {"heldout5": "model"}
+DATA_MESH = {"heldout5": "model", "heldout6": "model"}
 
 
 def cases(which: str) -> list[dict]:
