@@ -53,8 +53,10 @@ class ModeShifts:
         return bool(self.before <= self.single)
 
     def reason(self) -> str:
+        modes = ("the band's only mode" if self.shifts.size == 1 else
+                 f"one of the band's {self.shifts.size} modes")
         return (f"the misfit beyond the noise ({self.before:.2%} rms of ln|Z|) is "
-                f"{'at most' if self.within else 'more than'} what one of the band's {self.shifts.size} modes "
+                f"{'at most' if self.within else 'more than'} what {modes} "
                 f"{MIN_SHIFT:.1%} off in frequency would leave ({self.single:.2%}, the size rule's bar)"
                 + (": the model's own error, no effect of that size hides in it" if self.within else ""))
 
