@@ -13,6 +13,9 @@ a few per cent above the factor PARDISO then makes) and adds up what the run hol
   of K), PARDISO's factor and work space (:data:`FACTOR_BYTES_PER_ENTRY` per entry of L), the Krylov basis
   and its products (``(2 + m) w`` columns of n doubles besides a basis of ``12 w`` columns, ``w`` = the
   excitations plus the sensors: the block the space grows by);
+* the global reduced basis of the Gauss-Newton rounds, in the flow's process only, for models between its
+  bounds (:func:`fe_core.solvers.reduced_basis.basis_bytes`: 720 columns of n doubles up to 260k DOFs, 1.5 GB
+  from there to 520k);
 * FE runs at once: a Gauss-Newton round is one FE run in the flow's process; a global round runs ``n_jobs``
   worker processes (:data:`WORKER_BASE` each), each with its FE run, while the flow waits (its own factor
   freed). The model's pages are shared through the cache (counted once).
@@ -130,6 +133,7 @@ def estimate(model_file: Path, n_jobs: int, n_parameters: int | None = None, cac
     """
     from fe_core.io.mesh_file import MeshFileError, read_mesh
     from fe_core.solvers.fill import mesh_fill
+    from fe_core.solvers.reduced_basis import basis_bytes
 
     found = _mesh_and_width(Path(model_file))
     if found is None or found[0] is None:
@@ -148,7 +152,7 @@ def estimate(model_file: Path, n_jobs: int, n_parameters: int | None = None, cac
     fe_run = FACTOR_BYTES_PER_ENTRY * fill.nnz_L + RUN_BYTES_PER_ENTRY * z + basis
     model = MODEL_BYTES_PER_ENTRY * z
     assembly = 0.0 if cached else ASSEMBLY_BYTES_PER_ENTRY * z
-    local = SERVER + MAIN_BASE + model + max(assembly, fe_run)
+    local = SERVER + MAIN_BASE + model + max(assembly, fe_run + basis_bytes(n))  # the global basis: the flow's only
     out = Footprint(str(model_file), n, z, fill.nnz_L, model, fe_run, assembly, local, 0.0, n_jobs)
     return out.with_jobs(n_jobs)
 

@@ -13,6 +13,16 @@ factorisation (a global parametric basis: Benner, Gugercin & Willcox, SIAM Revie
 bases of several parameter points are concatenated, "greedy" enrichment where the reduced model is not good
 enough: Quarteroni, Manzoni & Negri, Reduced Basis Methods, 2016, ch. 7).
 
+**Derivative enrichment.** A basis of the points visited so far reproduces a point a Gauss-Newton step of 0.1-0.3
+away badly (the 37k-DOF panel of ``benchmarks.make.large``: responses 3-27 % off, the Jacobian 6-52 %), which is
+why only the end-game's rounds were served. The Krylov space's own derivative along a parameter is
+``d(K^-1 b)/d alpha_i = -K^-1 K_i K^-1 b``: so when the basis is started, the first :data:`DERIVATIVE_BLOCKS`
+blocks of the first space ``W`` are differentiated along every parameter's part, ``K0^-1 A_i W[:, :c]`` (one solve
+per column with the factor the run just used), and added (a Hermite-type parametric basis: Benner, Gugercin &
+Willcox 2015, section 4.1). On that panel (143 columns, 26 per parameter, 351 in all) the responses at those steps
+are then good to 1.5e-4-1.5e-3 and the Jacobian to 2e-4-2.3e-3, and Gauss-Newton on the reduced model alone
+reaches the full-order optimum (``python -m benchmarks.basis_enrichment``).
+
 **The check.** Whether the reduced model is good at a point is decided from the full-order residual of its
 solutions, ``r(w) = D(w) V y(w) - b`` for the load (primal) and every sensor (dual, ``b = l_s``), at every
 line, preconditioned by the factor of K at the point the basis was started from: ``z = K0^-1 r``, the error
@@ -39,7 +49,7 @@ reduced is run at full order when asked again: that is how a strategy confirms i
 (:func:`strategies.hybrid_phases.local_phase`).
 
 Only for models of :data:`MIN_DOFS` to :data:`MAX_DOFS` free DOFs (small models keep their arithmetic bit for
-bit; in larger ones the basis holds under three spaces, and at 500k it gained no time and cost memory), only in
+bit; in larger ones the basis would not hold the first space and its derivative columns), only in
 the process that runs a large model's single FE runs (``tasks/fe_runs.py``); ``MRGP_REDUCED_BASIS=0`` turns it
 off. Plain numpy/scipy.
 """
@@ -59,7 +69,8 @@ from .frf_derivatives import projected_response
 from .sensitivity import frf_jacobian as full_frf_jacobian, segment_directions
 
 __all__ = ["MIN_DOFS", "MAX_DOFS", "ENABLED", "FIELD_TOL", "SKETCH_ROWS", "SKETCH_NONZEROS", "MAX_DIMENSION",
-           "ParametricBasis", "Estimate", "sparse_sign_sketch", "active", "frf_jacobian", "forget", "basis_of"]
+           "ParametricBasis", "Estimate", "sparse_sign_sketch", "active", "frf_jacobian", "forget", "basis_of",
+           "enrich_derivatives", "DERIVATIVE_BLOCKS", "MIN_ROOM", "basis_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -68,10 +79,14 @@ MIN_DOFS = 50_000
 #: ``MRGP_REDUCED_BASIS=0`` turns the global basis off.
 ENABLED = os.environ.get("MRGP_REDUCED_BASIS", "1") != "0"
 #: Largest estimated relative error of each primal and dual field at any line. The Jacobian's error is first
-#: order in it, the responses' second order (both sides are in the space): 1e-3 gives a Jacobian good to ~1e-3
-#: (Gauss-Newton then converges at that rate) and responses to ~1e-5 of each line's largest, 1e-3 of the 1 %
-#: noise of measured data (measured on the bracket: 8 x the square; the final point is confirmed at full order).
-FIELD_TOL = 1e-3
+#: order in it, the responses' second order (both sides are in the space). A served round is never the last
+#: word: the local phase confirms its centre by a full-order run, its responses and its Jacobian's step
+#: (:func:`strategies.hybrid_phases.local_phase`), so the tolerance only has to keep Gauss-Newton's rounds
+#: useful. Measured on the 37k-DOF panel with derivative enrichment (``python -m benchmarks.basis_enrichment``):
+#: estimates of 1.4e-3 to 2.2e-2 at steps of 0.02 to 0.3 went with responses good to 6e-6 to 1.5e-3 of each line's
+#: largest and the Jacobian to 4e-5 to 2.3e-3. On the benchmark's hex8 plates the estimate runs low, by up to 40
+#: for the Jacobian: a round served there may step less well, and the confirmation catches it.
+FIELD_TOL = 3e-2
 #: Rows of the sketch (each costs one solve with the factor when the basis is built: 40, against the 143 of a
 #: 150k model's Jacobian space) and random signs per column of it; a norm is kept to ~sqrt(2 / 40) = 22 %.
 SKETCH_ROWS = 40
@@ -81,11 +96,14 @@ SKETCH_NONZEROS = 8
 #: 500k update's basis of its first three points refused every later round: docs/results/scaling.md).
 MAX_DIMENSION = 720
 MAX_BYTES = 1.5e9
-#: Larger models run every round at full order. Measured on the 500k panel (docs/results/scaling.md): a basis of
-#: 373 columns (2.6 spaces) served only the end-game's rounds, after as many full-order rounds as without it (the
-#: local phase 18.8 min against 17.9), and the process tree peaked at 10.8 GB against 7.0 GB; at 150k, with room
-#: for five spaces, it served 5 of 11 rounds and the update took 391 s against 508 s.
-MAX_DOFS = int(MAX_BYTES // (8 * MAX_DIMENSION))
+#: Larger models run every round at full order. Measured on the 500k panel before derivative enrichment
+#: (docs/results/scaling.md): a basis of 373 columns (2.6 spaces) served only the end-game's rounds, after as many
+#: full-order rounds as without it (the local phase 18.8 min against 17.9), and the process tree peaked at 10.8 GB
+#: against 7.0 GB; at 150k, with room for five spaces, it served 5 of 11 rounds and the update took 391 s against 508 s.
+#: With derivative enrichment the basis needs room for the first space and its derivative columns (the panel's 143
+#: and 9 x 26): models up to MAX_BYTES / (8 MIN_ROOM) free DOFs (520,833; the 500k panel's basis holds 373 columns).
+MIN_ROOM = 360
+MAX_DOFS = int(MAX_BYTES // (8 * MIN_ROOM))
 #: A new space's direction joins V when at least this fraction of it lies outside V (the pivoted QR of the
 #: new columns after orthogonalisation against V): what is dropped changes the fields by less than this, far
 #: below FIELD_TOL, and a nearby point's space, mostly in V already, adds only what is new (n x columns of
@@ -93,6 +111,9 @@ MAX_DOFS = int(MAX_BYTES // (8 * MAX_DIMENSION))
 ENRICH_TOL = 1e-6
 #: Columns per block of the enrichment's n-sized temporaries (n x 16 doubles: 62 MB at 500k DOFs).
 BLOCK = 16
+#: Derivative enrichment (module docstring): when the basis is started, the first DERIVATIVE_BLOCKS blocks of the
+#: space (a block: the loads and the sensors) are differentiated along every parameter, ``K0^-1 A_i W``.
+DERIVATIVE_BLOCKS = 2
 #: A point the basis served within this max-norm distance counts as asked again (module docstring).
 SAME_POINT = 1e-12
 
@@ -293,6 +314,14 @@ def active(model) -> bool:
     return ENABLED and model.__dict__.get("_reduced_min", MIN_DOFS) <= n <= MAX_DOFS
 
 
+def basis_bytes(n_dofs: int) -> float:
+    """The memory a model of ``n_dofs`` free DOFs gives its global basis (0 where none is used): V's columns and the
+    enrichment's n-sized temporaries (one space's copy, a block per part)."""
+    if not (ENABLED and MIN_DOFS <= n_dofs <= MAX_DOFS):
+        return 0.0
+    return 8.0 * n_dofs * (min(MAX_DIMENSION, MAX_BYTES // (8 * n_dofs)) + 2 * BLOCK)
+
+
 def basis_of(model):
     """The model's global basis (None before its first full-order run)."""
     return model.__dict__.get(_KEY)
@@ -317,6 +346,19 @@ def _parts(model):
     else:  # no updated mass: M is one fixed part
         mass = [model.mass(None)]
     return stiffness, mass
+
+
+def enrich_derivatives(basis: ParametricBasis, W: np.ndarray, solve, directions) -> int:
+    """Add ``solve(A_i @ W[:, :c])`` for every parameter part ``A_i`` of ``directions`` (module docstring:
+    derivative enrichment); ``c`` is :data:`DERIVATIVE_BLOCKS` blocks of the space's width (the loads and the
+    sensors), fewer where the basis's capacity would not hold them all. Returns the columns added."""
+    width = basis.rhs.shape[1]
+    room = (basis.capacity - basis.dim) // max(1, len(directions))
+    c = min(DERIVATIVE_BLOCKS * width, W.shape[1], room)
+    if c <= 0:
+        return 0
+    head = W[:, :c]
+    return sum(basis.extend(np.asarray(solve(A @ head), dtype=float)) for A in directions)
 
 
 def _weights(model, alpha, gamma):
@@ -379,9 +421,15 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
         stiffness, mass = _parts(model)
         capacity = int(min(MAX_DIMENSION, MAX_BYTES // (8 * model.n_dofs)))
         basis = ParametricBasis(stiffness, mass, loads, model.outputs, solve, capacity=capacity)
-        del solve
         basis.channels, basis.pick = key, (responses, column)
         model.__dict__[_KEY] = basis
+        added = basis.extend(W)
+        derivative = enrich_derivatives(basis, W, solve, [stiffness[i] for i in range(model.n_segments)]
+                                        + [mass[int(j)] for j in model.mass_parameters])
+        del solve
+        log.info("reduced basis: started from the full-order run's %d columns and %d derivative columns, %d in all "
+                 "(at most %d)", added, derivative, basis.dim, basis.capacity)
+        return Z, dZ, False
     added = basis.extend(W)
     basis.served = [x for x in basis.served if np.max(np.abs(theta - x), initial=0.0) > SAME_POINT]
     log.info("reduced basis: %d of the full-order run's %d columns added, %d in all (at most %d)", added,
