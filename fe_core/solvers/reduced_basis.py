@@ -70,7 +70,7 @@ from .sensitivity import frf_jacobian as full_frf_jacobian, segment_directions
 
 __all__ = ["MIN_DOFS", "MAX_DOFS", "ENABLED", "FIELD_TOL", "SKETCH_ROWS", "SKETCH_NONZEROS", "MAX_DIMENSION",
            "ParametricBasis", "Estimate", "sparse_sign_sketch", "active", "frf_jacobian", "forget", "basis_of",
-           "enrich_derivatives", "DERIVATIVE_BLOCKS", "MIN_ROOM", "basis_bytes"]
+           "enrich_derivatives", "DERIVATIVE_BLOCKS", "basis_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -100,10 +100,11 @@ MAX_BYTES = 1.5e9
 #: (docs/results/scaling.md): a basis of 373 columns (2.6 spaces) served only the end-game's rounds, after as many
 #: full-order rounds as without it (the local phase 18.8 min against 17.9), and the process tree peaked at 10.8 GB
 #: against 7.0 GB; at 150k, with room for five spaces, it served 5 of 11 rounds and the update took 391 s against 508 s.
-#: With derivative enrichment the basis needs room for the first space and its derivative columns (the panel's 143
-#: and 9 x 26): models up to MAX_BYTES / (8 MIN_ROOM) free DOFs (520,833; the 500k panel's basis holds 373 columns).
-MIN_ROOM = 360
-MAX_DOFS = int(MAX_BYTES // (8 * MIN_ROOM))
+#: Measured with derivative enrichment on the 500k panel (da7b959, docs/results/scaling.md): 3 full-order runs and 7
+#: served rounds, but the basis's start (its own factorisation, the sketch, 200 derivative solves, projections)
+#: took 4 minutes and each later full-order run ~1 minute more for its extension: 1052 s and 10.9 GB against 906 s
+#: and 8.98 GB without a basis. So the basis stays off where MAX_DIMENSION columns do not fit in MAX_BYTES.
+MAX_DOFS = int(MAX_BYTES // (8 * MAX_DIMENSION))
 #: A new space's direction joins V when at least this fraction of it lies outside V (the pivoted QR of the
 #: new columns after orthogonalisation against V): what is dropped changes the fields by less than this, far
 #: below FIELD_TOL, and a nearby point's space, mostly in V already, adds only what is new (n x columns of
