@@ -101,8 +101,8 @@ MAX_BYTES = 1.5e9
 #: full-order rounds as without it (the local phase 18.8 min against 17.9), and the process tree peaked at 10.8 GB
 #: against 7.0 GB; at 150k, with room for five spaces, it served 5 of 11 rounds and the update took 391 s against 508 s.
 #: Measured with derivative enrichment on the 500k panel (da7b959, docs/results/scaling.md): 3 full-order runs and 7
-#: served rounds, but the basis's start (its own factorisation, the sketch, 200 derivative solves, projections)
-#: took 4 minutes and each later full-order run ~1 minute more for its extension: 1052 s and 10.9 GB against 906 s
+#: served rounds, but the basis's start (the check's preconditioner and sketch, 200 derivative solves, projections)
+#: took 3-4 minutes and each later full-order run ~1 minute more for its extension: 1052 s and 10.9 GB against 906 s
 #: and 8.98 GB without a basis. So the basis stays off where MAX_DIMENSION columns do not fit in MAX_BYTES.
 MAX_DOFS = int(MAX_BYTES // (8 * MAX_DIMENSION))
 #: A new space's direction joins V when at least this fraction of it lies outside V (the pivoted QR of the
