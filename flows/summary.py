@@ -288,6 +288,8 @@ def print_summary(summary: dict, file=None) -> None:
     print(f"strategy {summary['strategy']}, trainer {summary['trainer']}: {state} after {summary['iterations']} "
           f"{_round_word(summary['strategy'])}s, "
           f"{summary['fe_evaluations']} FE runs{extra}, {summary['wall_seconds']:.1f} s", file=file)
+    if summary.get("own_error"):  # why the run stopped there (strategies.hybrid: status "own error")
+        print(f"the model's own error: {summary['own_error']['reason']}", file=file)
     lowest = summary.get("lowest_error")
     if lowest:
         print(f"overall error: {summary['overall_error']:.4%} at the reported parameters, the least-squares optimum "

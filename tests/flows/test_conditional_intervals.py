@@ -87,3 +87,25 @@ def test_no_posterior_is_sampled_for_a_model_that_does_not_explain_the_data():
     assert interval_status({"strategy": "hybrid", "converged": False})["interval_status"] == "conditional"
     why = posterior_not_sampled({"strategy": "hybrid", "converged": False, "evidence": {"choice": "closure"}})
     assert why.startswith("the run stopped on the evidence of a missing effect")
+
+
+def test_a_run_stopped_at_the_models_own_error_says_so_and_samples_no_posterior():
+    """The hybrid's own-error stop (strategies.hybrid, status "own error"): converged, but to the model's own error;
+    its intervals conditional on the structured residual, no posterior sampled for a model that explains the data
+    only up to that error."""
+    from flows.summary import posterior_not_sampled
+
+    reason = "the misfit beyond the noise (3.97% rms of ln|Z|) is at most what one of the band's 6 modes ..."
+    structure = {"structured": True, "text": "rms 4.4 % vs noise 1.7 %: structure"}
+    summary = {"run_folder": "x", "strategy": "hybrid", "trainer": "gradient", "converged": True, "iterations": 1,
+               "fe_evaluations": 8, "wall_seconds": 41.4, "overall_error": 0.032, "parameters": {"alpha_1": 0.17},
+               "per_sensor_error": {"sensor_1": 0.025}, "own_error": {"within": True, "reason": reason},
+               "residual_check": structure}
+    out = io.StringIO()
+    update.print_summary(summary, file=out)
+    lines = out.getvalue().splitlines()
+    assert any("converged to the model's own error after 1 cycles" in line for line in lines)
+    assert f"the model's own error: {reason}" in lines
+    assert interval_status(summary)["interval_status"] == "conditional"
+    assert "own error" in posterior_not_sampled(summary)
+    assert posterior_not_sampled({**summary, "own_error": None}) == ""
