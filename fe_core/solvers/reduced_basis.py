@@ -18,7 +18,7 @@ away badly (the 37k-DOF panel of ``benchmarks.make.large``: responses 3-27 % off
 why only the end-game's rounds were served. The Krylov space's own derivative along a parameter is
 ``d(K^-1 b)/d alpha_i = -K^-1 K_i K^-1 b``: so when the basis is started, the first :data:`DERIVATIVE_BLOCKS`
 blocks of the first space ``W`` are differentiated along every parameter's part, ``K0^-1 A_i W[:, :c]`` (one solve
-per column with the factor the run just used), and added (a Hermite-type parametric basis: Benner, Gugercin &
+per column with the check's preconditioner, K factored at that point), and added (a Hermite-type parametric basis: Benner, Gugercin &
 Willcox 2015, section 4.1). On that panel (143 columns, 26 per parameter, 351 in all) the responses at those steps
 are then good to 1.5e-4-1.5e-3 and the Jacobian to 2e-4-2.3e-3, and Gauss-Newton on the reduced model alone
 reaches the full-order optimum (``python -m benchmarks.basis_enrichment``).
@@ -49,7 +49,7 @@ reduced is run at full order when asked again: that is how a strategy confirms i
 (:func:`strategies.hybrid_phases.local_phase`).
 
 Only for models of :data:`MIN_DOFS` to :data:`MAX_DOFS` free DOFs (small models keep their arithmetic bit for
-bit; in larger ones the basis would not hold the first space and its derivative columns), only in
+bit; at 500k it cost more time and memory than it saved, with or without derivative enrichment), only in
 the process that runs a large model's single FE runs (``tasks/fe_runs.py``); ``MRGP_REDUCED_BASIS=0`` turns it
 off. Plain numpy/scipy.
 """

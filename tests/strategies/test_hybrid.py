@@ -172,10 +172,12 @@ def test_a_noise_level_estimated_from_a_structured_residual_is_labelled_an_upper
     assert verdict.at_floor and verdict.sigma_source == "estimated"
 
 
-def _reduced_evaluate(bias, log):
+def _reduced_evaluate(bias, log, noise=None, wrong=None):
     """Results as a large model's reduced basis gives them (only in the local phase, tasks/fe_runs.py): the first
     run and a point asked again at full order (exact), every other point 'reduced' and flagged, wrong by ``bias``
-    times its distance from the nearest full-order run (whose space the basis holds) over 0.1."""
+    times its distance from the nearest full-order run (whose space the basis holds) over 0.1: in its responses,
+    or with ``wrong`` (k, 2) in its Jacobian only, along ``wrong`` (a reduced basis's Jacobian is first order in
+    its fields' error, its responses second)."""
     from strategies.base import Outcome
 
     seen, exact = [], []
@@ -183,14 +185,16 @@ def _reduced_evaluate(bias, log):
     def evaluate(batch):
         out = []
         for x, j in zip(batch.points, batch.jacobian):
-            Z, dZ = _toy(x)
+            Z, dZ = _toy(x, noise)
             full = batch.stage != "local" or not seen or any(np.array_equal(x, s) for s in seen)
             seen.append(np.array(x))
             log.append((np.array(x), full))
             if full:
                 exact.append(np.array(x))
-            else:
+            elif wrong is None:
                 Z = Z * (1 + bias * min(np.max(np.abs(x - e)) for e in exact) / 0.1)
+            else:
+                dZ = dZ + bias * min(np.max(np.abs(x - e)) for e in exact) / 0.1 * wrong
             out.append(Outcome(Z, dZ if j else None, reduced=not full))
         return out
     return evaluate
@@ -236,32 +240,6 @@ def test_a_global_cycle_that_finds_no_better_basin_ends_the_search():
     assert far.status == "budget" and far.cost == longer.cost
 
 
-def _reduced_jacobian_evaluate(bias, noise, log):
-    """As :func:`_reduced_evaluate`, the reduced responses exact but their Jacobian wrong in a direction outside its
-    columns' span (a reduced basis's Jacobian is first order in its fields' error, its responses second), by ``bias``
-    times the distance from the nearest full-order run over 0.1."""
-    from strategies.base import Outcome
-
-    seen, exact = [], []
-    # along x_2 (the weakly seen parameter) and like the noise: what moves the fixed point most
-    wrong = np.column_stack([np.zeros(W.size), U * noise / np.std(noise)])
-
-    def evaluate(batch):
-        out = []
-        for x, j in zip(batch.points, batch.jacobian):
-            Z, dZ = _toy(x, noise)
-            full = batch.stage != "local" or not seen or any(np.array_equal(x, s) for s in seen)
-            seen.append(np.array(x))
-            log.append((np.array(x), full))
-            if full:
-                exact.append(np.array(x))
-            else:
-                dZ = dZ + bias * min(np.max(np.abs(x - e)) for e in exact) / 0.1 * wrong
-            out.append(Outcome(Z, dZ if j else None, reduced=not full))
-        return out
-    return evaluate
-
-
 @pytest.mark.parametrize("bias", [0.02, 0.2])
 def test_a_reduced_centre_whose_jacobian_was_wrong_goes_on_from_its_full_order_step(bias):
     """With noise the residual at the optimum is not zero, so a wrong Jacobian moves Gauss-Newton's fixed point:
@@ -273,7 +251,9 @@ def test_a_reduced_centre_whose_jacobian_was_wrong_goes_on_from_its_full_order_s
     start = np.array([-0.6, 0.0])
     reference = hybrid(_evaluate(noise), start, DATA, LOWER, UPPER, OPTIONS).minima[0].x
     log = []
-    found = hybrid(_reduced_jacobian_evaluate(bias, noise, log), start, DATA, LOWER, UPPER, OPTIONS).minima[0].x
+    # along x_2 (the weakly seen parameter) and like the noise: what moves the fixed point most
+    wrong = np.column_stack([np.zeros(W.size), U * noise / np.std(noise)])
+    found = hybrid(_reduced_evaluate(bias, log, noise, wrong), start, DATA, LOWER, UPPER, OPTIONS).minima[0].x
     assert any(not full for _, full in log) and any(full and np.array_equal(x, found) for x, full in log)
     assert sum(full for _, full in log) >= 3  # the first run, a confirmation that gave another step, the last
     assert np.max(np.abs(found - reference)) < 0.2 * 0.016
