@@ -235,11 +235,12 @@ class Hybrid:
 
         t0 = time.perf_counter()
         model, why = self.screen_model()
-        own = None
+        own, fits = None, {}
         if model is not None and status == "converged":
-            own = own_error_at(model, self.residual, local_x, self.options.noise, self.options.significance)
+            own, fits["local fit"] = own_error_at(model, self.residual, local_x, self.options.noise,
+                                                  self.options.significance)
         screens = [] if model is None or (own is not None and own.within) else screen_points(
-            model, self.residual, {"nominal": self.x0, "local fit": np.asarray(local_x, float)})
+            model, self.residual, {"nominal": self.x0, "local fit": np.asarray(local_x, float)}, fits=fits)
         table = {"at": np.array([s.at for s in screens], dtype=object),
                  "effect": np.array([s.effect or "" for s in screens], dtype=object),
                  "location": np.array([s.location or "" for s in screens], dtype=object),

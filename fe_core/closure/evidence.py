@@ -163,31 +163,34 @@ def screen_point(model: ParametricModel, freqs_hz, amplitude, alpha, library: Se
                   values_n=int(r.size), seconds=time.perf_counter() - t0)
 
 
-def screen_points(model: ParametricModel, data, points: dict, library: Sequence[Effect] | None = None) -> list[Screen]:
+def screen_points(model: ParametricModel, data, points: dict, library: Sequence[Effect] | None = None,
+                  fits: dict | None = None) -> list[Screen]:
     """:func:`screen_point` at every point of ``points`` (label -> alpha), one library for all, on the lines of
     ``data`` (:class:`fe_core.inference.frf_data.FRFData`) where every channel is kept; ``model`` gives the
     data's channels as its outputs (the model seen through them). Exactly (:func:`exact_screen`) at the point of
     least sum of squares if it is far off, linearised elsewhere (an exact search is a few hundred reduced fits:
-    once per call)."""
+    once per call). ``fits``: the model's fits at some of the points, made already (:func:`own_error_at`'s)."""
     library = build_library(model) if library is None else list(library)
     freqs_hz, amplitude = data.complete()
-    fits_ = {at: _point_fit(model, freqs_hz, amplitude, alpha) for at, alpha in points.items()}
+    made = fits or {}
+    fits_ = {at: made.get(at) or _point_fit(model, freqs_hz, amplitude, alpha) for at, alpha in points.items()}
     best = min(fits_, key=lambda k: fits_[k].rss) if fits_ else None
     return [screen_point(model, freqs_hz, amplitude, alpha, library, at,
                          exact=(at == best and far_off(fits_[at]))) for at, alpha in points.items()]
 
 
-def own_error_at(model: ParametricModel, data, alpha, noise=None, significance: float = 0.01) -> ModeShifts | None:
+def own_error_at(model: ParametricModel, data, alpha, noise=None,
+                 significance: float = 0.01) -> tuple[ModeShifts | None, Fit]:
     """Is the misfit at ``alpha`` the model's own error? The residual on the lines of ``data``
     (:class:`fe_core.inference.frf_data.FRFData`) where every channel is kept, analysed as the closure's baseline
     analyses it (the noise ``data.noise_spec(noise)``: configured, stated by the measurement or estimated), and the
-    per-mode frequency shifts fitted to it (:func:`fe_core.closure.far.shifts.own_error`; its ``within`` answers).
-    None when that residual is noise."""
+    per-mode frequency shifts fitted to it (:func:`fe_core.closure.far.shifts.own_error`; its ``within`` answers;
+    None when that residual is noise), with the model's fit at ``alpha`` (for :func:`screen_points`)."""
     freqs_hz, amplitude = data.complete()
     point = _point_fit(model, freqs_hz, amplitude, alpha)
     analysis = analyse_residual(point.residual, freqs_hz, point.n_parameters, data.noise_spec(noise), significance,
                                 point.relative(amplitude))
-    return own_error(model, freqs_hz, amplitude, point, analysis.sigma) if analysis.structured else None
+    return (own_error(model, freqs_hz, amplitude, point, analysis.sigma) if analysis.structured else None), point
 
 
 def _point_fit(model, freqs_hz, amplitude, alpha) -> Fit:
