@@ -29,6 +29,7 @@ from prefect import task
 from prefect.cache_policies import NO_CACHE
 
 from fe_core.inference.intervals import parameter_intervals
+from fe_core.solvers import reduced_basis
 from fe_core.inference.residual import analyse_residual
 from fe_core.inference.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
 from tasks.common import beating
@@ -75,6 +76,7 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
         logger.info("iteration %d, stage intervals: settings changed from %s to %s, computed again", iteration,
                     old, settings)
     data, full_model = problem.data, problem.model
+    reduced_basis.forget(full_model)  # a large model's global basis (n x r doubles): the intervals are full order
     try:
         model, channels = data.single_reference_model(full_model), None
     except ValueError:  # several references (roving hammer, MIMO): the channels stacked in one residual

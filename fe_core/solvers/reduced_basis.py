@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -204,12 +205,29 @@ class ParametricBasis:
         self.SAV = np.zeros((len(self.parts), self.sketch.shape[0], capacity))  # S A_t V
         self.Vrhs = np.zeros((capacity, self.rhs.shape[1]))  # V^T [B, L]
         self.served: list[np.ndarray] = []  # points evaluated reduced (asked again: full order)
+        self.pending: np.ndarray | None = None  # a full-order run's space, joined when another point is asked
 
     def restart(self) -> None:
         """Empty V (its memory is reused); the sketch ``Y = K0^-1 S^T`` stays (any fixed K0 preconditions the
         check). The newest spaces are the ones near where Gauss-Newton goes on."""
         self.dim = 0
         self.served = []
+
+    def join(self) -> int:
+        """Add the :attr:`pending` space (restarting V from it when it does not fit); returns the columns added.
+
+        A full-order run's space is joined when the basis is next asked for another point, not when the run ends:
+        the run that confirms the local phase's centre is the last the basis sees, and its extension (orthogonalised
+        against V, every part projected on it: a minute at 500k DOFs) would be spent for nothing."""
+        W, self.pending = self.pending, None
+        if W is None:
+            return 0
+        if self.dim + W.shape[1] > self.capacity:
+            self.restart()  # full: V starts again from this space (the sketch and its solves kept)
+        added = self.extend(W)
+        log.info("reduced basis: %d of a full-order run's %d columns added, %d in all (at most %d)", added,
+                 W.shape[1], self.dim, self.capacity)
+        return added
 
     def extend(self, W: np.ndarray) -> int:
         """Add the part of ``W`` (n x s) not yet in V; returns the columns added (0 when V is full).
@@ -270,6 +288,7 @@ class ParametricBasis:
         dZ : ndarray, shape (p, n_out, n_loads, len(k_dirs) + len(m_dirs))
         Estimate
         """
+        self.join()
         d, nk = self.dim, len(self.stiffness)
         R = self.R[:, :d, :d]
         Kr = np.tensordot(np.asarray(w_stiff, float), R[:nk], axes=1)
@@ -359,7 +378,16 @@ def enrich_derivatives(basis: ParametricBasis, W: np.ndarray, solve, directions)
     if c <= 0:
         return 0
     head = W[:, :c]
-    return sum(basis.extend(np.asarray(solve(A @ head), dtype=float)) for A in directions)
+    added, solving, joining = 0, 0.0, 0.0
+    for A in directions:
+        t0 = time.perf_counter()
+        D = np.asarray(solve(A @ head), dtype=float)
+        t1 = time.perf_counter()
+        added += basis.extend(D)
+        solving, joining = solving + t1 - t0, joining + time.perf_counter() - t1
+    log.info("reduced basis: %d derivative directions of %d columns each: solves %.1f s, joined in %.1f s",
+             len(directions), c, solving, joining)
+    return added
 
 
 def _weights(model, alpha, gamma):
@@ -408,8 +436,6 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
     W = space.get("basis")
     if W is None:
         return Z, dZ, False
-    if basis is not None and basis.dim + W.shape[1] > basis.capacity:
-        basis.restart()  # full: V starts again from this space (the sketch and its solves kept)
     if basis is None:
         if channels is None:
             loads, responses, column = model.combined_load(), slice(None), 0
@@ -421,18 +447,22 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
             return Z, dZ, False
         stiffness, mass = _parts(model)
         capacity = int(min(MAX_DIMENSION, MAX_BYTES // (8 * model.n_dofs)))
+        t = [time.perf_counter()]
         basis = ParametricBasis(stiffness, mass, loads, model.outputs, solve, capacity=capacity)
         basis.channels, basis.pick = key, (responses, column)
         model.__dict__[_KEY] = basis
+        t.append(time.perf_counter())
         added = basis.extend(W)
+        t.append(time.perf_counter())
         derivative = enrich_derivatives(basis, W, solve, [stiffness[i] for i in range(model.n_segments)]
                                         + [mass[int(j)] for j in model.mass_parameters])
+        t.append(time.perf_counter())
         del solve
         log.info("reduced basis: started from the full-order run's %d columns and %d derivative columns, %d in all "
-                 "(at most %d)", added, derivative, basis.dim, basis.capacity)
+                 "(at most %d); %.1f s: the check's sketch %.1f, the space %.1f, the derivatives %.1f", added,
+                 derivative, basis.dim, basis.capacity, t[3] - t[0], *np.diff(t))
         return Z, dZ, False
-    added = basis.extend(W)
+    basis.join()  # an earlier run's space not yet joined (two full-order runs in a row)
+    basis.pending = W  # the run's own space: joined when another point is asked (ParametricBasis.join)
     basis.served = [x for x in basis.served if np.max(np.abs(theta - x), initial=0.0) > SAME_POINT]
-    log.info("reduced basis: %d of the full-order run's %d columns added, %d in all (at most %d)", added,
-             W.shape[1], basis.dim, basis.capacity)
     return Z, dZ, False

@@ -143,17 +143,21 @@ def test_enrichment_when_the_parameters_move_far_and_the_same_point_again(model)
     _, _, est = reduced_at(model, far)
     assert not est.ok  # the check refuses the far point ...
     _, _, reduced = rb.frf_jacobian(model, far, FREQS)
-    assert not reduced and rb.basis_of(model).dim > dim  # ... and a full-order run there enriches the basis
+    basis = rb.basis_of(model)
+    assert not reduced and basis.dim == dim and basis.pending is not None  # a full-order run there: its space kept
     _, _, est = reduced_at(model, far)
+    assert basis.dim > dim and basis.pending is None  # ... and joined when the basis is next asked
     assert est.ok  # now the basis holds that point's space
     dim = rb.basis_of(model).dim
     near = START + 1e-4 * DIRECTION
     Z, dZ, reduced = rb.frf_jacobian(model, near, FREQS)
     assert reduced and rb.basis_of(model).dim == dim  # served, nothing added
     Z2, dZ2, again = rb.frf_jacobian(model, near, FREQS)
-    assert not again  # asked again: a full-order run (the confirmation), its space added
+    assert not again and basis.dim == dim  # asked again: a full-order run (the confirmation), its space not joined
     Zk, dZk = frf_jacobian(model, near, FREQS)
     assert np.array_equal(Z2, Zk) and np.array_equal(dZ2, dZk)  # exactly the full-order run
+    rb.frf_jacobian(model, near + 1e-4 * DIRECTION, FREQS)  # another point: the confirmation's space joins first
+    assert basis.dim > dim and basis.pending is None
 
 
 def test_a_full_basis_restarts_from_the_newest_space(model):
@@ -174,7 +178,8 @@ def test_enrichment_keeps_v_orthonormal_and_its_projections_exact(model):
     projection equals the plain product with the whole V (V^T A V, S A V, V^T [B, L])."""
     basis = rb.basis_of(model)
     far = np.clip(START + 0.3 * np.sign(DIRECTION), -0.9, 1.0)
-    rb.frf_jacobian(model, far, FREQS)  # a second space, orthogonalised against the first
+    rb.frf_jacobian(model, far, FREQS)  # a second space, orthogonalised against the first ...
+    basis.join()  # ... when it joins
     d = basis.dim
     assert d > 2 * rb.BLOCK  # several blocks in each space
     V = basis.V[:, :d]
