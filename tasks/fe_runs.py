@@ -47,7 +47,7 @@ from tasks.record import RESPONSE_COLUMNS, RUN_COLUMNS, grid
 from tasks.problem import black_box
 from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes
 
-__all__ = ["evaluate_sample", "evaluate_sample_jacobian", "FEStage", "JACOBIAN_COST", "FE_LOG", "append_log",
+__all__ = ["last_jacobian", "evaluate_sample", "evaluate_sample_jacobian", "FEStage", "JACOBIAN_COST", "FE_LOG", "append_log",
            "read_fe_log", "FE_DELAY_ENV", "modal_columns", "fd_frame", "LARGE_DOFS", "is_large", "solver_threads",
            "run_cores"]
 
@@ -201,6 +201,8 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
         if not (np.all(np.isfinite(Z)) and np.all(np.isfinite(dZ))):
             raise FloatingPointError("the FRF or its derivative has non-finite values")
         status, message = "ok", ""
+        if keep_factor and not reduced:  # this process's full-order run: the intervals may start from it
+            model.__dict__[_LAST_JACOBIAN] = (theta.copy(), _key(channels), np.array(freqs_hz, float), Z, dZ)
     except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
         Z, dZ = np.full((p, n), np.nan + 1j * np.nan), np.full((p, n, m), np.nan + 1j * np.nan)
         status, message = "failed", f"{type(exc).__name__}: {exc}"
@@ -211,6 +213,29 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
         df[f"dreal_{i + 1}"] = dZ[:, :, i].real.ravel()
         df[f"dimag_{i + 1}"] = dZ[:, :, i].imag.ravel()
     return df
+
+
+_LAST_JACOBIAN = "_last_jacobian"
+
+
+def _key(channels):
+    return None if channels is None else (tuple(np.ravel(channels[0])), tuple(np.ravel(channels[1])))
+
+
+def last_jacobian(model, theta, freqs_hz, channels=None):
+    """``(Z, dZ)`` on the lines ``freqs_hz`` from this process's last full-order FE run with its Jacobian, if it
+    was made exactly at ``theta`` for ``channels`` on lines that include these; else None. A large model's local
+    phase runs here (:meth:`FEStage._results`), so the intervals at its confirmed centre need not compute that
+    Jacobian again (a minute and a half at 500k DOFs)."""
+    kept = model.__dict__.get(_LAST_JACOBIAN)
+    theta = np.asarray(theta, float)
+    if kept is None or kept[1] != _key(channels) or kept[0].shape != theta.shape or not np.array_equal(kept[0], theta):
+        return None
+    index = {float(f): i for i, f in enumerate(kept[2])}
+    rows = [index.get(float(f)) for f in np.asarray(freqs_hz, float)]
+    if any(r is None for r in rows):
+        return None
+    return kept[3][rows], kept[4][rows]
 
 
 def fd_frame(sid: int, frames: list[pd.DataFrame], steps) -> pd.DataFrame:

@@ -33,7 +33,7 @@ from fe_core.solvers import reduced_basis
 from fe_core.inference.residual import analyse_residual
 from fe_core.inference.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
 from tasks.common import beating
-from tasks.fe_runs import solver_threads
+from tasks.fe_runs import last_jacobian, solver_threads
 from tasks.common import logger as run_logger
 from tasks.problem import black_box
 from tasks.runstore import RunStore
@@ -89,8 +89,12 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     t0, c0 = time.perf_counter(), time.process_time()
     noise = data.noise_spec(config.noise, lines)  # the configured level, the measured noise, or estimated
     with solver_threads(problem, config):  # a large model: PARDISO on the run's cores (nothing else runs now)
+        known = last_jacobian(full_model, start, freqs_hz, data.channels)  # the local phase's confirmed centre
+        if known is not None:
+            logger.info("iteration %d, stage intervals: the Jacobian at the start from the local phase's last FE run",
+                        iteration)
         refined = parameter_intervals(model, freqs_hz, measured_amplitude, np.asarray(start, float), lower, upper,
-                                      noise=noise, channels=channels)
+                                      noise=noise, channels=channels, known=known)
         jacobian_seconds = time.perf_counter() - t0
         iv = refined.intervals
         fields, check, post = _check_and_sample(model, freqs_hz, measured_amplitude, refined, lower, upper,
@@ -125,10 +129,12 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     fe_runs = refined.fe_runs + (check.fe_runs if check is not None else 0) + (post.fe_runs if post else 0)
     # The run's own error measure (its lines, coherence mask and residual kind, which the log amplitudes of the
     # complete lines are not): one FE run at the optimum.
+    at_start = last_jacobian(full_model, iv.estimate, data.frequencies_hz, data.channels)  # no step was taken
     with solver_threads(problem, config):
-        rel = data.residuals(full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))
+        rel = data.residuals(at_start[0] if at_start is not None else
+                             full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))
     per_channel = data.channel_errors(rel)
-    fe_runs += 1
+    fe_runs += at_start is None
     fields["estimate_errors"] = {"overall_error": float(np.mean(np.abs(rel))),
                                  "per_sensor_error": np.asarray(per_channel, float).tolist(),
                                  "at_optimum": refined.at_optimum}

@@ -190,8 +190,8 @@ class RefinedIntervals:
 
 def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, upper, noise: float | None = None,
                         level: float = 0.95, width_threshold: float = WIDTH_THRESHOLD, max_jacobians: int = 3,
-                        step_tolerance: float = 0.1, channels=None, chord_std: float | None = None
-                        ) -> RefinedIntervals:
+                        step_tolerance: float = 0.1, channels=None, chord_std: float | None = None,
+                        known=None) -> RefinedIntervals:
     """Laplace intervals at the log-amplitude least-squares optimum near an update's result.
 
     The update's result (the polish's best FE run) is within a fraction of
@@ -231,19 +231,27 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     chord_std : float, optional
         Largest step (in standard deviations) taken as a chord step; by default :data:`CHORD_STD` for a model of
         at least :data:`CHORD_MIN_DOFS` free DOFs, else 0 (every point gets its Jacobian).
+    known : (Z, dZ), optional
+        The receptance (p, n) and its derivative (p, n, m) at ``alpha0`` on these lines and channels, from an FE
+        run already made there (a large model's confirmed local centre): the first point's Jacobian is not
+        computed again (nor counted in ``jacobians``).
 
     Returns
     -------
     RefinedIntervals
     """
-    from ..solvers.sensitivity import log_amplitude_jacobian
+    from ..solvers.sensitivity import frf_jacobian
 
     freqs, lo, hi, _ = _log_problem(model, freqs_hz, measured_amplitude, lower, upper)
     log_u = np.log(np.asarray(measured_amplitude, float)).ravel()
+    given = {} if known is None else {np.clip(np.asarray(alpha0, float), lo, hi).tobytes(): known}
 
-    def at(alpha):  # residual and Jacobian from one Krylov space
-        J, Z = log_amplitude_jacobian(model, alpha, freqs, return_frf=True, channels=channels)
-        return np.log(np.abs(Z)).ravel() - log_u, J
+    def at(alpha):  # residual and Jacobian from one Krylov space (d log|Z| = Re(dZ / Z))
+        alpha = np.asarray(alpha, float)
+        Z, dZ = given.pop(alpha.tobytes()) if alpha.tobytes() in given else \
+            frf_jacobian(model, alpha, freqs, channels=channels)
+        Z, dZ = np.asarray(Z), np.asarray(dZ)
+        return np.log(np.abs(Z)).ravel() - log_u, np.real(dZ / Z[:, :, None]).reshape(-1, dZ.shape[-1])
 
     def frf_only(alpha):  # the residual alone: one FRF, no Jacobian
         return np.log(np.abs(model.parameter_frf(alpha, freqs, channels))).ravel() - log_u
@@ -253,7 +261,8 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     refined = _gauss_newton_intervals(at, alpha0, lo, hi, model.parameter_names, noise, level, width_threshold,
                                       max_jacobians, step_tolerance, residual_at=residual_at,
                                       chord_std=_chord_default(model) if chord_std is None else chord_std)
-    return replace(refined, weights=weights, noise_model=noise_model)
+    reused = known is not None and not given  # the start's Jacobian was the one given
+    return replace(refined, weights=weights, noise_model=noise_model, jacobians=refined.jacobians - reused)
 
 
 def _weighted(at, start, lo, hi, freqs, noise):

@@ -172,6 +172,30 @@ def test_a_chord_step_within_a_standard_deviation_costs_an_frf_and_takes_the_sam
     np.testing.assert_array_equal(default.intervals.std, exact.intervals.std)
 
 
+def test_a_given_jacobian_at_the_start_is_used_and_not_computed_again(benchmark_model, rng):
+    """``known``: the start's receptance and derivative from an FE run made there (a large model's confirmed local
+    centre). The same Jacobian given: the same intervals, one Jacobian fewer. A wrong one given: other intervals
+    (it is used, not computed again)."""
+    from fe_core.solvers.sensitivity import frf_jacobian
+
+    freqs = MEASUREMENT_FREQUENCIES_HZ
+    u = np.abs(benchmark_model.frf(ALPHA_ACTUAL, freqs, method="direct")) * np.exp(
+        0.01 * rng.normal(size=(freqs.size, 6)))
+    start = np.asarray(ALPHA_ACTUAL) + 0.002
+    plain = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=0.01, chord_std=0.0)
+    Z, dZ = frf_jacobian(benchmark_model, start, freqs)
+    given = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=0.01, chord_std=0.0,
+                                known=(Z, dZ))
+    assert given.jacobians == plain.jacobians - 1 and given.fe_runs == plain.fe_runs
+    np.testing.assert_array_equal(given.intervals.estimate, plain.intervals.estimate)
+    np.testing.assert_array_equal(given.intervals.std, plain.intervals.std)
+    one = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=0.01, max_jacobians=1)
+    wrong = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=0.01, max_jacobians=1,
+                                known=(Z, 2.0 * dZ))
+    assert (one.jacobians, wrong.jacobians) == (1, 0)
+    np.testing.assert_allclose(wrong.intervals.std, one.intervals.std / 2, rtol=1e-9)  # twice the slopes: half
+
+
 # -- the closure's extended model: alpha and the added effects' values ------------------------------------
 def _effects(model):
     """A point mass, a grounded spring, a joint band (scales with alpha), a damping change and a sensor gain."""
