@@ -47,9 +47,9 @@ from tasks.record import RESPONSE_COLUMNS, RUN_COLUMNS, grid
 from tasks.problem import black_box
 from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes
 
-__all__ = ["last_jacobian", "evaluate_sample", "evaluate_sample_jacobian", "FEStage", "JACOBIAN_COST", "FE_LOG", "append_log",
+__all__ = ["evaluate_sample", "evaluate_sample_jacobian", "FEStage", "JACOBIAN_COST", "FE_LOG", "append_log",
            "read_fe_log", "FE_DELAY_ENV", "modal_columns", "fd_frame", "LARGE_DOFS", "is_large", "solver_threads",
-           "run_cores"]
+           "run_cores", "last_jacobian"]
 
 #: Environment variable: seconds each FE run sleeps (only for interruption tests).
 FE_DELAY_ENV = "MRGP_FE_DELAY_SECONDS"
