@@ -202,7 +202,8 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
             raise FloatingPointError("the FRF or its derivative has non-finite values")
         status, message = "ok", ""
         if keep_factor and not reduced:  # this process's full-order run: the intervals may start from it
-            model.__dict__[_LAST_JACOBIAN] = (theta.copy(), _key(channels), np.array(freqs_hz, float), Z, dZ)
+            kept = model.__dict__.setdefault(_LAST_JACOBIAN, [])
+            kept[:] = [*kept[1 - KEPT_JACOBIANS:], (theta.copy(), _key(channels), np.array(freqs_hz, float), Z, dZ)]
     except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
         Z, dZ = np.full((p, n), np.nan + 1j * np.nan), np.full((p, n, m), np.nan + 1j * np.nan)
         status, message = "failed", f"{type(exc).__name__}: {exc}"
@@ -215,7 +216,9 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
     return df
 
 
-_LAST_JACOBIAN = "_last_jacobian"
+_LAST_JACOBIAN = "_last_jacobians"
+#: Full-order FE runs with their Jacobians kept per large model in the flow's process (a few MB each: p x n x m).
+KEPT_JACOBIANS = 4
 
 
 def _key(channels):
@@ -223,19 +226,19 @@ def _key(channels):
 
 
 def last_jacobian(model, theta, freqs_hz, channels=None):
-    """``(Z, dZ)`` on the lines ``freqs_hz`` from this process's last full-order FE run with its Jacobian, if it
-    was made exactly at ``theta`` for ``channels`` on lines that include these; else None. A large model's local
-    phase runs here (:meth:`FEStage._results`), so the intervals at its confirmed centre need not compute that
-    Jacobian again (a minute and a half at 500k DOFs)."""
-    kept = model.__dict__.get(_LAST_JACOBIAN)
+    """``(Z, dZ)`` on the lines ``freqs_hz`` from one of this process's last :data:`KEPT_JACOBIANS` full-order FE
+    runs with their Jacobians, made exactly at ``theta`` for ``channels`` on lines that include these; else None. A
+    large model's local phase runs here (:meth:`FEStage._results`), so the intervals at its best full-order run need
+    not compute that Jacobian again (a minute and a half at 500k DOFs)."""
     theta = np.asarray(theta, float)
-    if kept is None or kept[1] != _key(channels) or kept[0].shape != theta.shape or not np.array_equal(kept[0], theta):
-        return None
-    index = {float(f): i for i, f in enumerate(kept[2])}
-    rows = [index.get(float(f)) for f in np.asarray(freqs_hz, float)]
-    if any(r is None for r in rows):
-        return None
-    return kept[3][rows], kept[4][rows]
+    for x, key, freqs, Z, dZ in reversed(model.__dict__.get(_LAST_JACOBIAN, [])):
+        if key != _key(channels) or x.shape != theta.shape or not np.array_equal(x, theta):
+            continue
+        index = {float(f): i for i, f in enumerate(freqs)}
+        rows = [index.get(float(f)) for f in np.asarray(freqs_hz, float)]
+        if all(r is not None for r in rows):
+            return Z[rows], dZ[rows]
+    return None
 
 
 def fd_frame(sid: int, frames: list[pd.DataFrame], steps) -> pd.DataFrame:
@@ -473,6 +476,9 @@ class FEStage:
             channel_errors.append(data.channel_errors(r) if ok else np.full(self.n, np.nan))
         for key, values in extra.items():
             runs[key] = values
+        served = [bool(self.results[int(sid)].get("reduced", pd.Series([0])).iloc[0]) for sid in runs["sample_id"]]
+        if any(served):  # a large model's rounds served by its reduced basis: approximate (tasks.record.best_run)
+            runs["reduced"] = served
         for j in range(self.n):
             runs[f"error_sensor_{j + 1}"] = [float(e[j]) for e in channel_errors] if channel_errors else []
         runs = runs.astype({"sample_id": np.int64, "round": np.int64, "jacobian": bool})
@@ -485,8 +491,8 @@ class FEStage:
         info = {**info, **({"reduced_evaluations": reduced} if reduced else {})}  # a large model's reduced basis
         info = {"evaluations": int(len(runs)), "jacobians": int(runs["jacobian"].sum()), "rounds": self.rounds,
                 "cost": float(runs["cost"].sum()), "ran_now": self.ran, **info}
-        self.store.write_table(self.iteration, self.stage, "runs", runs[[c for c in RUN_COLUMNS if c in runs]
-                                                                          + self.problem.names
+        self.store.write_table(self.iteration, self.stage, "runs", runs[[c for c in (*RUN_COLUMNS, "reduced")
+                                                                           if c in runs] + self.problem.names
                                                                           + [c for c in runs if
                                                                              c.startswith("error_sensor_")]])
         self.store.write_table(self.iteration, self.stage, "responses", responses)

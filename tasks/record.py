@@ -7,7 +7,8 @@ strategy's batches: the paper loop's ``fe``, the polish, the hybrid's ``local`` 
   ``jacobian``, ``cost`` (FE-run equivalents), ``seconds`` (the run's own time), ``pid`` (of the process that
   made it), ``status``, ``message``,
   ``overall_error`` (Eq. 6b of the run's residual, NaN for a failed run), the parameters and
-  ``error_sensor_<j>`` (per channel, Eq. 15);
+  ``error_sensor_<j>`` (per channel, Eq. 15); ``reduced`` when a large model's reduced basis served some of the
+  stage's rounds (:mod:`fe_core.solvers.reduced_basis`: those results are approximate);
 * ``responses.parquet``, the long complex table: ``sample_id``, ``sensor`` (channel, 1-based),
   ``frequency_hz``, ``real``, ``imag`` (and the modal columns when the paper loop emulates modes);
 
@@ -118,10 +119,15 @@ def grid(df: pd.DataFrame, p: int, n: int, m: int) -> tuple[np.ndarray, np.ndarr
 
 
 def best_run(runs: pd.DataFrame) -> pd.Series:
-    """The successful FE run with the lowest overall error (the first of equals in sample order)."""
+    """The successful FE run with the lowest overall error (the first of equals in sample order). Runs a large
+    model's reduced basis served (``reduced``: approximate, to about 1e-5) count only when no full-order run
+    succeeded: a served round's error can undercut the full-order run that confirmed it by its approximation."""
     ok = runs[runs["status"] == "ok"]
     if ok.empty:
         raise ValueError("no successful FE run")
+    if "reduced" in ok:
+        exact = ok[~ok["reduced"].eq(True)]  # NaN: a stage without served rounds
+        ok = exact if len(exact) else ok
     return ok.loc[ok["overall_error"].idxmin()]
 
 
