@@ -44,12 +44,13 @@ from tasks.fe_log import FE_LOG, append_log, read_fe_log
 from tasks.common import finish
 from tasks.fe_backends import run_unordered
 from tasks.record import RESPONSE_COLUMNS, RUN_COLUMNS, grid
+from tasks import jacobian_memo
 from tasks.problem import black_box
 from tasks.runstore import RunStore, _parquet_bytes, atomic_write_bytes
 
 __all__ = ["evaluate_sample", "evaluate_sample_jacobian", "FEStage", "JACOBIAN_COST", "FE_LOG", "append_log",
            "read_fe_log", "FE_DELAY_ENV", "modal_columns", "fd_frame", "LARGE_DOFS", "is_large", "solver_threads",
-           "run_cores", "last_jacobian"]
+           "run_cores"]
 
 #: Environment variable: seconds each FE run sleeps (only for interruption tests).
 FE_DELAY_ENV = "MRGP_FE_DELAY_SECONDS"
@@ -202,8 +203,7 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
             raise FloatingPointError("the FRF or its derivative has non-finite values")
         status, message = "ok", ""
         if keep_factor and not reduced:  # this process's full-order run: the intervals may start from it
-            kept = model.__dict__.setdefault(_LAST_JACOBIAN, [])
-            kept[:] = [*kept[1 - KEPT_JACOBIANS:], (theta.copy(), _key(channels), np.array(freqs_hz, float), Z, dZ)]
+            jacobian_memo.keep(model, theta, freqs_hz, channels, Z, dZ)
     except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
         Z, dZ = np.full((p, n), np.nan + 1j * np.nan), np.full((p, n, m), np.nan + 1j * np.nan)
         status, message = "failed", f"{type(exc).__name__}: {exc}"
@@ -214,31 +214,6 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
         df[f"dreal_{i + 1}"] = dZ[:, :, i].real.ravel()
         df[f"dimag_{i + 1}"] = dZ[:, :, i].imag.ravel()
     return df
-
-
-_LAST_JACOBIAN = "_last_jacobians"
-#: Full-order FE runs with their Jacobians kept per large model in the flow's process (a few MB each: p x n x m).
-KEPT_JACOBIANS = 4
-
-
-def _key(channels):
-    return None if channels is None else (tuple(np.ravel(channels[0])), tuple(np.ravel(channels[1])))
-
-
-def last_jacobian(model, theta, freqs_hz, channels=None):
-    """``(Z, dZ)`` on the lines ``freqs_hz`` from one of this process's last :data:`KEPT_JACOBIANS` full-order FE
-    runs with their Jacobians, made exactly at ``theta`` for ``channels`` on lines that include these; else None. A
-    large model's local phase runs here (:meth:`FEStage._results`), so the intervals at its best full-order run need
-    not compute that Jacobian again (a minute and a half at 500k DOFs)."""
-    theta = np.asarray(theta, float)
-    for x, key, freqs, Z, dZ in reversed(model.__dict__.get(_LAST_JACOBIAN, [])):
-        if key != _key(channels) or x.shape != theta.shape or not np.array_equal(x, theta):
-            continue
-        index = {float(f): i for i, f in enumerate(freqs)}
-        rows = [index.get(float(f)) for f in np.asarray(freqs_hz, float)]
-        if all(r is not None for r in rows):
-            return Z[rows], dZ[rows]
-    return None
 
 
 def fd_frame(sid: int, frames: list[pd.DataFrame], steps) -> pd.DataFrame:

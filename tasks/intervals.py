@@ -33,7 +33,8 @@ from fe_core.solvers import reduced_basis
 from fe_core.inference.residual import analyse_residual
 from fe_core.inference.posterior import importance_posterior, laplace_reason, linearity_check, sampled_summary
 from tasks.common import beating
-from tasks.fe_runs import last_jacobian, solver_threads
+from tasks.fe_runs import solver_threads
+from tasks.jacobian_memo import last_jacobian
 from tasks.common import logger as run_logger
 from tasks.problem import black_box
 from tasks.runstore import RunStore

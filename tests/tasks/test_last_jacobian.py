@@ -1,4 +1,4 @@
-"""The intervals of a large model start from its best full-order FE run: tasks.fe_runs.last_jacobian serves one of
+"""The intervals of a large model start from its best full-order FE run: tasks.jacobian_memo.last_jacobian serves one of
 the flow's process's last full-order FE runs with their Jacobians only when it was made at exactly that point, for
 those channels, on lines that include theirs; tasks.record.best_run picks a full-order run over the rounds a reduced
 basis served (approximate)."""
@@ -10,7 +10,8 @@ import pandas as pd
 
 from fe_core.benchmark import MEASUREMENT_FREQUENCIES_HZ, three_plate
 from fe_core.solvers.sensitivity import frf_jacobian
-from tasks.fe_runs import KEPT_JACOBIANS, evaluate_sample_jacobian, last_jacobian
+from tasks.fe_runs import evaluate_sample_jacobian
+from tasks.jacobian_memo import KEPT_JACOBIANS, last_jacobian
 from tasks.record import best_run
 
 
