@@ -216,6 +216,11 @@ def evaluate_sample_jacobian(ref, sample_id: int, theta: np.ndarray, freqs_hz: n
     return df
 
 
+def _served(df: pd.DataFrame) -> bool:
+    """Whether a large model's reduced basis served this FE result (only such runs have the column)."""
+    return bool(df["reduced"].iloc[0]) if "reduced" in df else False
+
+
 def fd_frame(sid: int, frames: list[pd.DataFrame], steps) -> pd.DataFrame:
     """One FE result with its forward-difference derivative from the m + 1 runs ``frames`` (the point, then
     each parameter stepped by ``steps[i]``): the columns of :func:`evaluate_sample_jacobian`; ``cost`` m + 1,
@@ -425,7 +430,7 @@ class FEStage:
                 modes = (np.array([part[f"omega2_{r + 1}"].iloc[0] for r in range(self.modes)]),
                          np.array([part[f"participation_{r + 1}"].to_numpy()[:self.n] for r in range(self.modes)]))
             out.append(Outcome(Z[line, channel], dZ[line, channel] if jac and dZ is not None else None,
-                               self.cost(df, jac), modes, reduced=bool(df.get("reduced", pd.Series([0])).iloc[0])))
+                               self.cost(df, jac), modes, reduced=_served(df)))
         return out
 
     def write(self, info: dict, order: tuple[str, ...] = ()) -> dict:
@@ -451,7 +456,7 @@ class FEStage:
             channel_errors.append(data.channel_errors(r) if ok else np.full(self.n, np.nan))
         for key, values in extra.items():
             runs[key] = values
-        served = [bool(self.results[int(sid)].get("reduced", pd.Series([0])).iloc[0]) for sid in runs["sample_id"]]
+        served = [_served(self.results[int(sid)]) for sid in runs["sample_id"]]
         if any(served):  # a large model's rounds served by its reduced basis: approximate (tasks.record.best_run)
             runs["reduced"] = served
         for j in range(self.n):
@@ -462,7 +467,7 @@ class FEStage:
         responses = (pd.concat(parts, ignore_index=True) if parts else
                      pd.DataFrame({c: pd.Series(dtype=float if c in ("frequency_hz", "real", "imag") else np.int64)
                                    for c in keep}))
-        reduced = sum(bool(df.get("reduced", pd.Series([0])).iloc[0]) for df in self.results.values())
+        reduced = sum(_served(df) for df in self.results.values())
         info = {**info, **({"reduced_evaluations": reduced} if reduced else {})}  # a large model's reduced basis
         info = {"evaluations": int(len(runs)), "jacobians": int(runs["jacobian"].sum()), "rounds": self.rounds,
                 "cost": float(runs["cost"].sum()), "ran_now": self.ran, **info}
