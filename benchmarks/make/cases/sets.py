@@ -53,6 +53,7 @@ EXPECTED = {**{k: "explained" for k in IN_LIBRARY}, "none": "noise", **{k: "not 
 DEV_SEED, HELDOUT_SEED, HELDOUT2_SEED, HELDOUT3_SEED, HELDOUT4_SEED, HELDOUT5_SEED = (40_100, 70_200, 90_200, 130_300,
                                                                                       170_400, 210_500)
 HELDOUT6_SEED = 250_600
+HELDOUT7_SEED = 290_700
 
 DEV = [("holed_plate", "point_mass"), ("holed_plate", "patch"), ("holed_plate", "none"),
        ("ribbed_panel", "mount"), ("ribbed_panel", "point_mass"), ("ribbed_panel", "mass_layer"),
@@ -75,7 +76,7 @@ HELDOUT = [("holed_plate", "mount"), ("holed_plate", "point_mass"), ("holed_plat
 SETS = {"dev": (DEV, DEV_SEED, "dev", "vertex"), "heldout": (HELDOUT, HELDOUT_SEED, "ho", "vertex"),
         "heldout2": (HELDOUT, HELDOUT2_SEED, "hb", "model"), "heldout3": (HELDOUT, HELDOUT3_SEED, "hc", "model"),
         "heldout4": (HELDOUT, HELDOUT4_SEED, "hd", "model"), "heldout5": (HELDOUT, HELDOUT5_SEED, "he", "model"),
-        "heldout6": (HELDOUT, HELDOUT6_SEED, "hf", "model")}
+        "heldout6": (HELDOUT, HELDOUT6_SEED, "hf", "model"), "heldout7": (HELDOUT, HELDOUT7_SEED, "hg", "model")}
 
 #: The fifth set's run order (see the module's docstring).
 HELDOUT5_ORDER = ("he21 he24 he12 he15 he10 he17 he06 he20 he08 he07 he23 he03 he18 he09 he01 he14 he02 he22 he13 "
@@ -85,8 +86,12 @@ HELDOUT5_ORDER = ("he21 he24 he12 he15 he10 he17 he06 he20 he08 he07 he23 he03 h
 HELDOUT6_ORDER = ("hf04 hf08 hf12 hf11 hf19 hf10 hf01 hf15 hf09 hf22 hf17 hf05 hf20 hf02 hf06 hf24 hf23 hf16 hf03 hf21 "
                   "hf14 hf07 hf18 hf13").split()
 
+#: The seventh set's run order.
+HELDOUT7_ORDER = ("hg01 hg10 hg20 hg15 hg05 hg18 hg17 hg02 hg22 hg04 hg21 hg07 hg12 hg16 hg08 hg19 hg13 hg11 hg24 hg14 "
+                  "hg23 hg06 hg03 hg09").split()
+
 #: The sets whose solid structures' data are assembled on the tool's own mesh (default: a mesh of half its size).
-DATA_MESH = {"heldout5": "model", "heldout6": "model"}
+DATA_MESH = {"heldout5": "model", "heldout6": "model", "heldout7": "model"}
 
 
 def cases(which: str) -> list[dict]:
