@@ -16,14 +16,18 @@ the median frequency) with and without the effect, each prediction of the other 
 effect carries over when it improves both predictions: an effect that makes the unseen half worse is not supported
 by the data, whatever it does on the half it was fitted on.
 
-One exception (:func:`excused`): a half that cannot see the effect cannot fit it. A mount whose spring moves only
+One exception (:func:`excused`): a half that barely sees the effect cannot fit it. A mount whose spring moves only
 the upper modes, fitted on the lower lines, comes out at whatever value the lower half's own error asks for and
-predicts the upper half worse; that says nothing against the mount. So a failing direction is excused when the
-half it was fitted on sees the effect below its own residual (the effect's **signature** there, its noise-weighed
-columns with alpha's and the other effects' projected out, times its value, smaller than the weighed residual),
-the other half sees it clearly (its signature at least :data:`SEEN_BY` times its residual) and the other direction
-helps. The bar was set on the held-out cases seen (docs/results/held-out.md): the true mounts kept this way were seen
-at 18 and 24 times the residual, the wrong effects at 1.2-2.9.
+predicts the upper half worse; that says nothing against the mount. How clearly a half sees the effect is its
+**signature** there: its noise-weighed columns with alpha's and the other effects' projected out, times its value,
+over the weighed residual. A failing direction is excused when the other half sees the effect clearly (at least
+:data:`SEEN_BY` times its residual) and at least :data:`SEEN_BY` times as clearly as the failing half does (a
+failing half that sees it below its residual counts as 1), and the other direction helps. The bar was set on the
+held-out cases seen (docs/results/held-out.md): the true mounts kept this way were seen at 18 and 24 times the
+residual by one half and below it by the other, the wrong effects at 1.2-2.9 by the half that sees them best. The
+ratio (session 26, set on the sixth held-out set's hf06 and judged on the seventh): a true patch seen at 17.1 by
+the upper lines and 1.86 by the lower, fitted on the lower lines, made the upper's sum of squares four times worse
+and was dropped while the failing half had to see the effect below its residual.
 
 The refits on a half are one Gauss-Newton step from the fit on all lines, with the exact Jacobian
 (:func:`fe_core.closure.jacobian.extended_log_jacobian`; the step's least squares in columns scaled to unit norm,
@@ -105,12 +109,13 @@ def signatures(Jw: np.ndarray, r: np.ndarray, n_channels: int, own: Sequence[int
 
 def excused(helps: Sequence[bool], seen: Sequence[float], bar: float = SEEN_BY) -> bool:
     """Whether the one failing direction of two (``helps[i]``: fitted on half ``i``, the other half's prediction
-    improves) is excused: half ``i`` sees the effect below its residual (``seen[i] < 1``, :func:`signatures`), the
-    other half at least ``bar`` times its residual, and fitted there the effect improves half ``i``'s prediction."""
+    improves) is excused: the other half sees the effect at least ``bar`` times its residual and ``bar`` times as
+    clearly as half ``i`` does (``seen``, :func:`signatures`; below 1 counts as 1), and fitted there the effect
+    improves half ``i``'s prediction."""
     if list(helps).count(False) != 1:
         return False
     i = list(helps).index(False)
-    return bool(seen[i] < 1.0 and seen[1 - i] >= bar and helps[1 - i])
+    return bool(seen[1 - i] >= bar * max(1.0, seen[i]) and helps[1 - i])
 
 
 def carries_over(model, freqs_hz, amplitude, alpha, applied: Sequence[Applied], j: int, noise=None) -> tuple[bool, str]:
@@ -140,5 +145,5 @@ def carries_over(model, freqs_hz, amplitude, alpha, applied: Sequence[Applied], 
     seen = signatures(Jw, r, u.shape[1], columns(alpha, applied, j), applied[j].values, splits)
     note += f"; seen by the lower lines at {seen[0]:.3g} times their residual, by the upper at {seen[1]:.3g}"
     if excused(helps, seen):
-        return True, note + ": the half that fails cannot see it, the other sees it clearly (excused)"
+        return True, note + ": the half that fails barely sees it, the other sees it clearly (excused)"
     return False, note

