@@ -131,6 +131,8 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
     # The run's own error measure (its lines, coherence mask and residual kind, which the log amplitudes of the
     # complete lines are not): one FE run at the optimum.
     at_start = last_jacobian(full_model, iv.estimate, data.frequencies_hz, data.channels)  # no step was taken
+    if at_start is None and refined.frf_at_estimate is not None and np.all(lines):
+        at_start = (refined.frf_at_estimate,)  # a chord step's FRF at the optimum, every line complete
     with solver_threads(problem, config):
         rel = data.residuals(at_start[0] if at_start is not None else
                              full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))

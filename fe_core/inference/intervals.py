@@ -172,6 +172,9 @@ class RefinedIntervals:
         (whitened, unit noise); None: one relative level.
     noise_model : NoiseModel or None
         The noise per line and channel the intervals used (measured, or estimated at the start).
+    frf_at_estimate : ndarray, shape (p, n), or None
+        After a chord step: the receptance at ``intervals.estimate`` its FRF computed (the caller's measure of the
+        run's own error at the optimum needs no second one); else None.
     """
 
     intervals: Intervals
@@ -186,6 +189,7 @@ class RefinedIntervals:
     noise_model: object = None
     #: Where ``jacobian`` was computed: the estimate, or the point one chord step before it (:data:`CHORD_STD`).
     jacobian_at: np.ndarray | None = None
+    frf_at_estimate: np.ndarray | None = None
 
 
 def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, upper, noise: float | None = None,
@@ -253,8 +257,13 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
         Z, dZ = np.asarray(Z), np.asarray(dZ)
         return np.log(np.abs(Z)).ravel() - log_u, np.real(dZ / Z[:, :, None]).reshape(-1, dZ.shape[-1])
 
-    def frf_only(alpha):  # the residual alone: one FRF, no Jacobian
-        return np.log(np.abs(model.parameter_frf(alpha, freqs, channels))).ravel() - log_u
+    last_frf = {}
+
+    def frf_only(alpha):  # the residual alone: one FRF, no Jacobian (kept: the chord step's point may be the optimum)
+        Z = np.asarray(model.parameter_frf(alpha, freqs, channels))
+        last_frf.clear()
+        last_frf[np.asarray(alpha, float).tobytes()] = Z
+        return np.log(np.abs(Z)).ravel() - log_u
 
     at, noise, weights, noise_model = _weighted(at, alpha0, lo, hi, freqs, noise)
     residual_at = frf_only if weights is None else (lambda alpha: frf_only(alpha) / weights)
@@ -262,7 +271,9 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
                                       max_jacobians, step_tolerance, residual_at=residual_at,
                                       chord_std=_chord_default(model) if chord_std is None else chord_std)
     reused = known is not None and not given  # the start's Jacobian was the one given
-    return replace(refined, weights=weights, noise_model=noise_model, jacobians=refined.jacobians - reused)
+    at_estimate = last_frf.get(np.asarray(refined.intervals.estimate, float).tobytes())
+    return replace(refined, weights=weights, noise_model=noise_model, jacobians=refined.jacobians - reused,
+                   frf_at_estimate=at_estimate)
 
 
 def _weighted(at, start, lo, hi, freqs, noise):

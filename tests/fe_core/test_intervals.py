@@ -156,6 +156,9 @@ def test_a_chord_step_within_a_standard_deviation_costs_an_frf_and_takes_the_sam
     assert (exact.jacobians, exact.fe_runs) == (2, 0) and (chord.jacobians, chord.fe_runs) == (1, 1)
     assert chord.at_optimum and chord.last_step_in_std <= 0.1
     np.testing.assert_array_equal(chord.jacobian_at, start)
+    # the chord step's FRF is the receptance at the estimate (for the run's own error there); none without a chord
+    np.testing.assert_array_equal(chord.frf_at_estimate, benchmark_model.parameter_frf(chord.intervals.estimate, freqs))
+    assert exact.frf_at_estimate is None
     # the same step from the same Jacobian: the same estimate (to the FRF's digits, far below a standard deviation)
     np.testing.assert_allclose(chord.intervals.estimate, exact.intervals.estimate, rtol=0, atol=1e-6 * sd.min())
     np.testing.assert_allclose(chord.residual, exact.residual, atol=1e-8)
