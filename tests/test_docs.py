@@ -44,6 +44,7 @@ def commands(text: str) -> list[tuple[str, str | None, list[str]]]:
     for match in COMMAND.finditer(text):
         module, rest = match.group(1).rstrip("."), match.group(2).replace("\\\n", " ")
         words = rest.split()
+        words = words[:words.index("--")] if "--" in words else words   # after a bare --: the wrapped command's
         sub = words[0] if words and re.fullmatch(r"[a-z][a-z_-]*", words[0]) else None   # rerun, make, stages
         options = [w.split("=", 1)[0] for w in words if re.fullmatch(r"--[a-z][\w-]*(=.*)?", w)]
         found.append((module, sub, options))
@@ -191,6 +192,8 @@ def test_every_shown_command_parses():
     ("python -m flows.update rerun --run-id a --stage train", [("flows.update", "rerun", ["--run-id", "--stage"])]),
     ("python -m flows.update --model data/x.toml \\\n    --measured y.csv", [("flows.update", None,
                                                                           ["--model", "--measured"])]),
+    ("python -m benchmarks.scaling update --model m.toml -- --n-jobs 1", [("benchmarks.scaling", "update",
+                                                                          ["--model"])]),
 ])
 def test_command_extraction(text, expected):
     assert commands(text) == expected
