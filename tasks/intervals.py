@@ -129,15 +129,15 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
         names.append(POSTERIOR_TABLE)
     fe_runs = refined.fe_runs + (check.fe_runs if check is not None else 0) + (post.fe_runs if post else 0)
     # The run's own error measure (its lines, coherence mask and residual kind, which the log amplitudes of the
-    # complete lines are not): one FE run at the optimum.
-    at_start = last_jacobian(full_model, iv.estimate, data.frequencies_hz, data.channels)  # no step was taken
-    if at_start is None and refined.frf_at_estimate is not None and np.all(lines):
-        at_start = (refined.frf_at_estimate,)  # a chord step's FRF at the optimum, every line complete
+    # complete lines are not): one FE run at the optimum, unless one was made there already (no step was taken, or a
+    # chord step's FRF on every line).
+    kept = last_jacobian(full_model, iv.estimate, data.frequencies_hz, data.channels)
+    Z = kept[0] if kept is not None else refined.frf_at_estimate if np.all(lines) else None
     with solver_threads(problem, config):
-        rel = data.residuals(at_start[0] if at_start is not None else
+        rel = data.residuals(Z if Z is not None else
                              full_model.parameter_frf(iv.estimate, data.frequencies_hz, data.channels))
     per_channel = data.channel_errors(rel)
-    fe_runs += at_start is None
+    fe_runs += Z is None
     fields["estimate_errors"] = {"overall_error": float(np.mean(np.abs(rel))),
                                  "per_sensor_error": np.asarray(per_channel, float).tolist(),
                                  "at_optimum": refined.at_optimum}
