@@ -49,7 +49,7 @@ reduced is run at full order when asked again: that is how a strategy confirms i
 (:func:`strategies.hybrid_phases.local_phase`).
 
 Only for models of :data:`MIN_DOFS` to :data:`MAX_DOFS` free DOFs (small models keep their arithmetic bit for
-bit; at 500k it cost more time and memory than it saved, with or without derivative enrichment), only in
+bit; up to the size where :data:`MIN_COLUMNS` columns fit in :data:`MAX_BYTES`, 732k DOFs), only in
 the process that runs a large model's single FE runs (``tasks/fe_runs.py``); ``MRGP_REDUCED_BASIS=0`` turns it
 off. Plain numpy/scipy.
 """
@@ -71,7 +71,7 @@ from .sensitivity import frf_jacobian as full_frf_jacobian, segment_directions
 
 __all__ = ["MIN_DOFS", "MAX_DOFS", "ENABLED", "FIELD_TOL", "SKETCH_ROWS", "SKETCH_NONZEROS", "MAX_DIMENSION",
            "ParametricBasis", "Estimate", "sparse_sign_sketch", "active", "frf_jacobian", "forget", "basis_of",
-           "enrich_derivatives", "DERIVATIVE_BLOCKS", "basis_bytes"]
+           "enrich_derivatives", "DERIVATIVE_BLOCKS", "basis_bytes", "MIN_COLUMNS"]
 
 log = logging.getLogger(__name__)
 
@@ -97,15 +97,15 @@ SKETCH_NONZEROS = 8
 #: 500k update's basis of its first three points refused every later round: docs/results/scaling.md).
 MAX_DIMENSION = 720
 MAX_BYTES = 1.5e9
-#: Larger models run every round at full order. Measured on the 500k panel before derivative enrichment
-#: (docs/results/scaling.md): a basis of 373 columns (2.6 spaces) served only the end-game's rounds, after as many
-#: full-order rounds as without it (the local phase 18.8 min against 17.9), and the process tree peaked at 10.8 GB
-#: against 7.0 GB; at 150k, with room for five spaces, it served 5 of 11 rounds and the update took 391 s against 508 s.
-#: Measured with derivative enrichment on the 500k panel (da7b959, docs/results/scaling.md): 3 full-order runs and 7
-#: served rounds, but the basis's start (the check's preconditioner and sketch, 200 derivative solves, projections)
-#: took 3-4 minutes and each later full-order run ~1 minute more for its extension: 1052 s and 10.9 GB against 906 s
-#: and 8.98 GB without a basis. So the basis stays off where MAX_DIMENSION columns do not fit in MAX_BYTES.
-MAX_DOFS = int(MAX_BYTES // (8 * MAX_DIMENSION))
+#: Fewer columns than this in MAX_BYTES and the basis cannot hold a full-order run's space (~143 columns on the
+#: large example) with one derivative block per parameter (9 x 13): larger models run every round at full order.
+#: History (docs/results/scaling.md): at 500k DOFs a plain basis of 373 columns served only the end-game's rounds
+#: (10.8 GB against 7.0); with derivative enrichment (da7b959) it served 7 of 10 rounds but its start (the
+#: projections reading all of V once per part and block of 16 columns, ten parts) took 3-4 minutes and each
+#: extension a minute: 1052 s against 906 s without it, so it was kept below 260k DOFs (720 columns). Each part's
+#: projection now reads only the rows it touches, once per extension (:meth:`ParametricBasis.extend`).
+MIN_COLUMNS = 256
+MAX_DOFS = int(MAX_BYTES // (8 * MIN_COLUMNS))
 #: A new space's direction joins V when at least this fraction of it lies outside V (the pivoted QR of the
 #: new columns after orthogonalisation against V): what is dropped changes the fields by less than this, far
 #: below FIELD_TOL, and a nearby point's space, mostly in V already, adds only what is new (n x columns of
@@ -190,6 +190,9 @@ class ParametricBasis:
         self.stiffness, self.mass = list(stiffness), list(mass)
         self.parts = self.stiffness + self.mass
         n = self.parts[0].shape[0]
+        # The rows each part touches (a segment's DOFs: a ninth of the panel's): its projections read only those
+        # rows of V, once per extension (:meth:`extend`); None where it touches most of them (the mass, a fixed part).
+        self.rows = [_touched_rows(A) for A in self.parts]
         S = sparse_sign_sketch(n) if sketch is None else sketch
         # The sketch of the preconditioned residual: S K0^-1 r = Y^T r with Y = K0^-1 S^T (k solves, once).
         self.sketch = np.ascontiguousarray(np.asarray(precondition(S.T.toarray()), dtype=float).T)  # (k, n)
@@ -255,16 +258,25 @@ class ParametricBasis:
         self.V[:, d:d + k] = q[:, :k]
         del q
         V = self.V[:, :d + k]
-        for j in range(d, d + k, BLOCK):
-            e = min(j + BLOCK, d + k)
-            qb = self.V[:, j:e]
-            for t, A in enumerate(self.parts):
-                P = A @ qb
-                col = V.T @ P
+        for t, A in enumerate(self.parts):
+            rows = self.rows[t]
+            # V's rows the part touches, gathered once per part (reading V once per part and block was the
+            # extension's cost at 500k DOFs: memory traffic, ten parts x n x r doubles a block of 16 columns)
+            Vt = V if rows is None else V[rows]
+            St = self.sketch if rows is None else self.sketch[:, rows]
+            for j in range(d, d + k, BLOCK):
+                e = min(j + BLOCK, d + k)
+                P = A @ self.V[:, j:e]
+                if rows is not None:
+                    P = P[rows]
+                col = Vt.T @ P
                 self.R[t, :d + k, j:e] = col
                 self.R[t, j:e, :d + k] = col.T
-                self.SAV[t, :, j:e] = self.sketch @ P
-            self.Vrhs[j:e] = qb.T @ self.rhs
+                self.SAV[t, :, j:e] = St @ P
+            del Vt, St
+        for j in range(d, d + k, BLOCK):
+            e = min(j + BLOCK, d + k)
+            self.Vrhs[j:e] = self.V[:, j:e].T @ self.rhs
         self.dim = d + k
         return k
 
@@ -327,9 +339,18 @@ class ParametricBasis:
         return Estimate(field_error, rel, res, bool(np.all(field_error <= FIELD_TOL)))
 
 
+def _touched_rows(A) -> np.ndarray | None:
+    """The rows where the sparse part ``A`` has nonzero entries (a cached model's segment matrices share one
+    pattern, explicit zeros elsewhere), or None when they are more than half of them."""
+    A = sp.csr_matrix(A)
+    counts = np.concatenate([[0], np.cumsum(A.data != 0, dtype=np.int64)])
+    rows = np.flatnonzero(counts[A.indptr[1:]] > counts[A.indptr[:-1]])
+    return None if rows.size > A.shape[0] // 2 else rows
+
+
 def active(model) -> bool:
     """Whether a large model's single FE runs may use a global basis: from :data:`MIN_DOFS` free DOFs up to the
-    size at which :data:`MAX_DIMENSION` columns still fit in :data:`MAX_BYTES` (260k DOFs)."""
+    size at which :data:`MIN_COLUMNS` columns still fit in :data:`MAX_BYTES` (732k DOFs)."""
     n = getattr(model, "n_dofs", 0)
     return ENABLED and model.__dict__.get("_reduced_min", MIN_DOFS) <= n <= MAX_DOFS
 

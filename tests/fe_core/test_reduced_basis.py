@@ -182,6 +182,9 @@ def test_enrichment_keeps_v_orthonormal_and_its_projections_exact(model):
     basis.join()  # ... when it joins
     d = basis.dim
     assert d > 2 * rb.BLOCK  # several blocks in each space
+    # each segment's part is projected on the rows it touches (a plate's), the mass on all of them
+    assert [r is None for r in basis.rows[:model.n_segments]] == [False] * model.n_segments
+    assert basis.rows[-1] is None
     V = basis.V[:, :d]
     assert np.abs(V.T @ V - np.eye(d)).max() <= 1e-12 * d
     for t, A in enumerate(basis.parts):
@@ -193,12 +196,12 @@ def test_enrichment_keeps_v_orthonormal_and_its_projections_exact(model):
 
 
 def test_the_basis_is_used_only_between_min_and_max_dofs():
-    """Below MIN_DOFS the arithmetic of small models stays bit for bit; above MAX_DOFS (where MAX_DIMENSION
+    """Below MIN_DOFS the arithmetic of small models stays bit for bit; above MAX_DOFS (where MIN_COLUMNS
     columns no longer fit in MAX_BYTES) every round is full order."""
     class Sized:
         def __init__(self, n):
             self.n_dofs = n
 
-    assert rb.MAX_DOFS * 8 * rb.MAX_DIMENSION <= rb.MAX_BYTES < (rb.MAX_DOFS + 1) * 8 * rb.MAX_DIMENSION
+    assert rb.MAX_DOFS * 8 * rb.MIN_COLUMNS <= rb.MAX_BYTES < (rb.MAX_DOFS + 1) * 8 * rb.MIN_COLUMNS
     assert not rb.active(Sized(rb.MIN_DOFS - 1)) and rb.active(Sized(rb.MIN_DOFS)) == rb.ENABLED
     assert rb.active(Sized(rb.MAX_DOFS)) == rb.ENABLED and not rb.active(Sized(rb.MAX_DOFS + 1))
