@@ -18,7 +18,7 @@ from tasks import record
 from tasks.intervals import cost_against_update, intervals_task
 from tasks.io.summary import SCHEMA_VERSION, entries_from_pairs
 from tasks.model_vtu import model_vtu_task
-from tasks.fe_runs import JACOBIAN_COST
+from tasks.fe_runs import JACOBIAN_COST, is_large, run_cores
 from tasks.runstore import RunStore, atomic_write_json
 
 __all__ = ["run_summary", "finish_run", "repeat_summary", "print_summary", "interval_sentences",
@@ -88,7 +88,8 @@ def finish_run(problem, config, store: RunStore, iteration: int, summary: dict, 
             summary = {k: v for k, v in summary.items() if k != "estimate_errors"}
             summary["parameters_source"] = ("lowest Eq. (6b) error among the FE runs (complex residuals: the "
                                             "intervals' least-squares optimum uses the amplitudes only)")
-    model_vtu_task(str(store.root), problem.model, summary["parameters"])  # <run>/model.vtu, before the summary
+    model_vtu_task(str(store.root), problem.model, summary["parameters"],  # <run>/model.vtu, before the summary
+                   threads=run_cores(config) if is_large(problem.model) else 1)
     atomic_write_json(store.root / "summary.json", summary)
     return summary
 

@@ -147,6 +147,7 @@ def intervals_task(root: str, problem, config, iteration: int, start, output_sta
                               "jacobian_seconds": round(jacobian_seconds, 3), "at_optimum": refined.at_optimum,
                               "last_step_in_std": (refined.last_step_in_std if np.isfinite(refined.last_step_in_std)
                                                    else None),
+                              "first_order_frfs": refined.first_order_frfs,  # chord steps' FRFs expanded
                               "check_fe_runs": check.fe_runs if check is not None else 0,
                               "posterior_fe_runs": post.fe_runs if post else 0}}
     if black_box(full_model):  # each Jacobian is m + 1 solver runs (in threads, one solver process each)

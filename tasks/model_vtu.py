@@ -17,6 +17,7 @@ import numpy as np
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
+from fe_core.solvers import pardiso
 from tasks.common import logger as run_logger
 from tasks.runstore import atomic_write_file
 
@@ -42,7 +43,8 @@ def factors_from_parameters(parameters: dict, model) -> tuple[np.ndarray, np.nda
     return model.factors([float(parameters[n]) for n in names])
 
 
-def write_model_vtu(root: str | Path, model, parameters: dict, n_modes: int | None = None) -> Path | None:
+def write_model_vtu(root: str | Path, model, parameters: dict, n_modes: int | None = None,
+                    threads: int = 1) -> Path | None:
     """Write ``<root>/model.vtu`` of the run's model at its updated parameters.
 
     Parameters
@@ -55,6 +57,11 @@ def write_model_vtu(root: str | Path, model, parameters: dict, n_modes: int | No
         The summary's ``parameters`` (``alpha_i``, and ``gamma_i`` if updated).
     n_modes : int, optional
         Modes written (default :data:`fe_core.io.vtu.DEFAULT_MODES`).
+    threads : int
+        PARDISO threads of the modes' factorisation: a large model's run passes its cores, as its intervals
+        and FE runs in this process did, so that a factor of K they left at these parameters is found in that
+        thread count's pool and reused (:mod:`fe_core.solvers.pardiso`); at 500k DOFs the modes took 63 s on
+        one thread with a factorisation of their own.
 
     Returns
     -------
@@ -64,7 +71,7 @@ def write_model_vtu(root: str | Path, model, parameters: dict, n_modes: int | No
     import meshio
     import scipy.sparse.linalg as spla
 
-    from fe_core.io.vtu import DEFAULT_MODES, model_vtu
+    from fe_core.io.vtu import DEFAULT_MODES
 
     logger = run_logger()
     view = getattr(model, "deck_view", None)   # a solver deck's mesh (fe_core.io.calculix.vtu)
@@ -74,12 +81,8 @@ def write_model_vtu(root: str | Path, model, parameters: dict, n_modes: int | No
     alpha, gamma = factors_from_parameters(parameters, model)
     t0 = time.perf_counter()
     try:
-        if view is not None:
-            from fe_core.io.calculix.vtu import deck_vtu
-
-            grid = deck_vtu(model, view, alpha, gamma, DEFAULT_MODES if n_modes is None else n_modes)
-        else:
-            grid = model_vtu(model, alpha, gamma, DEFAULT_MODES if n_modes is None else n_modes)
+        with pardiso.threads(threads):
+            grid = _grid(model, view, alpha, gamma, DEFAULT_MODES if n_modes is None else n_modes)
     except (ArithmeticError, RuntimeError, np.linalg.LinAlgError, spla.ArpackError) as exc:
         logger.warning("%s not written: the modes of the updated model failed (%s: %s)", VTU_NAME,
                        type(exc).__name__, exc)
@@ -92,6 +95,16 @@ def write_model_vtu(root: str | Path, model, parameters: dict, n_modes: int | No
     logger.info("%s written (%d cells, %d modes) in %.1f s", path, len(grid.cells[0].data), len(grid.point_data),
                 time.perf_counter() - t0)
     return path
+
+
+def _grid(model, view, alpha, gamma, n_modes: int):
+    if view is not None:  # a solver deck's mesh
+        from fe_core.io.calculix.vtu import deck_vtu
+
+        return deck_vtu(model, view, alpha, gamma, n_modes)
+    from fe_core.io.vtu import model_vtu
+
+    return model_vtu(model, alpha, gamma, n_modes)
 
 
 model_vtu_task = task(write_model_vtu, name="model-vtu", cache_policy=NO_CACHE)

@@ -175,6 +175,35 @@ def test_a_chord_step_within_a_standard_deviation_costs_an_frf_and_takes_the_sam
     np.testing.assert_array_equal(default.intervals.std, exact.intervals.std)
 
 
+@pytest.mark.slow
+def test_a_chord_step_that_changes_no_line_by_a_percent_takes_the_first_order_frf(benchmark_model, rng, monkeypatch):
+    """At 0.1 % noise a chord step of half a standard deviation changes no line by more than LINEAR_CHANGE: its
+    FRF is the start's first-order expansion, no FE run. The same step with the FE run's FRF (LINEAR_CHANGE 0)
+    gives the same estimate and widths to far below a standard deviation, and the expanded receptance at the
+    estimate is the direct solve's there to about the square of the largest change."""
+    from fe_core.inference import intervals as module
+
+    freqs = MEASUREMENT_FREQUENCIES_HZ
+    u = np.abs(benchmark_model.frf(ALPHA_ACTUAL, freqs, method="direct")) * np.exp(
+        1e-3 * rng.normal(size=(freqs.size, 6)))
+    opt = parameter_intervals(benchmark_model, freqs, u, ALPHA_ACTUAL, -0.999, 1.0, noise=1e-3, max_jacobians=5,
+                              chord_std=0.0)
+    sd = opt.intervals.std
+    start = opt.intervals.estimate + 0.5 * np.array([1, -1, 1, -1, 1, -1.0]) * sd
+    linear = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=1e-3, chord_std=1.0)
+    bar = module.LINEAR_CHANGE
+    monkeypatch.setattr(module, "LINEAR_CHANGE", 0.0)
+    solved = parameter_intervals(benchmark_model, freqs, u, start, -0.999, 1.0, noise=1e-3, chord_std=1.0)
+    assert (linear.jacobians, linear.fe_runs, linear.first_order_frfs) == (1, 0, 1) and linear.at_optimum
+    assert (solved.jacobians, solved.fe_runs, solved.first_order_frfs) == (1, 1, 0) and solved.at_optimum
+    np.testing.assert_allclose(linear.intervals.estimate, solved.intervals.estimate, rtol=0, atol=1e-3 * sd.min())
+    np.testing.assert_allclose(linear.intervals.std, solved.intervals.std, rtol=1e-3)
+    direct = benchmark_model.frf(linear.intervals.estimate, freqs, method="direct")
+    change = np.abs(direct - benchmark_model.frf(start, freqs, method="direct")) / np.abs(direct)
+    assert change.max() < bar  # the step's size that chose the expansion
+    assert np.max(np.abs(linear.frf_at_estimate - direct) / np.abs(direct)) < 3 * change.max() ** 2
+
+
 def test_a_given_jacobian_at_the_start_is_used_and_not_computed_again(benchmark_model, rng):
     """``known``: the start's receptance and derivative from an FE run made there (a large model's confirmed local
     centre). The same Jacobian given: the same intervals, one Jacobian fewer. A wrong one given: other intervals
