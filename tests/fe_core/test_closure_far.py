@@ -265,6 +265,36 @@ def test_a_sensor_gain_within_its_channels_misfit_is_not_plausible_one_beyond_it
     assert not gain_within_misfit(base, Applied(PointMass(benchmark_model), "node 337", np.array([0.1])), 0.005)
 
 
+def test_a_first_gain_that_leaves_the_misfit_is_judged_on_its_channel(benchmark_model):
+    """The first effect's size rule for a sensor's gain: channel 2 carries a smooth misfit of 3 % rms over 0.5 %
+    noise. A 0.3 % gain that leaves that misfit is within it (not plausible); an 8 % gain that leaves it is beyond it;
+    a 0.3 % gain that takes the misfit down to the noise is not judged on its size."""
+    from fe_core.closure.effects import SensorGain
+    from fe_core.closure.far.plausible import mark_first_negligible
+
+    rng = np.random.default_rng(8)
+    p, n = 200, benchmark_model.n_sensors
+    noise = 0.005 * rng.standard_normal((p, n))
+    smooth = np.zeros((p, n))
+    smooth[:, 1] = 0.03 * np.sqrt(2) * np.sin(np.linspace(0, 12 * np.pi, p))
+    base = fits.Fit(alpha=np.zeros(6), effect=None, location=None, values=np.zeros(0), model_amplitude=None,
+                    residual=smooth + noise, evaluations=0)
+    gain = SensorGain(benchmark_model)
+
+    def candidate(g, residual):
+        c = Candidate(effect="sensor_gain", location="sensor 2", n_locations=n, linear_values=np.array([g]),
+                      linear_rss=0.0, linear_explained=0.0)
+        c.fit = fits.Fit(alpha=np.zeros(6), effect="sensor_gain", location="sensor 2", values=np.array([g]),
+                         model_amplitude=None, residual=residual, evaluations=0,
+                         added=Applied(gain, "sensor 2", np.array([g])))
+        return c
+
+    tiny, large, resolving = candidate(0.003, 0.99 * smooth + noise), candidate(0.08, 0.99 * smooth + noise), \
+        candidate(0.003, noise)
+    mark_first_negligible(benchmark_model, np.linspace(20, 300, p), base, [tiny, large, resolving], 0.005)
+    assert [tiny.negligible, large.negligible, resolving.negligible] == [True, False, False]
+
+
 def test_a_first_effect_that_moves_no_mode_is_kept_only_when_it_explains_the_misfit(far_plate):
     """The first effect's size rule: a 10 g mass (shifts below half a per cent) that leaves 80 % of the misfit beyond
     the noise is the model's own error dressed as an effect; the same mass taking the misfit down to the noise is
