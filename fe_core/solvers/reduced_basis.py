@@ -71,7 +71,7 @@ from .sensitivity import frf_jacobian as full_frf_jacobian, segment_directions
 
 __all__ = ["MIN_DOFS", "MAX_DOFS", "ENABLED", "FIELD_TOL", "SKETCH_ROWS", "SKETCH_NONZEROS", "MAX_DIMENSION",
            "ParametricBasis", "Estimate", "sparse_sign_sketch", "active", "frf_jacobian", "forget", "basis_of",
-           "enrich_derivatives", "DERIVATIVE_BLOCKS", "basis_bytes", "MIN_COLUMNS"]
+           "enrich_derivatives", "DERIVATIVE_BLOCKS", "basis_bytes", "MIN_COLUMNS", "EXACT_TOL"]
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +88,13 @@ ENABLED = os.environ.get("MRGP_REDUCED_BASIS", "1") != "0"
 #: largest and the Jacobian to 4e-5 to 2.3e-3. On the benchmark's hex8 plates the estimate runs low, by up to 40
 #: for the Jacobian: a round served there may step less well, and the confirmation catches it.
 FIELD_TOL = 3e-2
+#: A served point whose estimate is at most this is as good as a full-order run, and is reported as one (not
+#: confirmed again): its Jacobian is off by at most ~40 times the estimate (the check's largest underestimate,
+#: on hex8 plates), 4e-4, which moves Gauss-Newton's fixed point by at most 4e-4 sqrt(N) standard deviations for
+#: N residual values (0.03 at the 500k panel's 7,200; the local phase stops at 0.1), and its responses by the
+#: square. The usual case: the point after a confirmation, served from a basis restarted from that run's own
+#: space (6.5e-6 on the 500k panel), which a second confirmation (a full-order run, 2-3 min there) re-ran.
+EXACT_TOL = 1e-5
 #: Rows of the sketch (each costs one solve with the factor when the basis is built: 40, against the 143 of a
 #: 150k model's Jacobian space) and random signs per column of it; a norm is kept to ~sqrt(2 / 40) = 22 %.
 SKETCH_ROWS = 40
@@ -213,6 +220,17 @@ class ParametricBasis:
     def restart(self) -> None:
         """Empty V (its memory is reused); the sketch ``Y = K0^-1 S^T`` stays (any fixed K0 preconditions the
         check). The newest spaces are the ones near where Gauss-Newton goes on."""
+        self.dim = 0
+        self.served = []
+
+    def release(self) -> None:
+        """Empty V and give its memory back (:meth:`restart` keeps the pages written): before a confirmation's
+        full-order run, whose own space then starts V again (the sketch stays). A confirmation is asked at the
+        local phase's centre, and what follows is a step from there that its space serves; holding V's columns
+        through that run was the 500k update's peak (10.9 GB, against 8.7 without a basis)."""
+        n = self.V.shape[0]
+        self.V = None  # the old array freed before the new one is allocated
+        self.V = np.empty((n, self.capacity), order="F")
         self.dim = 0
         self.served = []
 
@@ -425,8 +443,9 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
     """:func:`fe_core.solvers.sensitivity.frf_jacobian` through the model's global basis where its check allows.
 
     Returns ``(Z, dZ, reduced)``: the receptance and its derivative as the full-order function returns them,
-    and whether they came from the reduced model (False: a full-order run, whose space enriched the basis).
-    A model that is not :func:`active` always runs full order.
+    and whether they came from the reduced model (False: a full-order run, whose space enriched the basis, or a
+    point served with an estimate of at most :data:`EXACT_TOL`, as good as one). A model that is not
+    :func:`active` always runs full order.
     """
     if not active(model):
         Z, dZ = full_frf_jacobian(model, theta, freqs_hz, channels=channels)
@@ -445,13 +464,21 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
         m_dirs = [int(j) for j in model.mass_parameters]
         Z, dZ, est = basis.evaluate(ws, wm, *model.damping, hz_to_rad(freqs), list(range(ns)), m_dirs)
         if est.ok:
-            basis.served.append(theta.copy())
+            largest = float(est.field_error.max())
+            exact = largest <= EXACT_TOL
+            if not exact:
+                basis.served.append(theta.copy())
             responses, column = basis.pick
-            log.info("reduced basis (%d columns): served (estimated field error %.1e)", basis.dim,
-                     float(est.field_error.max()))
-            return Z[:, responses, column], dZ[:, responses, column, :], True
+            log.info("reduced basis (%d columns): served (estimated field error %.1e%s)", basis.dim, largest,
+                     ": as good as a full-order run" if exact else "")
+            return Z[:, responses, column], dZ[:, responses, column, :], not exact
         log.info("reduced basis (%d columns): refused (estimated field error %.1e); a full-order run enriches it",
                  basis.dim, float(est.field_error.max()))
+    if basis is not None and basis.served and any(np.max(np.abs(theta - x), initial=0.0) <= SAME_POINT
+                                                  for x in basis.served):
+        basis.pending = None
+        basis.release()  # a confirmation: its space starts V again (ParametricBasis.release)
+        log.info("reduced basis: released for the confirmation's full-order run; its space starts it again")
     space: dict = {}
     Z, dZ = full_frf_jacobian(model, theta, freqs_hz, channels=channels, space=space)
     W = space.get("basis")

@@ -149,15 +149,37 @@ def test_enrichment_when_the_parameters_move_far_and_the_same_point_again(model)
     assert basis.dim > dim and basis.pending is None  # ... and joined when the basis is next asked
     assert est.ok  # now the basis holds that point's space
     dim = rb.basis_of(model).dim
-    near = START + 1e-4 * DIRECTION
+    near = START + 2e-2 * DIRECTION  # served, estimate above EXACT_TOL
     Z, dZ, reduced = rb.frf_jacobian(model, near, FREQS)
     assert reduced and rb.basis_of(model).dim == dim  # served, nothing added
     Z2, dZ2, again = rb.frf_jacobian(model, near, FREQS)
-    assert not again and basis.dim == dim  # asked again: a full-order run (the confirmation), its space not joined
+    # asked again: a full-order run (the confirmation); V was released for it, its space not joined yet
+    assert not again and basis.dim == 0 and basis.pending is not None and not basis.served
     Zk, dZk = frf_jacobian(model, near, FREQS)
     assert np.array_equal(Z2, Zk) and np.array_equal(dZ2, dZk)  # exactly the full-order run
-    rb.frf_jacobian(model, near + 1e-4 * DIRECTION, FREQS)  # another point: the confirmation's space joins first
-    assert basis.dim > dim and basis.pending is None
+    width = basis.pending.shape[1]
+    _, _, est = reduced_at(model, near + 1e-2 * DIRECTION)  # another point: the confirmation's space starts V
+    assert 0 < basis.dim <= width and basis.pending is None and est.ok
+
+
+def test_a_point_served_with_a_tiny_estimate_counts_as_a_full_order_run(model):
+    """A step of 1e-4 from the basis's point: the estimate (~2.5e-6) is below EXACT_TOL, so the result is reported
+    as a full-order one (not confirmed again), and it is one to within a few times the estimate: the direct
+    Krylov run there agrees to 1e-5 of each line's largest response and of the Jacobian's largest entry. A step of
+    1e-3 (estimate ~2.5e-5) is served as a reduced result."""
+    basis = rb.basis_of(model)
+    close = START + 1e-4 * DIRECTION
+    _, _, est = reduced_at(model, close)
+    assert est.ok and est.field_error.max() <= rb.EXACT_TOL
+    Z, dZ, reduced = rb.frf_jacobian(model, close, FREQS)
+    assert not reduced and not basis.served and basis.pending is None  # no full-order run was made
+    Zf, dZf = frf_jacobian(model, close, FREQS)
+    assert np.max(np.abs(Z - Zf) / np.abs(Zf).max(axis=1, keepdims=True)) < 1e-5
+    assert np.max(np.abs(dZ - dZf)) < 1e-5 * np.abs(dZf).max()
+    farther = START + 1e-3 * DIRECTION
+    _, _, est = reduced_at(model, farther)
+    assert rb.EXACT_TOL < est.field_error.max() and est.ok
+    assert rb.frf_jacobian(model, farther, FREQS)[2]
 
 
 def test_a_full_basis_restarts_from_the_newest_space(model):
