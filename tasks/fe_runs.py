@@ -101,6 +101,8 @@ def _fe_run(model, threads: int, keep_factor: bool):
         try:
             yield
         finally:
+            if is_large(model):  # where a large model's factorisations went (each ~a minute at 500k DOFs)
+                pardiso.log.info("PARDISO in this process so far: %s", ", ".join(f"{k} {v}" for k, v in pardiso.stats.items()))
             if not keep_factor and is_large(model):
                 pardiso.release_idle()
                 recycle.forget(model)
