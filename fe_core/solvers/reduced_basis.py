@@ -253,15 +253,22 @@ class ParametricBasis:
     def extend(self, W: np.ndarray) -> int:
         """Add the part of ``W`` (n x s) not yet in V; returns the columns added (0 when V is full).
 
-        Lean in memory: one n x s copy of ``W`` (the caller's space is the recycled seed, left untouched), the
-        QR in place, and every other n-sized temporary a block of :data:`BLOCK` columns (at 500k DOFs the
-        whole-space temporaries of the plain formulas were 0.6 GB each, three at once).
+        Lean in memory: ``W`` (the caller's space is the recycled seed, left untouched) is copied into V's next
+        columns and orthogonalised and factored there by LAPACK in place when it fits (else into one n x s copy),
+        and every other n-sized temporary is a block of :data:`BLOCK` columns (at 500k DOFs the whole-space
+        temporaries of the plain formulas were 0.6 GB each, three at once; the copy of the first space made the
+        peak of the basis's start, 8.7 GB).
         """
         d = self.dim
         if d >= self.capacity:
             return 0
-        scale = max(1.0, float(np.linalg.norm(W, axis=0).max(initial=0.0)))
-        Q = np.array(W, dtype=float, order="F")
+        scale = max(1.0, float(np.sqrt(np.einsum("ij,ij->j", W, W).max(initial=0.0))))  # no n x s temporary
+        s = W.shape[1]
+        if d + s <= self.capacity:  # orthogonalised and factored in V's own next columns: no n x s copy
+            Q = self.V[:, d:d + s]
+            Q[...] = W
+        else:
+            Q = np.array(W, dtype=float, order="F")
         for j in range(0, Q.shape[1], BLOCK):
             block = Q[:, j:j + BLOCK]
             for _ in range(2):  # twice is enough (Giraud et al. 2005): V stays orthonormal to round-off
@@ -273,7 +280,8 @@ class ParametricBasis:
         k = min(int(np.sum(size > ENRICH_TOL * scale)), self.capacity - d)
         if k <= 0:
             return 0
-        self.V[:, d:d + k] = q[:, :k]
+        if not np.shares_memory(q, self.V):  # LAPACK worked in place in V's columns: q[:, :k] is there already
+            self.V[:, d:d + k] = q[:, :k]
         del q
         V = self.V[:, :d + k]
         for t, A in enumerate(self.parts):

@@ -217,6 +217,30 @@ def test_enrichment_keeps_v_orthonormal_and_its_projections_exact(model):
     assert np.abs(basis.Vrhs[:d] - V.T @ basis.rhs).max() <= 1e-12 * np.abs(V.T @ basis.rhs).max()
 
 
+def test_a_space_that_fits_is_joined_in_vs_own_columns_without_a_copy(model):
+    """``extend`` writes the new space into V's next columns and orthogonalises and factors it there (LAPACK in
+    place): its temporaries stay well below one copy of the space (at 500k DOFs that copy, 0.6 GB, made the peak
+    of the basis's start), and V is orthonormal with the projections exact."""
+    import tracemalloc
+
+    basis = rb.basis_of(model)
+    basis.restart()
+    n = basis.V.shape[0]
+    W = np.asfortranarray(np.random.default_rng(3).standard_normal((n, 200)))
+    tracemalloc.start()
+    added = basis.extend(W)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    # the blocks' temporaries only (a product with a part, 16 columns; a plate's rows of V: 2.9 MB here); a copy
+    # of the space would add W's size to them
+    assert added == 200 and peak < W.nbytes
+    V = basis.V[:, :200]
+    assert np.abs(V.T @ V - np.eye(200)).max() <= 1e-12 * 200
+    assert np.linalg.matrix_rank(np.hstack([V, W]), tol=1e-8 * np.abs(W).max()) == 200  # the same span as W
+    A = basis.parts[0]
+    assert np.abs(basis.R[0, :200, :200] - V.T @ (A @ V)).max() <= 1e-12 * np.abs(V.T @ (A @ V)).max()
+
+
 def test_the_basis_is_used_only_between_min_and_max_dofs():
     """Below MIN_DOFS the arithmetic of small models stays bit for bit; above MAX_DOFS (where MIN_COLUMNS
     columns no longer fit in MAX_BYTES) every round is full order."""
