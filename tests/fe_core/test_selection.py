@@ -309,7 +309,7 @@ def test_a_selection_at_its_most_effects_whose_last_effect_is_dropped_stopped_be
         assert len(sel.steps) == 1 and sel.stopped == "most effects"
 
 
-def test_the_budget_counts_the_backward_checks_refits_at_the_seconds_measured_on_the_fits():
+def test_the_budget_counts_the_backward_checks_refits_at_the_fastest_rate_measured_on_the_fits():
     from fe_core.closure.budget import REFIT_EVALUATIONS, Budget, backward_refits
 
     # one effect: only the refit after a drop across the band; two or more: one (two with a restart) without each
@@ -319,7 +319,8 @@ def test_the_budget_counts_the_backward_checks_refits_at_the_seconds_measured_on
     b = Budget(lambda margin: asked.append(margin) or margin > 100.0, restart=True)
     fit = lambda s, e: Fit(alpha=np.zeros(1), effect=None, location=None, values=np.zeros(0), model_amplitude=None,
                            residual=np.zeros((1, 1)), evaluations=e, seconds=s)
-    b.see([fit(8.0, 4), None, fit(1.0, 0), fit(3.0, 3)])   # the slowest per evaluation: 2 s
+    b.see([fit(8.0, 4), None, fit(1.0, 0), fit(6.0, 3)])   # the fastest per evaluation: 2 s
+    b.see([fit(25.0, 4)])  # a fit whose seconds include reduced evaluations its count does not see: not the rate
     assert b.per_evaluation == 2.0 and b.backward_seconds(2) == 5 * REFIT_EVALUATIONS * 2.0
     assert not b.late(0) and asked[-1] == 0.0
     b.step_seconds["round"] = 30.0
