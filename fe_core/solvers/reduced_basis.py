@@ -59,13 +59,13 @@ from __future__ import annotations
 import logging
 import os
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
 from .frf import _shifted_solver, hz_to_rad
+from .sketch import SKETCH_NONZEROS, SKETCH_ROWS, Estimate, sketched_estimate, sparse_sign_sketch
 from .frf_derivatives import projected_response
 from .sensitivity import frf_jacobian as full_frf_jacobian, segment_directions
 
@@ -95,10 +95,6 @@ FIELD_TOL = 3e-2
 #: square. The usual case: the point after a confirmation, served from a basis restarted from that run's own
 #: space (6.5e-6 on the 500k panel), which a second confirmation (a full-order run, 2-3 min there) re-ran.
 EXACT_TOL = 1e-5
-#: Rows of the sketch (each costs one solve with the factor when the basis is built: 40, against the 143 of a
-#: 150k model's Jacobian space) and random signs per column of it; a norm is kept to ~sqrt(2 / 40) = 22 %.
-SKETCH_ROWS = 40
-SKETCH_NONZEROS = 8
 #: The basis holds at most this many columns, and at most MAX_BYTES of them (n x 8 bytes a column: 373
 #: columns at 500k DOFs); a full-order space that does not fit restarts V from that space alone (kept full, the
 #: 500k update's basis of its first three points refused every later round: docs/results/scaling.md).
@@ -127,49 +123,6 @@ DERIVATIVE_BLOCKS = 2
 SAME_POINT = 1e-12
 
 _KEY = "_reduced_basis"
-
-
-def sparse_sign_sketch(n: int, rows: int = SKETCH_ROWS, nonzeros: int = SKETCH_NONZEROS,
-                       seed: int = 41) -> sp.csr_matrix:
-    """A sparse sign embedding ``S`` (rows x n): each column has ``nonzeros`` entries ``+-1/sqrt(nonzeros)`` in
-    distinct random rows, so ``E ||S x||^2 = ||x||^2`` for every x, and applying S costs ``nonzeros`` per entry."""
-    rng = np.random.default_rng(seed)
-    s = min(nonzeros, rows)
-    row = np.argsort(rng.random((n, rows)), axis=1)[:, :s] if rows <= 64 else _distinct_rows(rng, n, rows, s)
-    sign = rng.choice([-1.0, 1.0], size=(n, s)) / np.sqrt(s)
-    col = np.repeat(np.arange(n), s)
-    return sp.csr_matrix((sign.ravel(), (row.ravel(), col)), shape=(rows, n))
-
-
-def _distinct_rows(rng, n: int, rows: int, s: int) -> np.ndarray:
-    """``s`` distinct row indices per column, without an n x rows table (redrawn where two collide)."""
-    out = rng.integers(0, rows, size=(n, s))
-    while True:
-        srt = np.sort(out, axis=1)
-        bad = np.any(srt[:, 1:] == srt[:, :-1], axis=1)
-        if not bad.any():
-            return out
-        out[bad] = rng.integers(0, rows, size=(int(bad.sum()), s))
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """The check of one reduced evaluation.
-
-    field_error : ndarray, shape (p,)
-        The largest estimated relative error of the primal and dual fields at each line.
-    relative : ndarray, shape (p, n_loads + n_out)
-        The estimate of every field (the loads', then the outputs') at every line.
-    residual : ndarray, shape (p, n_loads + n_out)
-        The sketched norms ``||S K0^-1 r||`` of their full-order residuals.
-    ok : bool
-        ``field_error <= FIELD_TOL`` at every line.
-    """
-
-    field_error: np.ndarray
-    relative: np.ndarray
-    residual: np.ndarray
-    ok: bool
 
 
 class ParametricBasis:
@@ -346,23 +299,8 @@ class ParametricBasis:
 
     def _estimate(self, Z, mu, phi, w_stiff, w_mass, lam, scale) -> Estimate:
         d, nk = self.dim, len(self.stiffness)
-        SAV = self.SAV[:, :, :d]
-        SK = np.tensordot(np.asarray(w_stiff, float), SAV[:nk], axes=1) @ phi  # (k, r)
-        SM = np.tensordot(np.asarray(w_mass, float), SAV[nk:], axes=1) @ phi
-        Bh = phi.T @ self.Vrhs[:d]  # (r, c)
-        dvec = 1.0 / (mu[None, :] - lam[:, None])  # (p, r)
-        X = dvec[:, :, None] * Bh[None, :, :]  # (p, r, c): phi^-1 y / scale
-        # S r = (S K V phi - lambda S M V phi) X - S b: one (k, r) x (r, c) product per line.
-        Sr = SK @ X - lam[:, None, None] * (SM @ X) - self.S_rhs[None, :, :]
-        res = np.linalg.norm(Sr, axis=1)  # (p, c): ||K0^-1 r|| of every column at every line
-        field = np.abs(scale)[:, None] * np.linalg.norm(phi @ X, axis=1)  # ||V y|| = ||y||
-        # K0^-1 r is the error e = D^-1 r up to mu / (mu - lambda) in each mode: at most ~1 off resonance, the
-        # quality factor at one; the reduced pencil's eigenvalues stand in for the model's (the modes of the band
-        # are in the space).
-        kappa = np.maximum(1.0, np.max(np.abs(mu[None, :] * dvec), axis=1))  # (p,)
-        rel = kappa[:, None] * res / np.maximum(field, np.finfo(float).tiny)
-        field_error = rel.max(axis=1)
-        return Estimate(field_error, rel, res, bool(np.all(field_error <= FIELD_TOL)))
+        return sketched_estimate(self.SAV[:, :, :d], self.Vrhs[:d], self.S_rhs, nk, w_stiff, w_mass, mu, phi, lam,
+                                 scale, FIELD_TOL)
 
 
 def _touched_rows(A) -> np.ndarray | None:
