@@ -14,7 +14,7 @@ a few per cent above the factor PARDISO then makes) and adds up what the run hol
   and its products (``(2 + m) w`` columns of n doubles besides a basis of ``12 w`` columns, ``w`` = the
   excitations plus the sensors: the block the space grows by);
 * the global reduced basis of the Gauss-Newton rounds, in the flow's process only, for models between its
-  bounds (:func:`fe_core.solvers.reduced_basis.basis_bytes`: up to 720 columns of n doubles and 1.5 GB, 50k to 732k DOFs);
+  bounds (:func:`fe_core.solvers.reduced_basis.basis_bytes`: up to 720 columns of n doubles and 1.5 GB, 50k to 721k DOFs);
 * FE runs at once: a Gauss-Newton round is one FE run in the flow's process; a global round runs ``n_jobs``
   worker processes (:data:`WORKER_BASE` each), each with its FE run, while the flow waits (its own factor
   freed). The model's pages are shared through the cache (counted once).

@@ -49,7 +49,7 @@ reduced is run at full order when asked again: that is how a strategy confirms i
 (:func:`strategies.hybrid_phases.local_phase`).
 
 Only for models of :data:`MIN_DOFS` to :data:`MAX_DOFS` free DOFs (small models keep their arithmetic bit for
-bit; up to the size where :data:`MIN_COLUMNS` columns fit in :data:`MAX_BYTES`, 732k DOFs), only in
+bit; up to the size where :data:`MIN_COLUMNS` columns fit in :data:`MAX_BYTES`, 721k DOFs), only in
 the process that runs a large model's single FE runs (``tasks/fe_runs.py``); ``MRGP_REDUCED_BASIS=0`` turns it
 off. Plain numpy/scipy.
 """
@@ -105,9 +105,9 @@ MAX_BYTES = 1.5e9
 #: History (docs/results/scaling.md): at 500k DOFs a plain basis of 373 columns served only the end-game's rounds
 #: (10.8 GB against 7.0); with derivative enrichment (da7b959) it served 7 of 10 rounds but its start (the
 #: projections reading all of V once per part and block of 16 columns, ten parts) took 3-4 minutes and each
-#: extension a minute: 1052 s against 906 s without it, so it was kept below 260k DOFs (720 columns). Each part's
-#: projection now reads only the rows it touches, once per extension (:meth:`ParametricBasis.extend`).
-MIN_COLUMNS = 256
+#: extension a minute: 1052 s against 906 s without it, so it was kept below 260k DOFs (720 columns). A segment's
+#: projection now reads only its own rows of V, once per extension (:meth:`ParametricBasis.extend`).
+MIN_COLUMNS = 260
 MAX_DOFS = int(MAX_BYTES // (8 * MIN_COLUMNS))
 #: A new space's direction joins V when at least this fraction of it lies outside V (the pivoted QR of the
 #: new columns after orthogonalisation against V): what is dropped changes the fields by less than this, far
@@ -314,7 +314,7 @@ def _touched_rows(A) -> np.ndarray | None:
 
 def active(model) -> bool:
     """Whether a large model's single FE runs may use a global basis: from :data:`MIN_DOFS` free DOFs up to the
-    size at which :data:`MIN_COLUMNS` columns still fit in :data:`MAX_BYTES` (732k DOFs)."""
+    size at which :data:`MIN_COLUMNS` columns still fit in :data:`MAX_BYTES` (721k DOFs)."""
     n = getattr(model, "n_dofs", 0)
     return ENABLED and model.__dict__.get("_reduced_min", MIN_DOFS) <= n <= MAX_DOFS
 
@@ -403,7 +403,8 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
     if basis is not None and basis.channels != key:  # other loads: another basis
         forget(model)
         basis = None
-    if basis is not None and not any(np.max(np.abs(theta - x), initial=0.0) <= SAME_POINT for x in basis.served):
+    usable = basis is not None and (basis.dim > 0 or basis.pending is not None)  # not after a failed confirmation
+    if usable and not any(np.max(np.abs(theta - x), initial=0.0) <= SAME_POINT for x in basis.served):
         freqs = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
         ws, wm = _weights(model, alpha, gamma)
         ns = model.n_segments

@@ -182,6 +182,28 @@ def test_a_point_served_with_a_tiny_estimate_counts_as_a_full_order_run(model):
     assert rb.frf_jacobian(model, farther, FREQS)[2]
 
 
+def test_a_failed_confirmation_leaves_a_basis_that_still_works(model, monkeypatch):
+    """V is released before a confirmation's full-order run; when that run fails, the next point is run at full
+    order (an empty basis serves nothing) and its space starts V again."""
+    near = START + 2e-2 * DIRECTION
+    assert rb.frf_jacobian(model, near, FREQS)[2]  # served
+    full = rb.full_frf_jacobian
+
+    def failing(*args, **kwargs):
+        raise FloatingPointError("the solver failed")
+
+    monkeypatch.setattr(rb, "full_frf_jacobian", failing)
+    with pytest.raises(FloatingPointError):
+        rb.frf_jacobian(model, near, FREQS)  # the confirmation fails, after V was released
+    monkeypatch.setattr(rb, "full_frf_jacobian", full)
+    basis = rb.basis_of(model)
+    assert basis.dim == 0 and basis.pending is None
+    Z, dZ, reduced = rb.frf_jacobian(model, near, FREQS)  # full order, not an evaluation of the empty basis
+    Zk, dZk = frf_jacobian(model, near, FREQS)
+    assert not reduced and np.array_equal(Z, Zk) and np.array_equal(dZ, dZk)
+    assert rb.frf_jacobian(model, near + 2e-2 * DIRECTION, FREQS)[2] and basis.dim > 0  # its space serves again
+
+
 def test_a_full_basis_restarts_from_the_newest_space(model):
     basis = rb.basis_of(model)
     basis.capacity = basis.dim + 5  # the next full-order space does not fit
