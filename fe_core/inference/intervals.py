@@ -270,7 +270,7 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
     last_frf, first_order = {}, []
 
     def frf_only(alpha):  # the residual alone: one FRF, no Jacobian (kept: the chord step's point may be the optimum)
-        Z = _first_order(jacobian_point, alpha, judged.get("sigma"))
+        Z = _first_order(jacobian_point, alpha, weights if weights is not None else noise)  # the noise (below)
         if Z is None:
             Z = np.asarray(model.parameter_frf(alpha, freqs, channels))
         else:
@@ -280,7 +280,6 @@ def parameter_intervals(model, freqs_hz, measured_amplitude, alpha0, lower, uppe
         return np.log(np.abs(Z)).ravel() - log_u
 
     at, noise, weights, noise_model = _weighted(at, alpha0, lo, hi, freqs, noise)
-    judged = {"sigma": weights if weights is not None else noise}  # the noise the first-order FRF is judged by
     residual_at = frf_only if weights is None else (lambda alpha: frf_only(alpha) / weights)
     refined = _gauss_newton_intervals(at, alpha0, lo, hi, model.parameter_names, noise, level, width_threshold,
                                       max_jacobians, step_tolerance, residual_at=residual_at,

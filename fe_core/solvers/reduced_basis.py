@@ -404,7 +404,8 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
         forget(model)
         basis = None
     usable = basis is not None and (basis.dim > 0 or basis.pending is not None)  # not after a failed confirmation
-    if usable and not any(np.max(np.abs(theta - x), initial=0.0) <= SAME_POINT for x in basis.served):
+    again = basis is not None and any(np.max(np.abs(theta - x), initial=0.0) <= SAME_POINT for x in basis.served)
+    if usable and not again:
         freqs = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
         ws, wm = _weights(model, alpha, gamma)
         ns = model.n_segments
@@ -421,8 +422,7 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
             return Z[:, responses, column], dZ[:, responses, column, :], not exact
         log.info("reduced basis (%d columns): refused (estimated field error %.1e); a full-order run enriches it",
                  basis.dim, float(est.field_error.max()))
-    if basis is not None and basis.served and any(np.max(np.abs(theta - x), initial=0.0) <= SAME_POINT
-                                                  for x in basis.served):
+    if again:
         basis.pending = None
         basis.release()  # a confirmation: its space starts V again (ParametricBasis.release)
         log.info("reduced basis: released for the confirmation's full-order run; its space starts it again")
@@ -459,5 +459,4 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
         return Z, dZ, False
     basis.join()  # an earlier run's space not yet joined (two full-order runs in a row)
     basis.pending = W  # the run's own space: joined when another point is asked (ParametricBasis.join)
-    basis.served = [x for x in basis.served if np.max(np.abs(theta - x), initial=0.0) > SAME_POINT]
     return Z, dZ, False
