@@ -64,6 +64,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from . import recycle
 from .frf import _shifted_solver, hz_to_rad
 from .sketch import SKETCH_NONZEROS, SKETCH_ROWS, Estimate, sketched_estimate, sparse_sign_sketch
 from .frf_derivatives import projected_response
@@ -448,6 +449,12 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
         model.__dict__[_KEY] = basis
         t.append(time.perf_counter())
         added = basis.extend(W)
+        # The first run's space is in V now. Kept as the recycled seed beside it, it would only seed a run within
+        # recycle.MAX_STEP of this point, which the basis serves: dropped, and only the head the derivatives are
+        # taken from kept (at 500k DOFs the space is 0.6 GB, and the derivative columns were the run's peak).
+        recycle.forget(model)
+        W = np.array(W[:, :DERIVATIVE_BLOCKS * basis.rhs.shape[1]])
+        space.clear()
         t.append(time.perf_counter())
         derivative = enrich_derivatives(basis, W, solve, [stiffness[i] for i in range(model.n_segments)]
                                         + [mass[int(j)] for j in model.mass_parameters])
