@@ -263,6 +263,30 @@ def test_a_space_that_fits_is_joined_in_vs_own_columns_without_a_copy(model):
     assert np.abs(basis.R[0, :200, :200] - V.T @ (A @ V)).max() <= 1e-12 * np.abs(V.T @ (A @ V)).max()
 
 
+def test_extension_keeps_what_is_new_and_drops_what_v_holds(model):
+    """The new columns are orthonormalised by their Gram matrix (SVQB), not a pivoted QR: directions V already holds
+    to ENRICH_TOL are dropped, new ones kept however their norms spread (derivative columns span decades), and V is
+    orthonormal to round-off. The reference is numpy's SVD of V and the new columns together."""
+    basis = rb.basis_of(model)
+    basis.restart()
+    n = basis.V.shape[0]
+    rng = np.random.default_rng(5)
+    assert basis.extend(rng.standard_normal((n, 40))) == 40
+    V0 = basis.V[:, :40].copy()
+    new = rng.standard_normal((n, 10)) * np.logspace(-2, 3, 10)  # spread over five decades
+    held = V0 @ rng.standard_normal((40, 8))  # in V
+    nearly = V0 @ rng.standard_normal((40, 4)) + 1e-9 * rng.standard_normal((n, 4))  # in V to 1e-9
+    W = np.hstack([held, new, nearly])
+    scale = np.linalg.norm(W, axis=0).max()
+    s = np.linalg.svd(W - V0 @ (V0.T @ W), compute_uv=False)
+    assert int(np.sum(s > rb.ENRICH_TOL * scale)) == 10  # the reference: ten new directions
+    assert basis.extend(W) == 10
+    V = basis.V[:, :50]
+    assert np.abs(V.T @ V - np.eye(50)).max() <= 1e-12 * 50
+    inside = new - V @ (V.T @ new)
+    assert np.linalg.norm(inside, axis=0).max() <= 1e-10 * np.linalg.norm(new, axis=0).max()
+
+
 def test_the_basis_is_used_only_between_min_and_max_dofs():
     """Below MIN_DOFS the arithmetic of small models stays bit for bit; above MAX_DOFS (where MIN_COLUMNS
     columns no longer fit in MAX_BYTES) every round is full order."""
