@@ -64,6 +64,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import recycle
+from .columns import SPREAD, orthonormalise, touched_rows
 from .frf import _shifted_solver, hz_to_rad
 from .sketch import SKETCH_NONZEROS, SKETCH_ROWS, Estimate, sketched_estimate, sparse_sign_sketch
 from .frf_derivatives import projected_response
@@ -114,9 +115,6 @@ MAX_DOFS = int(MAX_BYTES // (8 * MIN_COLUMNS))
 #: less than this, far below FIELD_TOL, and a nearby point's space, mostly in V already, adds only what is new (n x columns of
 #: memory, and each column costs a product with every segment matrix and with V).
 ENRICH_TOL = 1e-6
-#: Kept columns whose singular values spread by more than this are orthonormalised a second time (their first pass
-#: by the Gram matrix is orthonormal to ~1e-16 times the spread squared: :func:`_orthonormalise`).
-SPREAD = 8.0
 #: Columns per block of the enrichment's n-sized temporaries (n x 16 doubles: 62 MB at 500k DOFs).
 BLOCK = 16
 #: Derivative enrichment (module docstring): when the basis is started, the first DERIVATIVE_BLOCKS blocks of the
@@ -155,7 +153,7 @@ class ParametricBasis:
         n = self.parts[0].shape[0]
         # The rows each part touches (a segment's DOFs: a ninth of the panel's): its projections read only those
         # rows of V, once per extension (:meth:`extend`); None where it touches most of them (the mass, a fixed part).
-        self.rows = [_touched_rows(A) for A in self.parts]
+        self.rows = [touched_rows(A) for A in self.parts]
         S = sparse_sign_sketch(n) if sketch is None else sketch
         # The sketch of the preconditioned residual: S K0^-1 r = Y^T r with Y = K0^-1 S^T (k solves, once).
         self.sketch = np.ascontiguousarray(np.asarray(precondition(S.T.toarray()), dtype=float).T)  # (k, n)
@@ -227,9 +225,9 @@ class ParametricBasis:
 
     def absorb(self, s: int) -> int:
         """Join the ``s`` columns written in V's next columns (``V[:, dim:dim + s]``): the part of them not yet in V,
-        orthonormalised in place (against V by blocks of :data:`BLOCK` columns, then by its Gram matrix,
-        :func:`_orthonormalise`), every part projected on it; returns the columns added. Every n-sized temporary
-        is a block of rows or columns (at 500k DOFs the whole-space temporaries of the plain formulas were 0.6 GB
+        orthonormalised in place (against V by blocks of :data:`BLOCK` columns, then by their Gram matrix:
+        :func:`fe_core.solvers.columns.orthonormalise`), every part projected on it; returns the columns added.
+        Every n-sized temporary is a block of rows or columns (at 500k DOFs the whole-space temporaries of the plain formulas were 0.6 GB
         each, three at once). All of the derivative columns are joined in one call (:func:`enrich_derivatives`):
         V is read once for them, not once per parameter."""
         d = self.dim
@@ -242,11 +240,11 @@ class ParametricBasis:
         in place; returns the k <= capacity - d directions kept (Q's first k columns)."""
         scale = max(1.0, float(np.sqrt(np.einsum("ij,ij->j", Q, Q).max(initial=0.0))))  # no n x s temporary
         self._orthogonalise(Q, d)
-        k, spread = _orthonormalise(Q, ENRICH_TOL * scale)
+        k, spread = orthonormalise(Q, ENRICH_TOL * scale)
         k = min(k, self.capacity - d)
         if k > 0 and spread > SPREAD:  # the kept columns once more: orthonormal (and orthogonal to V) to round-off
             self._orthogonalise(Q[:, :k], d, passes=1)
-            k, _ = _orthonormalise(Q[:, :k], 0.5)
+            k, _ = orthonormalise(Q[:, :k], 0.5)
         return k
 
     def _project(self, d: int, k: int) -> None:
@@ -326,38 +324,6 @@ class ParametricBasis:
         d, nk = self.dim, len(self.stiffness)
         return sketched_estimate(self.SAV[:, :, :d], self.Vrhs[:d], self.S_rhs, nk, w_stiff, w_mass, mu, phi, lam,
                                  scale, FIELD_TOL)
-
-
-def _orthonormalise(Q: np.ndarray, tol: float, rows: int = 8192) -> tuple[int, float]:
-    """Orthonormalise Q's columns in place by their Gram matrix (SVQB: Stathopoulos & Wu, SIAM J. Sci. Comput. 23,
-    2002): ``Q^T Q = U diag(s^2) U^T``, the directions with ``s > tol`` kept, ``Q[:, :k] = Q U_k diag(1/s_k)``,
-    a block of rows at a time (no n x s temporary). Returns k and the spread ``s_1 / s_k`` of what was kept.
-
-    BLAS-3 throughout: the pivoted QR it replaces (LAPACK's geqp3, half of it matrix-vector work) took 3.7 s for
-    143 columns of 149k rows, the Gram 0.3 s. The Gram's eigenvalues are exact to ~eps s ||Q||^2, far below
-    tol^2 at ENRICH_TOL; the kept columns are orthonormal to ~eps spread^2, so a caller orthonormalises them once
-    more when the spread is above :data:`SPREAD` (then to round-off)."""
-    G = Q.T @ Q
-    lam, U = np.linalg.eigh(0.5 * (G + G.T))
-    keep = lam > tol * tol
-    k = int(keep.sum())
-    if k == 0:
-        return 0, 1.0
-    s = np.sqrt(lam[keep][::-1])  # the largest directions first
-    T = U[:, keep][:, ::-1] / s
-    rows = max(1, min(rows, -(-Q.shape[0] // 8)))  # a temporary of at most an eighth of Q
-    for r in range(0, Q.shape[0], rows):
-        Q[r:r + rows, :k] = Q[r:r + rows] @ T
-    return k, float(s[0] / s[-1])
-
-
-def _touched_rows(A) -> np.ndarray | None:
-    """The rows where the sparse part ``A`` has nonzero entries (a cached model's segment matrices share one
-    pattern, explicit zeros elsewhere), or None when they are more than half of them."""
-    A = sp.csr_matrix(A)
-    counts = np.concatenate([[0], np.cumsum(A.data != 0, dtype=np.int64)])
-    rows = np.flatnonzero(counts[A.indptr[1:]] > counts[A.indptr[:-1]])
-    return None if rows.size > A.shape[0] // 2 else rows
 
 
 def active(model) -> bool:
