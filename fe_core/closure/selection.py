@@ -1,19 +1,17 @@
 """Forward selection of effects with swaps.
 
-Greedy forward selection (add the effect that lowers the extended BIC most,
-refit everything, repeat) can lock in a wrong first choice: on data with a
-point mass and a grounded spring, a point mass four elements off the true
-one explains 93 % of the residual alone, and two softened patches then
-stand in for the spring, while the true pair has the lower extended BIC.
+Greedy forward selection (add the effect that lowers the extended BIC most, refit everything, repeat) can lock
+in a wrong first choice: on data with a point mass and a grounded spring, a point mass four elements off the true
+one explains 93 % of the residual alone, and two softened patches then stand in for the spring, while the true
+pair has the lower extended BIC.
 So after each addition every effect in the model is **swapped** in turn
 (:func:`swap_pass`): taken out (alpha and the others refitted), every
 candidate screened in its place, the best few of each kind checked with the
 others, and the best by extended BIC replaces it if better; passes repeat
 until none changes (Miller's replacement algorithm for subset selection).
 
-A pass that changes nothing leaves, for every effect, the full fits of the
-alternatives checked in its place with the same other effects: its
-**rivals**, whose extended BICs weigh the kinds (:mod:`.identify`).
+A pass that changes nothing leaves, for every effect, the full fits of the alternatives checked in its place
+with the same other effects: its **rivals**, whose extended BICs weigh the kinds (:mod:`.identify`).
 """
 
 from __future__ import annotations
@@ -34,6 +32,7 @@ from .screening import (Candidate, _relocation_target, _start_value, check_all, 
 from .effects import Effect
 from ..inference.residual import ResidualAnalysis, analyse_residual
 from .far.picks import search_candidates
+from .far.rebase import rebase
 from .far.misfit import mark_polish, worth_checking
 from .far.plausible import MIN_SHIFT, judge_shift, mark_first_negligible, mark_negligible
 from .identify import IDENTIFIED, Rival, evidence, located, location_spread, searched
@@ -385,6 +384,8 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
                 t_search = time.perf_counter()
                 found, record = search_candidates(model, freqs, u, current, library, alpha_bounds=alpha_bounds)
                 searches.append(record)
+                if steps and not late():  # the state in the better basin of its effects the search found (hg07)
+                    current = rebase(model, freqs, u, current, record, alpha_bounds=alpha_bounds)
                 times["search"] = times.get("search", 0.0) + time.perf_counter() - t_search
                 first, rest = found, first + rest
             checked = check_in_waves(model, freqs, u, current, by_kind, first, rest, max_moves, alpha_bounds,
