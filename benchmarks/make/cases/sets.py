@@ -40,6 +40,9 @@ any of its cases was made or run, after the fifth's results had been seen and tw
 own-error rule, ``ae54c5f``; the hybrid's stop at a local fit within the model's own error, ``5ae97e4``): the same
 structures, kinds and protocol as the fifth (the data at the tool's nodes, the tet10 structures' data on the tool's
 own mesh), new seeds, run in the order :data:`HELDOUT6_ORDER` (``numpy.random.default_rng(250_600)``'s permutation).
+The seventh (``heldout7``, ``hg``) and the eighth (``heldout8``, ``hh``, fixed on 2026-12-01 in session 28 before any
+of its cases was made or run, after the seventh's results and the closure's re-basin rule, ``a35b704``) follow the
+same protocol with their own seeds and orders.
 """
 
 from __future__ import annotations
@@ -54,6 +57,7 @@ DEV_SEED, HELDOUT_SEED, HELDOUT2_SEED, HELDOUT3_SEED, HELDOUT4_SEED, HELDOUT5_SE
                                                                                       170_400, 210_500)
 HELDOUT6_SEED = 250_600
 HELDOUT7_SEED = 290_700
+HELDOUT8_SEED = 330_800
 
 DEV = [("holed_plate", "point_mass"), ("holed_plate", "patch"), ("holed_plate", "none"),
        ("ribbed_panel", "mount"), ("ribbed_panel", "point_mass"), ("ribbed_panel", "mass_layer"),
@@ -76,7 +80,8 @@ HELDOUT = [("holed_plate", "mount"), ("holed_plate", "point_mass"), ("holed_plat
 SETS = {"dev": (DEV, DEV_SEED, "dev", "vertex"), "heldout": (HELDOUT, HELDOUT_SEED, "ho", "vertex"),
         "heldout2": (HELDOUT, HELDOUT2_SEED, "hb", "model"), "heldout3": (HELDOUT, HELDOUT3_SEED, "hc", "model"),
         "heldout4": (HELDOUT, HELDOUT4_SEED, "hd", "model"), "heldout5": (HELDOUT, HELDOUT5_SEED, "he", "model"),
-        "heldout6": (HELDOUT, HELDOUT6_SEED, "hf", "model"), "heldout7": (HELDOUT, HELDOUT7_SEED, "hg", "model")}
+        "heldout6": (HELDOUT, HELDOUT6_SEED, "hf", "model"), "heldout7": (HELDOUT, HELDOUT7_SEED, "hg", "model"),
+        "heldout8": (HELDOUT, HELDOUT8_SEED, "hh", "model")}
 
 #: The fifth set's run order (see the module's docstring).
 HELDOUT5_ORDER = ("he21 he24 he12 he15 he10 he17 he06 he20 he08 he07 he23 he03 he18 he09 he01 he14 he02 he22 he13 "
@@ -90,8 +95,12 @@ HELDOUT6_ORDER = ("hf04 hf08 hf12 hf11 hf19 hf10 hf01 hf15 hf09 hf22 hf17 hf05 h
 HELDOUT7_ORDER = ("hg01 hg10 hg20 hg15 hg05 hg18 hg17 hg02 hg22 hg04 hg21 hg07 hg12 hg16 hg08 hg19 hg13 hg11 hg24 hg14 "
                   "hg23 hg06 hg03 hg09").split()
 
+#: The eighth set's run order.
+HELDOUT8_ORDER = ("hh21 hh06 hh19 hh20 hh24 hh22 hh09 hh01 hh02 hh10 hh15 hh08 hh18 hh16 hh12 hh23 hh04 hh03 hh07 hh11 "
+                  "hh14 hh05 hh17 hh13").split()
+
 #: The sets whose solid structures' data are assembled on the tool's own mesh (default: a mesh of half its size).
-DATA_MESH = {"heldout5": "model", "heldout6": "model", "heldout7": "model"}
+DATA_MESH = {"heldout5": "model", "heldout6": "model", "heldout7": "model", "heldout8": "model"}
 
 
 def cases(which: str) -> list[dict]:
