@@ -112,8 +112,8 @@ MIN_COLUMNS = 260
 MAX_DOFS = int(MAX_BYTES // (8 * MIN_COLUMNS))
 #: A new space's direction joins V when at least this fraction of it lies outside V (the singular values of the
 #: new columns orthogonalised against V, relative to the largest column): what is dropped changes the fields by
-#: less than this, far below FIELD_TOL, and a nearby point's space, mostly in V already, adds only what is new (n x columns of
-#: memory, and each column costs a product with every segment matrix and with V).
+#: less than this, far below FIELD_TOL, and a nearby point's space, mostly in V already, adds only what is new
+#: (n x columns of memory, and each column costs a product with every segment matrix and with V).
 ENRICH_TOL = 1e-6
 #: Columns per block of the enrichment's n-sized temporaries (n x 16 doubles: 62 MB at 500k DOFs).
 BLOCK = 16
@@ -227,9 +227,9 @@ class ParametricBasis:
         """Join the ``s`` columns written in V's next columns (``V[:, dim:dim + s]``): the part of them not yet in V,
         orthonormalised in place (against V by blocks of :data:`BLOCK` columns, then by their Gram matrix:
         :func:`fe_core.solvers.columns.orthonormalise`), every part projected on it; returns the columns added.
-        Every n-sized temporary is a block of rows or columns (at 500k DOFs the whole-space temporaries of the plain formulas were 0.6 GB
-        each, three at once). All of the derivative columns are joined in one call (:func:`enrich_derivatives`):
-        V is read once for them, not once per parameter."""
+        Every n-sized temporary is a block of rows or columns (at 500k DOFs the whole-space temporaries of the plain
+        formulas were 0.6 GB each, three at once). All of the derivative columns are joined in one call
+        (:func:`enrich_derivatives`): V is read once for them, not once per parameter."""
         d = self.dim
         k = self._orthonormal(self.V[:, d:d + s], d)
         self._project(d, k)

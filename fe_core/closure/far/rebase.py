@@ -54,8 +54,8 @@ def rebase(model, freqs_hz, amplitude, fit: Fit, record: dict, *, alpha_bounds=A
                            tol=1e-6)
     trial.evaluations += fit.evaluations
     kept = trial.rss < fit.rss
-    log.info("closure: the search's alpha-only fit ended in another basin (reduced sum of squares %.4g from the nominal "
-             "model against %.4g from the state's alpha); the state refitted from there: %.6g -> %.6g, %s",
+    log.info("closure: the search's alpha-only fit ended in another basin (reduced sum of squares %.4g from the "
+             "nominal model against %.4g from the state's alpha); the state refitted from there: %.6g -> %.6g, %s",
              best, here, fit.rss, trial.rss, "kept" if kept else "not kept")
     if not kept:
         fit.evaluations = trial.evaluations
