@@ -370,18 +370,18 @@ def test_the_misfit_left_is_the_share_beyond_the_noise_of_the_reference():
     assert misfit_left(fit, at_noise, sigma) == 1.0  # the reference at the noise, the fit above it
 
 
-def test_rebase_moves_a_state_to_the_better_basin_of_its_effects(far_plate, monkeypatch):
+def test_rebase_moves_a_stuck_state_to_where_the_searchs_alpha_only_fit_ends(far_plate, monkeypatch):
     """A state with the right mass at the right node but its factors away from the truth (as held-out hg07's joint fit
-    stopped) is refitted from the search's alpha-only point when that point is in a clearly better basin: the factors
-    end at the data's (within 0.01), the mass within 5 %, the same place, the evaluations counted. A point in the same
-    basin, or the same point, is not tried (no FE work); a refit that ends higher is not kept."""
+    stopped) is refitted from the search's alpha-only point when that point's sum of squares is clearly lower: the
+    factors end at the data's (within 0.01), the mass within 5 %, the same place, the evaluations counted. A point not
+    clearly lower, or the same point, is not tried (no FE work); a refit that ends higher is not kept."""
     from fe_core.closure.far import rebase as rb
 
     model, freqs, u, node, mass = far_plate
     effect, loc = PointMass(model), f"node {node}"
     stuck = fits.fit_update(model, freqs, u, ALPHA + np.array([0.12, -0.1, 0.1, -0.08]), effect, loc, [mass],
                             max_evaluations=1)
-    record = {"alpha_only": (ALPHA + 0.01).tolist(), "rss_alpha": 1.0, "rss_from_point": 10.0}
+    record = {"alpha_only": (ALPHA + 0.01).tolist(), "rss_alpha": 0.1 * stuck.rss}
     out = rb.rebase(model, freqs, u, stuck, record)
     assert out is not stuck and out.rss < 0.1 * stuck.rss and out.start == "rebased"
     assert np.max(np.abs(out.alpha - ALPHA)) < 0.01 and out.values[0] == pytest.approx(mass, rel=0.05)
@@ -391,8 +391,8 @@ def test_rebase_moves_a_state_to_the_better_basin_of_its_effects(far_plate, monk
         raise AssertionError("no refit expected")
 
     monkeypatch.setattr(rb, "fit_update", no_fe)
-    same_basin = dict(record, rss_alpha=rb.REBASE_SHARE * 10.0)
-    assert rb.rebase(model, freqs, u, stuck, same_basin) is stuck
+    not_clearly_lower = dict(record, rss_alpha=rb.REBASE_SHARE * stuck.rss)
+    assert rb.rebase(model, freqs, u, stuck, not_clearly_lower) is stuck
     same_point = dict(record, alpha_only=(stuck.alpha + 0.5 * rb.REBASE_MOVED).tolist())
     assert rb.rebase(model, freqs, u, stuck, same_point) is stuck
     worse = fits.Fit(alpha=stuck.alpha, effect=stuck.effect, location=loc, values=stuck.values,
@@ -400,5 +400,5 @@ def test_rebase_moves_a_state_to_the_better_basin_of_its_effects(far_plate, monk
                      added=stuck.added)
     monkeypatch.setattr(rb, "fit_update", lambda *a, **k: worse)
     n = out.evaluations
-    far = dict(record, alpha_only=(ALPHA + 0.1).tolist())
+    far = {"alpha_only": (ALPHA + 0.1).tolist(), "rss_alpha": 0.1 * out.rss}
     assert rb.rebase(model, freqs, u, out, far) is out and out.evaluations == n + 7

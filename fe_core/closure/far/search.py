@@ -355,11 +355,11 @@ def exact_search(model, freqs_hz, amplitude, alpha, library: Sequence[Effect], a
                  alpha_bounds=ALPHA_BOUNDS, top: int = TOP, per_kind: int = PER_KIND, passes: int = PASSES,
                  reduced: ReducedModel | None = None) -> tuple[list[Found], dict]:
     """The exact search from ``alpha`` (the module docstring); returns the fitted candidates, best first, and a
-    record: the alpha-only reduced fit's least sum of squares (``rss_alpha``, at ``alpha_only``; from ``alpha`` alone:
-    ``rss_from_point``, :func:`fe_core.closure.far.rebase.rebase`) and from the best candidate's
-    alpha without it (``rss_without``: a basin the effect's fit may have led alpha to), the effectively independent
-    values of the best candidate's residual (``n_effective``, :func:`.misfit.effective_values`), the passes,
-    seconds."""
+    record: the alpha-only reduced fit's least sum of squares (``rss_alpha``, at ``alpha_only``: where
+    :func:`fe_core.closure.far.rebase.rebase` refits a stuck state from; from ``alpha`` alone: ``rss_from_point``)
+    and from the best candidate's alpha without it (``rss_without``: a basin the effect's fit may have led alpha to),
+    the effectively independent values of the best candidate's residual (``n_effective``,
+    :func:`.misfit.effective_values`), the passes, seconds."""
     t0 = time.perf_counter()
     freqs = np.asarray(freqs_hz, float)
     log_u = np.log(np.asarray(amplitude, float))
