@@ -41,8 +41,8 @@ own-error rule, ``ae54c5f``; the hybrid's stop at a local fit within the model's
 structures, kinds and protocol as the fifth (the data at the tool's nodes, the tet10 structures' data on the tool's
 own mesh), new seeds, run in the order :data:`HELDOUT6_ORDER` (``numpy.random.default_rng(250_600)``'s permutation).
 The seventh (``heldout7``, ``hg``) and the eighth (``heldout8``, ``hh``, fixed on 2026-12-01 in session 28 before any
-of its cases was made or run, after the seventh's results and the closure's re-basin rule, ``a35b704``) follow the
-same protocol with their own seeds and orders.
+of its cases was made or run, after the seventh's results and the closure's re-basin rule, ``a35b704``, refined in
+``ab91725`` before any of them ran) follow the same protocol with their own seeds and orders.
 """
 
 from __future__ import annotations
