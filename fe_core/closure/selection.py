@@ -384,7 +384,7 @@ def forward_select(model, freqs_hz, amplitude, start: Fit, analysis: ResidualAna
                 t_search = time.perf_counter()
                 found, record = search_candidates(model, freqs, u, current, library, alpha_bounds=alpha_bounds)
                 searches.append(record)
-                if steps and not late():  # the state in the better basin of its effects the search found (hg07)
+                if steps and not late():  # refitted where the search's alpha-only fit ends, if far lower (hg07)
                     current = rebase(model, freqs, u, current, record, alpha_bounds=alpha_bounds)
                 times["search"] = times.get("search", 0.0) + time.perf_counter() - t_search
                 first, rest = found, first + rest

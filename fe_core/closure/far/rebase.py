@@ -46,7 +46,7 @@ def rebase(model, freqs_hz, amplitude, fit: Fit, record: dict, *, alpha_bounds=A
     if np.max(np.abs(start - fit.alpha), initial=0.0) <= REBASE_MOVED:
         return fit
     u = np.asarray(amplitude, float)
-    applied = list(fit.prior) + ([fit.added] if fit.added is not None else [])
+    applied = fit.applied
     if applied:
         last = applied[-1]
         trial = fit_update(model, freqs_hz, u, start, last.effect, last.location, np.asarray(last.values, float),

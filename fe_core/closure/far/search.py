@@ -356,9 +356,8 @@ def exact_search(model, freqs_hz, amplitude, alpha, library: Sequence[Effect], a
                  reduced: ReducedModel | None = None) -> tuple[list[Found], dict]:
     """The exact search from ``alpha`` (the module docstring); returns the fitted candidates, best first, and a
     record: the alpha-only reduced fit's least sum of squares (``rss_alpha``, at ``alpha_only``: where
-    :func:`fe_core.closure.far.rebase.rebase` refits a stuck state from; from ``alpha`` alone: ``rss_from_point``)
-    and from the best candidate's alpha without it (``rss_without``: a basin the effect's fit may have led alpha to),
-    the effectively independent values of the best candidate's residual (``n_effective``,
+    :func:`fe_core.closure.far.rebase.rebase` refits a stuck state from) and from the best candidate's alpha
+    without it (``rss_without``: a basin the effect's fit may have led alpha to), the effectively independent values of the best candidate's residual (``n_effective``,
     :func:`.misfit.effective_values`), the passes, seconds."""
     t0 = time.perf_counter()
     freqs = np.asarray(freqs_hz, float)
@@ -371,18 +370,16 @@ def exact_search(model, freqs_hz, amplitude, alpha, library: Sequence[Effect], a
     # Alpha alone first, from the point and from the nominal model: the point may be a poor basin of the full model
     # (the hybrid's local fit on the tet10 plate: a factor on its bound, 3681 against 697 in the basin nearby)
     # where a candidate's joint fit cannot start well; the search starts where alpha alone ends.
-    a_alpha, rss_alpha, from_point = None, np.inf, None
+    a_alpha, rss_alpha = None, np.inf
     for a0 in (np.asarray(alpha, float), np.clip(np.zeros(model.n_segments), *alpha_bounds)):
         a, _, r = joint_fit(rm, log_u, a0, None, None, None, alpha_bounds, smoothers)
-        from_point = r if from_point is None else from_point
         if r < rss_alpha:
             a_alpha, rss_alpha = a, r
     if np.max(np.abs(a_alpha - np.asarray(alpha, float))) > MOVED and reduced is None:
         rm = ReducedModel(model, freqs, a_alpha, applied)   # the reduced model where the search starts
         a_alpha, _, rss_alpha = joint_fit(rm, log_u, a_alpha, None, None, None, alpha_bounds, smoothers[-1:])
     fitted: dict = {}
-    record = {"rss_alpha": rss_alpha, "alpha_only": a_alpha.tolist(), "rss_from_point": from_point, "passes": [],
-              "basis": rm.d}
+    record = {"rss_alpha": rss_alpha, "alpha_only": a_alpha.tolist(), "passes": [], "basis": rm.d}
     point = np.asarray(a_alpha, float)
     focus: dict = {}
     best_key = None
