@@ -14,10 +14,13 @@ a few per cent above the factor PARDISO then makes) and adds up what the run hol
   and its products (``(2 + m) w`` columns of n doubles besides a basis of ``12 w`` columns, ``w`` = the
   excitations plus the sensors: the block the space grows by);
 * the global reduced basis of the Gauss-Newton rounds, in the flow's process only, for models between its
-  bounds (:func:`fe_core.solvers.reduced_basis.basis_bytes`: up to 720 columns of n doubles and 1.5 GB, 50k to 721k DOFs);
+  bounds (:func:`fe_core.solvers.reduced_basis.basis_bytes`: up to 720 columns of n doubles and 1.5 GB, 50k to
+  721k DOFs);
 * FE runs at once: a Gauss-Newton round is one FE run in the flow's process; a global round runs ``n_jobs``
   worker processes (:data:`WORKER_BASE` each), each with its FE run, while the flow waits (its own factor
-  freed). The model's pages are shared through the cache (counted once).
+  freed). The model's pages are shared through the cache (counted once). While the run is under way, a
+  round of several FE runs takes as many workers as the memory left then holds (:func:`tasks.machine.runs_that_fit`
+  with :attr:`Footprint.per_worker`), one at a time in the flow's process when not two.
 
 The peak is the larger of the two phases. The constants are calibrated on the bracket's tet10 meshes of
 118k-464k DOFs against the sampled peak of the whole process tree (``python -m benchmarks.scaling update``;
@@ -26,16 +29,14 @@ estimate against measurement in docs/results/scaling.md).
 
 from __future__ import annotations
 
-import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from tasks.machine import MEMORY_ENV, available_bytes
+
 __all__ = ["Footprint", "estimate", "available_bytes", "MEMORY_ENV"]
 
-#: Environment variable: the memory this machine offers the run, MB (default: what the OS reports available,
-#: within a cgroup's limit); for a container, or to keep room for other work.
-MEMORY_ENV = "MRGP_MEMORY_AVAILABLE_MB"
 GB = 1e9
 #: The flow's process without the model (Python, numpy/scipy, Prefect, pandas, the run's tables), bytes.
 MAIN_BASE = 0.45 * GB
@@ -90,6 +91,11 @@ class Footprint:
     @property
     def total(self) -> float:
         return max(self.local, self.parallel)
+
+    @property
+    def per_worker(self) -> float:
+        """What one more FE run in a worker process needs (the model's pages are shared)."""
+        return WORKER_BASE + self.fe_run
 
     def with_jobs(self, n_jobs: int) -> "Footprint":
         """The same model with ``n_jobs`` FE runs at once."""
@@ -167,31 +173,3 @@ def _clamped_nodes(model_file: Path, mesh):
     import numpy as np
 
     return np.unique(np.concatenate(nodes)) if nodes else None
-
-
-def available_bytes() -> float:
-    """The memory the run may use: :data:`MEMORY_ENV` when set, else the OS's available memory, within the
-    cgroup's limit (a container)."""
-    env = os.environ.get(MEMORY_ENV)
-    if env:
-        return float(env) * 1e6
-    avail = _meminfo_available()
-    try:
-        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-        used = float(Path("/sys/fs/cgroup/memory.current").read_text().strip())
-        if limit != "max":
-            avail = min(avail, float(limit) - used)
-    except (OSError, ValueError):
-        pass
-    return avail
-
-
-def _meminfo_available() -> float:
-    """``MemAvailable`` of ``/proc/meminfo`` (Linux), bytes; elsewhere the free physical pages."""
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return float(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))

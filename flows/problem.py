@@ -98,7 +98,7 @@ def resolve(config: UpdateConfig, measured=None) -> Problem:
     if measured is None:
         measured = read_measured(config.resolve(config.measured), averages=config.averages)
     cache_root = config.resolve(config.runs_dir) / MODEL_CACHE_FOLDER
-    preflight.check_memory(config, cache_root)  # a model too big says so before it is assembled
+    footprint = preflight.check_memory(config, cache_root)  # a model too big says so before it is assembled
     model, ref = load_model(config.model, cache_root)
     check_first_training(config, model.n_parameters)
     data = prepare_data(config, measured, model)
@@ -122,7 +122,7 @@ def resolve(config: UpdateConfig, measured=None) -> Problem:
         model = model.with_workdir(ref.workdir)
     lower, upper = search_box(model, config.lower, config.upper)
     modes = n_modes(model, data.frequencies_hz) if emulates_modes(config) else 0
-    return Problem(model, ref, data, lower, upper, modes, inputs)
+    return Problem(model, ref, data, lower, upper, modes, inputs, footprint and footprint.per_worker)
 
 
 def check_first_training(config: UpdateConfig, n_parameters: int) -> None:

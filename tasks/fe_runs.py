@@ -20,7 +20,8 @@ process with PARDISO on all the run's cores (:func:`solver_threads`), where the 
 of the preflight's band check, at the nominal model) is still held and preconditions the next one
 (:mod:`fe_core.solvers.nearby`), and its Krylov space seeds the next one's (:mod:`fe_core.solvers.recycle`);
 a round of several goes to the worker processes, one core each, after this process has freed its idle
-factor, and each worker frees its own (and its kept space) after each run.
+factor, and each worker frees its own (and its kept space) after each run; as many workers as the memory left
+then holds (:func:`tasks.machine.runs_that_fit`), and when not two, the round's runs one after another here.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from fe_core.threads import cores
 from strategies.base import Outcome
 from tasks.faults import kill_point
 from tasks.fe_log import FE_LOG, append_log, read_fe_log
+from tasks.machine import available_bytes, runs_that_fit
 from tasks.common import finish
 from tasks.fe_backends import run_unordered
 from tasks.record import RESPONSE_COLUMNS, RUN_COLUMNS, grid
@@ -102,7 +104,8 @@ def _fe_run(model, threads: int, keep_factor: bool):
             yield
         finally:
             if is_large(model):  # where a large model's factorisations went (each ~a minute at 500k DOFs)
-                pardiso.log.info("PARDISO in this process so far: %s", ", ".join(f"{k} {v}" for k, v in pardiso.stats.items()))
+                pardiso.log.info("PARDISO in this process so far: %s",
+                                 ", ".join(f"{k} {v}" for k, v in pardiso.stats.items()))
             if not keep_factor and is_large(model):
                 pardiso.release_idle()
                 recycle.forget(model)
@@ -370,11 +373,10 @@ class FEStage:
         return jobs, parts
 
     def _results(self, jobs: dict):
-        """The calls' results as they complete: a large model's single FE run here on every core of the run,
-        anything else on the backend (see the module docstring)."""
+        """The calls' results as they complete: a large model's as the module docstring says, others on the backend."""
         from fe_core.solvers import pardiso
 
-        s = self.settings
+        s, n_jobs = self.settings, self.settings.n_jobs
         if is_large(self.problem.model) and s.fe_backend == "loky":
             if len(jobs) == 1:
                 (func, args, kwargs), = jobs.values()
@@ -384,9 +386,25 @@ class FEStage:
                 return
             pardiso.release_idle()  # the workers need the memory of this process's idle factor
             reduced_basis.forget(self.problem.ref.load())  # and of its reduced basis
+            n_jobs = self._workers(len(jobs))
+            if n_jobs < 2:  # one at a time here, on every core: half the memory of two workers, most of the speed
+                yield from (func(*args, **{**kwargs, "threads": run_cores(s)}) for func, args, kwargs in jobs.values())
+                return
         yield from run_unordered(jobs, lambda r: int(r["sample_id"].iloc[0]), fe_backend=s.fe_backend,
-                                 n_jobs=s.n_jobs, dask_address=s.dask_address,
+                                 n_jobs=n_jobs, dask_address=s.dask_address,
                                  label=f"iteration {self.iteration}, stage {self.stage}", logger=self.logger)
+
+    def _workers(self, n_runs: int) -> int:
+        """Workers for a large model's round of ``n_runs`` FE runs: the run's cores, as many as the memory left
+        now holds (:func:`tasks.machine.runs_that_fit`); said in the log when fewer."""
+        wanted = min(n_runs, run_cores(self.settings))
+        fit = runs_that_fit(wanted, self.problem.worker_bytes)
+        if fit < wanted:
+            how = f"{fit} worker processes" if fit > 1 else "one FE run at a time in this process, on every core"
+            self.logger.warning("iteration %d, stage %s: %d FE runs at once need about %.1f GB, %.1f GB is left: %s",
+                                self.iteration, self.stage, wanted, wanted * self.problem.worker_bytes / 1e9,
+                                available_bytes(used_by_run=True) / 1e9, how)
+        return fit
 
     def _evaluate(self, todo: list, total: int) -> None:
         p = self.problem

@@ -187,13 +187,17 @@ class Problem:
         Modes each FE run gives for the paper loop's modal emulation (0: none).
     inputs : dict
         SHA-256 of the files the run reads (``model_checksum``, ``measured_checksum``), for its manifest.
+    worker_bytes : float or None
+        The memory one FE run in a worker process needs, estimated from the mesh before the run
+        (:attr:`flows.memory.Footprint.per_worker`; None: not a mesh model): a large model's round of several FE
+        runs takes as many workers as the memory left then holds (:func:`tasks.machine.runs_that_fit`).
     """
 
-    __slots__ = ("model", "ref", "data", "lower", "upper", "names", "modes", "inputs")
+    __slots__ = ("model", "ref", "data", "lower", "upper", "names", "modes", "inputs", "worker_bytes")
 
     def __init__(self, model, ref: ModelRef, data, lower: np.ndarray, upper: np.ndarray, modes: int = 0,
-                 inputs: dict | None = None):
-        self.model, self.ref, self.data = model, ref, data
+                 inputs: dict | None = None, worker_bytes: float | None = None):
+        self.model, self.ref, self.data, self.worker_bytes = model, ref, data, worker_bytes
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
         self.names = list(model.parameter_names)
         self.modes = int(modes)
@@ -229,4 +233,4 @@ class Problem:
         return self.data.channels
 
     def with_modes(self, modes: int) -> "Problem":
-        return Problem(self.model, self.ref, self.data, self.lower, self.upper, modes, self.inputs)
+        return Problem(self.model, self.ref, self.data, self.lower, self.upper, modes, self.inputs, self.worker_bytes)

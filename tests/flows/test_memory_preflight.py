@@ -78,3 +78,47 @@ def test_factor_estimate_against_pardiso(footprint):
     del solve
     assert actual <= two.nnz_L <= 1.15 * actual
     assert K.nnz <= two.nnz_K <= 1.1 * K.nnz
+
+
+# -- while the run is under way: a large model's round of several FE runs takes the workers the memory holds --
+def test_runs_that_fit_counts_what_is_left(monkeypatch):
+    from tasks import machine
+
+    assert machine.runs_that_fit(2, 3e9, available=7e9) == 2
+    assert machine.runs_that_fit(4, 3e9, available=7e9) == 2
+    assert machine.runs_that_fit(2, 3e9, available=1e9) == 1  # never none: one at a time
+    assert machine.runs_that_fit(2, None, available=1.0) == 2  # a need not known is not guessed
+    monkeypatch.setenv(memory.MEMORY_ENV, "1000")  # 1 GB offered, this test's process resident in it
+    assert 0 < 1e9 - machine.available_bytes(used_by_run=True) == pytest.approx(machine._resident(), rel=0.05)
+
+
+@pytest.mark.parametrize("per_worker, in_process", [(1e15, True), (1.0, False)])
+def test_a_large_models_round_takes_the_workers_that_fit(tmp_path, monkeypatch, caplog, per_worker, in_process):
+    """The bracket's coarse model taken as large (the threshold lowered): with a worker's need beyond the memory
+    left, the global round's two FE runs are made one after another in this process (its pid in their rows, the
+    log says why); with room, in two workers. The responses are the same either way."""
+    import logging
+    import os
+
+    import tasks.fe_runs as fe_runs
+    from tasks.runstore import RunStore
+
+    monkeypatch.setattr(fe_runs, "LARGE_DOFS", 0)
+    config = _config(tmp_path, n_jobs=2)
+    problem = problems.resolve(config)
+    assert problem.worker_bytes == pytest.approx(memory.estimate(REPO / MODEL, 2, cached=True).per_worker)
+    problem.worker_bytes = per_worker
+    root = tmp_path / "runs" / "too-big"
+    root.mkdir(parents=True)
+    stage = fe_runs.FEStage(RunStore(root), problem, config, 2, "global", logging.getLogger("test.fe"))
+    points = [np.zeros(problem.m), np.full(problem.m, 0.1)]
+    with caplog.at_level(logging.WARNING, logger="test.fe"):
+        frames = stage.run([0, 1], points, [False, False])
+    pids = {int(f["pid"].iloc[0]) for f in frames}
+    assert (pids == {os.getpid()}) == in_process
+    assert ("one FE run at a time in this process" in caplog.text) == in_process
+    model = problem.model
+    for frame, x in zip(frames, points):
+        Z = model.parameter_frf(x, problem.freqs_hz, problem.channels)
+        got = (frame["real"].to_numpy() + 1j * frame["imag"].to_numpy()).reshape(Z.shape)
+        np.testing.assert_allclose(got, Z, rtol=1e-8)
