@@ -191,7 +191,8 @@ class Context:
     where they sit, their statistics; jacobian_cost : FE-run equivalents of a run with its Jacobian;
     modal_layout : the emulated modes' layout (``() -> ModalLayout``; None without modes); screen_model :
     ``() -> (model or None, why)``, the model the effect screens see through the data's channels
-    (:func:`fe_core.closure.evidence.screen_points`); memo : where the steps go (:class:`Memo`).
+    (:func:`fe_core.closure.evidence.screen_points`); memo : where the steps go (:class:`Memo`); large : the
+    model is large (an FE run takes a minute or more at its size, ``tasks.fe_runs.is_large``).
     """
 
     names: list
@@ -204,6 +205,7 @@ class Context:
     modal_layout: Callable | None = None
     screen_model: Callable | None = None
     memo: object = field(default_factory=InMemory)
+    large: bool = False
 
     @property
     def m(self) -> int:

@@ -16,6 +16,8 @@ adjoint on the FE model, :mod:`fe_core.solvers.sensitivity`; its cost in FE-run 
    when the first global round's check finds structure too, at its best basin, and the best effect is weighed
    against the best basin found (step ``weigh`` of iteration 2): ``closure`` ends the search for basins (the
    reported point is the FE run where the effect was screened, where the closure starts), ``basins`` goes on.
+   A large model's evidence is weighed already after the local phase (``weigh_early``, step ``weigh`` of iteration
+   1, against the local fit): its global round is 20 FE runs of a minute or more each.
 4. **Global phase** (cycle k > 1, stage ``global``, :func:`.hybrid_phases.global_phase`): space-filling
    points, the MRGP emulator (step ``emulator``), parallel Gauss-Newton runs from its best candidates; its
    best end point is checked again. Another cycle follows while the check finds structure, the last phase did
@@ -171,7 +173,7 @@ class Hybrid:
             if (self.evidence.get("own_error") or {}).get("within"):
                 self.status = "own error"  # neither a basin nor an effect the closure would accept is left
                 return self._finish()
-        if k == 2 and self.evidence and self.evidence.get("screens"):
+        if (k == 2 or (k == 1 and self.options.weigh_early)) and self.evidence and self.evidence.get("screens"):
             self.decision = self.memo.step(k, WEIGH_STAGE, self._weigh).info
             if self.decision["choice"] == "closure":
                 self.status = "effect"
@@ -304,7 +306,8 @@ class Hybrid:
         if self.decision is not None and self.decision["choice"] == "closure":
             screen = self.decision["best_screen"]
             sid = self._nearest_run(screen["alpha"])
-            reason = (f"cycle {k} (global): {status}; evidence: {self.decision['reason']}; the reported point is "
+            reason = (f"cycle {k} ({'local' if k == 1 else 'global'}): {status}; evidence: {self.decision['reason']}; "
+                      "the reported point is "
                       f"where the effect was screened ({screen['at']}, sample {sid}): run the closure from it "
                       "(--close-loop, python -m flows.diagnose)")
             return Report(reason, False, [sid], fields, k, intervals=True)

@@ -77,7 +77,10 @@ class HybridOptions:
         seeds each: 112/120 solved with "none", 119/120 with "sqrt" (docs/results/suite.md); every truth that failed had
         a parameter at or below -0.86;
     halve_every : rounds between dropping the worse half of the runs;
-    trainer, kernel : of the emulator (:func:`mrgp_core.fit`); seed : of the Sobol points and the trainer.
+    trainer, kernel : of the emulator (:func:`mrgp_core.fit`); seed : of the Sobol points and the trainer;
+    weigh_early : weigh the evidence of a missing effect after the local phase, against the local fit, before any
+        global round (set for a large model, whose global round is 20 FE runs of a minute or more each: the
+        500k panel's took the whole machine's memory with two workers); a global round follows only on "basins".
     """
 
     target: float = uses("polish_target", 1e-4)
@@ -111,6 +114,7 @@ class HybridOptions:
     trainer: str = uses("trainer", "gradient")
     kernel: str = "ard"
     seed: int = uses("seed", 0)
+    weigh_early: bool = False
 
 
 @dataclass(frozen=True)

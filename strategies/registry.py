@@ -81,7 +81,8 @@ def option_classes() -> list[type]:
 
 # -- how each strategy is built from a run's problem ---------------------------------------------------------
 def _hybrid(ctx: Context, options: HybridOptions):
-    options = replace(options, cap=CAP_FACTOR * options.max_cost, jacobian_cost=ctx.jacobian_cost)
+    options = replace(options, cap=CAP_FACTOR * options.max_cost, jacobian_cost=ctx.jacobian_cost,
+                      weigh_early=options.weigh_early or ctx.large)
     return hybrid.Hybrid(ctx.nominal, ctx.residual, *ctx.solver_box, options, ctx.screen_model,
                          ctx.names, ctx.memo)
 

@@ -12,7 +12,7 @@ import numpy as np
 from mrgp_core.modal_outputs import ModalLayout
 from strategies.base import Context
 from tasks import record
-from tasks.fe_runs import JACOBIAN_COST
+from tasks.fe_runs import JACOBIAN_COST, is_large
 from tasks.problem import black_box
 from tasks.runstore import RunStore
 
@@ -56,7 +56,8 @@ def context(problem, memo) -> Context:
         return screened["model"]
 
     return Context(list(problem.names), problem.lower, problem.upper, problem.solver_box, problem.nominal,
-                   problem.data, cost, (lambda: modal_layout(problem)) if problem.modes else None, screens, memo)
+                   problem.data, cost, (lambda: modal_layout(problem)) if problem.modes else None, screens, memo,
+                   is_large(problem.model))
 
 
 def modal_training_set(store: RunStore, problem, upto: int):

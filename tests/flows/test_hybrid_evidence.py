@@ -86,6 +86,33 @@ def test_the_strategy_in_memory_weighs_the_same_evidence_after_the_same_fe_runs(
         np.testing.assert_allclose(x, h["x"], rtol=0, atol=1e-12)
 
 
+def test_a_large_models_evidence_is_weighed_after_the_local_phase(point_mass_run, in_memory_fe):
+    """A large model (an FE run of a minute or more) weighs its evidence before any global round: the same beam
+    taken as large stops on the same effect at the same node after the local phase alone, with fewer FE runs."""
+    import dataclasses
+
+    from flows.rerun import run_problem
+    from strategies import registry
+    from strategies.base import InMemory, run_loop
+    from tasks.context import context
+
+    summary, store = point_mass_run
+    config = UpdateConfig(run_id="pm", runs_dir=str(store.root.parent), measured=str(DATA / "measured_point_mass.csv"),
+                          **SETTINGS)
+    problem = run_problem(config)
+    memo = InMemory()
+    strategy = registry.get("hybrid").make(dataclasses.replace(context(problem, memo), large=True), config)
+    decision = run_loop(strategy, in_memory_fe(problem))
+    assert decision.stop and not decision.converged and strategy.status == "effect"
+    assert (1, "weigh") in memo.steps and not any(k == 2 for k, _ in memo.steps)
+    best, flow_best = strategy.decision["best_screen"], summary["evidence"]
+    flow_best = min(flow_best["screens"], key=lambda s: s["rss_effect"])
+    assert (best["effect"], best["location"]) == (flow_best["effect"], flow_best["location"])
+    assert strategy.decision["choice"] == "closure" and strategy.iteration == 1
+    assert strategy.result().evaluations < summary["fe_evaluations"]
+    assert strategy.report().stop_reason.startswith("cycle 1 (local)")
+
+
 def test_the_intervals_of_a_run_stopped_on_the_evidence_are_laplace_not_sampled(point_mass_run, prefect_harness):
     """The run's model lacks the effect the evidence names: the intervals stage reports the Laplace intervals and
     why, and spends no FE run on sampling a posterior of that model (400 by default, minutes on a 25k-DOF model:
