@@ -213,7 +213,8 @@ def diagnose(run_id: str, runs_dir: str | Path = "runs", name: str = "closure", 
               "Eq. (6b) of the run's residual")
     run_info = {"run_id": run_id, "run_folder": str(root), "parameters": summary["parameters"], "selection": selection,
                 "overall_error": summary.get("overall_error"), "error_metric": metric}
-    problem = Problem(model, ref, data, np.full(len(alpha), lower), np.full(len(alpha), upper))
+    problem = Problem(model, ref, data, np.full(len(alpha), lower), np.full(len(alpha), upper),
+                      worker_bytes=problem.worker_bytes)
     return diagnose_flow(run_id, str(closure_root), dict(settings), run_info, problem)
 
 

@@ -4,7 +4,8 @@
 The closure's first round already checks its candidates in loky workers (:func:`tasks.closure.steps.check_task`);
 the forward selection made its later rounds' checks and its swaps' one after another in the decision's process,
 one of the two cores idle for much of it (held-out hd07: 496 s of checks in a 15-minute decision). Here each wave
-of checks goes to the run's ``n_jobs`` workers: a worker maps the model (:class:`tasks.problem.ModelRef`, once per
+of checks goes to the run's ``n_jobs`` workers (as many as the memory left holds,
+:func:`tasks.machine.runs_that_fit`): a worker maps the model (:class:`tasks.problem.ModelRef`, once per
 process), rebuilds the base fit's effects from its own library, makes :func:`fe_core.closure.screening.check` and
 returns plain arrays; the fit is rebuilt here on this process's library, so no model or effect is pickled.
 
@@ -23,6 +24,7 @@ from fe_core.closure import fits, screening
 from fe_core.closure.effects import Applied
 from fe_core.threads import at_most
 from tasks.closure.library import cached_library
+from tasks.machine import runs_that_fit
 
 __all__ = ["MIN_DOFS", "process_checks"]
 
@@ -76,7 +78,7 @@ def process_checks(problem, settings: dict, library: dict):
                                      "linear_values": c.linear_values, "start_alpha": c.start_alpha},
                                     freqs, u, max_moves, alpha_bounds, max_evaluations)
                 for effect, c in pairs)
-        records = Parallel(n_jobs=n_jobs, backend="loky")(jobs)
+        records = Parallel(n_jobs=runs_that_fit(min(n_jobs, len(pairs)), problem.worker_bytes), backend="loky")(jobs)
         for (effect, c), r in zip(pairs, records):
             prior = _applied(library, r["prior"])
             added = Applied(library[effect.kind], r["location"], np.asarray(r["values"], float))
