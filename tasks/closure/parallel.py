@@ -26,10 +26,22 @@ from fe_core.threads import at_most
 from tasks.closure.library import cached_library
 from tasks.machine import runs_that_fit
 
-__all__ = ["MIN_DOFS", "process_checks"]
+__all__ = ["MIN_DOFS", "CHECK_WORKER_FACTOR", "check_workers", "process_checks"]
 
 #: Free DOFs from which the forward selection's checks go to worker processes.
 MIN_DOFS = 10_000
+#: A closure check's worker holds more than an FE run (:attr:`tasks.problem.Problem.worker_bytes`): the effect's
+#: fits, the reduced model of the fast fits (up to 480 full fields) and the Krylov spaces of its linearisation.
+#: Measured on the 150k panel (``python -m benchmarks.scaling update ... -- --close-loop``): 4.93 and 4.51 GB per
+#: worker, against an FE run's 1.36 GB estimate.
+CHECK_WORKER_FACTOR = 3.6
+
+
+def check_workers(problem, wanted: int) -> int:
+    """Workers for ``wanted`` closure checks at once: as many as the memory left holds, each needing
+    :data:`CHECK_WORKER_FACTOR` times an FE run's estimate (1: the checks run one after another here)."""
+    need = problem.worker_bytes and CHECK_WORKER_FACTOR * problem.worker_bytes
+    return runs_that_fit(wanted, need)
 
 
 def _applied(library: dict, items) -> list[Applied]:
@@ -78,7 +90,7 @@ def process_checks(problem, settings: dict, library: dict):
                                      "linear_values": c.linear_values, "start_alpha": c.start_alpha},
                                     freqs, u, max_moves, alpha_bounds, max_evaluations)
                 for effect, c in pairs)
-        records = Parallel(n_jobs=runs_that_fit(min(n_jobs, len(pairs)), problem.worker_bytes), backend="loky")(jobs)
+        records = Parallel(n_jobs=check_workers(problem, min(n_jobs, len(pairs))), backend="loky")(jobs)
         for (effect, c), r in zip(pairs, records):
             prior = _applied(library, r["prior"])
             added = Applied(library[effect.kind], r["location"], np.asarray(r["values"], float))

@@ -37,11 +37,10 @@ from tasks.closure.store import (
     residual_table,
 )
 from tasks.closure.library import cached_library as _cached_library
-from tasks.closure.parallel import process_checks
+from tasks.closure.parallel import check_workers, process_checks
 from tasks.closure.summary import _candidates_frame, _closure_json, _verdict_json
 from tasks.common import beating, heartbeat
 from tasks.fe_runs import run_cores
-from tasks.machine import runs_that_fit
 from tasks.runstore import atomic_write_bytes, atomic_write_json
 
 __all__ = [
@@ -286,7 +285,7 @@ def _run_checks(store, problem, settings: dict, base, freqs, u, wave) -> None:
     jobs = (delayed(_indexed)(k, problem.ref, settings.get("effects"), c.effect, c.location, c.linear_values,
                               base.alpha, freqs, u, settings["max_moves"], settings["alpha_bounds"], c.start_alpha)
             for k, c in todo)
-    n_jobs = runs_that_fit(min(len(todo), run_cores(settings)), problem.worker_bytes)  # as the memory left holds
+    n_jobs = check_workers(problem, min(len(todo), run_cores(settings)))  # as many as the memory left holds
     parallel = Parallel(n_jobs=n_jobs, backend="loky", return_as="generator_unordered")
     count = [len(wave) - len(todo)]
     with heartbeat("closure checks", lambda: f"{count[0]} of {len(wave)} candidates checked"):

@@ -138,3 +138,21 @@ def test_the_closure_starts_without_the_updates_factors_and_basis():
     update.release_update_solvers(model)
     assert all(h.data is None for pool in pardiso._POOL.values() for h in pool)
     assert reduced_basis._KEY not in model.__dict__
+
+
+def test_closure_checks_take_the_workers_their_larger_need_fits(monkeypatch):
+    """A closure check's worker needs CHECK_WORKER_FACTOR times an FE run: with room for two FE runs but not two
+    checks, the checks run one at a time in this process."""
+    from types import SimpleNamespace
+
+    from tasks import machine
+    from tasks.closure.parallel import CHECK_WORKER_FACTOR, check_workers
+
+    run = 1e9
+    problem = SimpleNamespace(worker_bytes=run)
+    here = machine._resident()
+    monkeypatch.setenv(memory.MEMORY_ENV, str((here + 1.5 * CHECK_WORKER_FACTOR * run) / 1e6))
+    assert machine.runs_that_fit(2, run) == 2 and check_workers(problem, 2) == 1
+    monkeypatch.setenv(memory.MEMORY_ENV, str((here + 2.5 * CHECK_WORKER_FACTOR * run) / 1e6))
+    assert check_workers(problem, 2) == 2
+    assert check_workers(SimpleNamespace(worker_bytes=None), 2) == 2  # not a mesh model: no estimate, no limit
