@@ -40,7 +40,8 @@ CHECK_WORKER_FACTOR = 3.6
 def check_workers(problem, wanted: int) -> int:
     """Workers for ``wanted`` closure checks at once: as many as the memory left holds, each needing
     :data:`CHECK_WORKER_FACTOR` times an FE run's estimate (1: the checks run one after another here)."""
-    need = problem.worker_bytes and CHECK_WORKER_FACTOR * problem.worker_bytes
+    per_run = getattr(problem, "worker_bytes", None)  # None: not a mesh model, or not estimated
+    need = per_run and CHECK_WORKER_FACTOR * per_run
     return runs_that_fit(wanted, need)
 
 
