@@ -48,22 +48,22 @@ def runs_that_fit(wanted: int, per_run: float | None, available: float | None = 
 
 
 def _resident() -> float:
-    """This process's resident memory, bytes (``VmRSS`` of ``/proc/self/status``; 0 where there is none)."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return float(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return 0.0
+    """This process's resident memory, bytes (0 where ``/proc`` has none)."""
+    return _proc_kib("/proc/self/status", "VmRSS:") or 0.0
 
 
 def _meminfo_available() -> float:
     """``MemAvailable`` of ``/proc/meminfo`` (Linux), bytes; elsewhere the free physical pages."""
+    found = _proc_kib("/proc/meminfo", "MemAvailable:")
+    return found if found is not None else float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+
+
+def _proc_kib(path: str, key: str) -> float | None:
+    """The ``key`` line of a ``/proc`` file given in kB, in bytes; None when the file or the line is missing."""
     try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
+        for line in Path(path).read_text().splitlines():
+            if line.startswith(key):
                 return float(line.split()[1]) * 1024
     except OSError:
         pass
-    return float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    return None
