@@ -343,8 +343,8 @@ def test_a_round_starts_only_if_the_backward_check_after_it_fits_in_the_time_lef
     m = read_measured(DATA2 / "two_effects.csv")
     library = build_library(benchmark_model, ["point_mass", "grounded_spring"])
     base, before = baseline(benchmark_model, m.frequencies_hz, m.amplitude, truth["alpha"], noise=0.005)
-    one = B.backward_refits(1, restart=True) * B.REFIT_EVALUATIONS   # 60 s
-    two = B.backward_refits(2, restart=True) * B.REFIT_EVALUATIONS   # 300 s
+    one = B.backward_refits(1, restart=True) * B.REFIT_EVALUATIONS   # 25 s
+    two = B.backward_refits(2, restart=True) * B.REFIT_EVALUATIONS   # 125 s
 
     def select(seconds_left):
         return forward_select(benchmark_model, m.frequencies_hz, m.amplitude, base, before, library, per_type=1,
