@@ -402,3 +402,24 @@ def test_rebase_moves_a_stuck_state_to_where_the_searchs_alpha_only_fit_ends(far
     n = out.evaluations
     far = {"alpha_only": (ALPHA + 0.1).tolist(), "rss_alpha": 0.1 * out.rss}
     assert rb.rebase(model, freqs, u, out, far) is out and out.evaluations == n + 7
+
+
+def test_the_joined_spaces_ritz_pairs_are_those_of_their_span_by_another_orthonormalisation():
+    """``reduced._joined`` (QR in place, projections by column blocks, to hold two (n, d) arrays at a time) gives the
+    Ritz values of (K, M) on the span of the spaces joined, as the SVD's orthonormal basis of the same span does,
+    with W M-orthonormal; a space that repeats another adds nothing."""
+    from fe_core.closure.far.reduced import _joined
+
+    rng = np.random.default_rng(7)
+    n = 400
+    A = rng.standard_normal((n, n)) / np.sqrt(n)
+    K = np.eye(n) * 4.0 + A @ A.T
+    M = np.diag(rng.uniform(0.5, 2.0, n))
+    s1, s2 = rng.standard_normal((n, 30)), rng.standard_normal((n, 25))
+    W, mu = _joined([s1, s2, s1[:, :7] * 3.0], K, M, block=16)
+    assert W.shape == (n, 55)
+    U = sla.orth(np.hstack([s1, s2]))
+    ref = sla.eigh(U.T @ K @ U, U.T @ M @ U, eigvals_only=True)
+    np.testing.assert_allclose(mu, ref, rtol=1e-10)
+    np.testing.assert_allclose(W.T @ M @ W, np.eye(55), atol=1e-10)
+    np.testing.assert_allclose(W.T @ K @ W, np.diag(mu), atol=1e-9 * mu.max())

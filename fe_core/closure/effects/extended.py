@@ -105,9 +105,11 @@ class LinearisedResponse:
         self.freqs_hz = np.asarray(freqs_hz, float)
         self.omegas = hz_to_rad(self.freqs_hz)
         self.applied = list(applied)
-        self.K, self.M, self.a, self.b = extended_matrices(model, alpha, applied)
+        # K and M are not kept: their space and projections are (a response is cached, and at 500k DOFs the two
+        # matrices are over a GB beside the space's 0.6 GB)
+        K, M, self.a, self.b = extended_matrices(model, alpha, applied)
         self.gain = sensor_gain(model, self.alpha, self.applied)
-        self.reduced = ReducedResponse(self.K, self.M, self.a, self.b, model.combined_load(), model.outputs,
+        self.reduced = ReducedResponse(K, M, self.a, self.b, model.combined_load(), model.outputs,
                                        self.omegas, self.gain)
         self.Z = self.reduced.Z  # (p, n_s), without the gains
 

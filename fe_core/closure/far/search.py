@@ -376,6 +376,7 @@ def exact_search(model, freqs_hz, amplitude, alpha, library: Sequence[Effect], a
         if r < rss_alpha:
             a_alpha, rss_alpha = a, r
     if np.max(np.abs(a_alpha - np.asarray(alpha, float))) > MOVED and reduced is None:
+        rm = None   # freed first: at size a reduced model's space is a GB
         rm = ReducedModel(model, freqs, a_alpha, applied)   # the reduced model where the search starts
         a_alpha, _, rss_alpha = joint_fit(rm, log_u, a_alpha, None, None, None, alpha_bounds, smoothers[-1:])
     fitted: dict = {}
@@ -412,6 +413,7 @@ def exact_search(model, freqs_hz, amplitude, alpha, library: Sequence[Effect], a
             break
         best_key, point = key, best.alpha.copy()
         if k + 1 < passes:  # the next pass on the spaces of the best fit's point, with and without its effect
+            rm = None
             rm = ReducedModel(model, freqs, point, applied,
                               enrich=[(point, list(applied) + [Applied(by_kind[best.effect], best.location,
                                                                        np.asarray(best.values, float))])])
