@@ -146,33 +146,41 @@ def check_band(config: UpdateConfig, measured, model) -> None:
         )
 
 
-def check_memory(config: UpdateConfig, cache_root: Path | None = None):
-    """Refuse a mesh model whose update needs more memory than the machine has available (exit 2), naming the
-    model, the estimate and its parts, and what ``--n-jobs 1`` would need; returns the
-    :class:`flows.memory.Footprint` (None for a model of another kind). ``cache_root``: the model cache (a
-    model found there needs no assembly)."""
+def footprint_of(config: UpdateConfig, cache_root: Path | None = None):
+    """The :class:`flows.memory.Footprint` of the run's mesh model with its FE runs at once (one with a Dask
+    cluster: its global rounds' runs are the cluster's), None for a model of another kind or a missing file (its
+    reader names it). ``cache_root``: the model cache (a model found there needs no assembly)."""
     from fe_core.io import cache
     from fe_core.threads import cores
-    from flows.memory import GB, available_bytes, estimate
+    from flows.memory import estimate
     from tasks.problem import model_checksum, model_path
 
     if not config.model.endswith(".toml"):
         return None
     path = model_path(config.model)
     if not path.exists():
-        return None  # the model's reader names the missing file
+        return None
     cached = False
     if cache_root is not None:
         try:
             cached = cache.lookup(cache_root, model_checksum(path)) is not None
         except (OSError, ValueError):
             cached = False
-    jobs = cores(config.n_jobs)
-    if config.fe_backend != "loky":  # the global rounds' FE runs are the cluster's; Gauss-Newton runs here
-        jobs = 1
-    footprint = estimate(path, jobs, cached=cached)
+    jobs = cores(config.n_jobs) if config.fe_backend == "loky" else 1
+    return estimate(path, jobs, cached=cached)
+
+
+def check_memory(config: UpdateConfig, cache_root: Path | None = None):
+    """Refuse a mesh model whose update needs more memory than the machine has available (exit 2), naming the
+    model, the estimate and its parts, and what ``--n-jobs 1`` would need; returns the
+    :class:`flows.memory.Footprint` (None for a model of another kind). ``cache_root``: the model cache (a
+    model found there needs no assembly)."""
+    from flows.memory import GB, available_bytes
+
+    footprint = footprint_of(config, cache_root)
     if footprint is None:
         return None
+    jobs = footprint.n_jobs
     avail = available_bytes()
     if footprint.total <= avail:
         return footprint

@@ -161,4 +161,7 @@ def stored_problem(config: UpdateConfig, manifest: dict | None = None, where=Non
         model = model.with_workdir(ref.workdir)
     lower, upper = search_box(model, config.lower, config.upper)
     modes = n_modes(model, data.frequencies_hz) if emulates_modes(config) else 0
-    return Problem(model, ref, data, lower, upper, modes, inputs)
+    # what an FE run's worker needs, as the run had it: the closure's checks of a large model take the workers the
+    # memory left holds (standalone at 500k DOFs two check workers of 6 GB beside the flow's 8 GB passed 21 GB)
+    footprint = preflight.footprint_of(config, config.resolve(config.runs_dir) / MODEL_CACHE_FOLDER)
+    return Problem(model, ref, data, lower, upper, modes, inputs, footprint and footprint.per_worker)

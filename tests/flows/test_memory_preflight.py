@@ -156,3 +156,15 @@ def test_closure_checks_take_the_workers_their_larger_need_fits(monkeypatch):
     monkeypatch.setenv(memory.MEMORY_ENV, str((here + 2.5 * CHECK_WORKER_FACTOR * run) / 1e6))
     assert check_workers(problem, 2) == 2
     assert check_workers(SimpleNamespace(worker_bytes=None), 2) == 2  # not a mesh model: no estimate, no limit
+
+
+def test_a_finished_runs_problem_carries_the_worker_estimate_the_run_had(tmp_path):
+    """``flows.diagnose`` and ``flows.rerun`` read a finished run's problem back (:func:`flows.problem.stored_problem`):
+    it carries the same per-worker estimate as the run's own (:func:`flows.problem.resolve`), so the closure's checks
+    of a large model take the workers the memory holds when run on their own too; a matrices model has none."""
+    config = _config(tmp_path)
+    expected = memory.estimate(REPO / MODEL, 2).per_worker
+    assert problems.stored_problem(config).worker_bytes == pytest.approx(expected, rel=1e-12)
+    assert problems.resolve(config).worker_bytes == pytest.approx(expected, rel=1e-12)
+    matrices = load_config(None, runs_dir=str(tmp_path / "runs"), run_id="bench")  # the benchmark's model
+    assert problems.stored_problem(matrices).worker_bytes is None
