@@ -36,6 +36,7 @@ from tasks.closure.store import (
     _screened,
     residual_table,
 )
+from tasks.closure.handover import evidence_found, restarts
 from tasks.closure.library import cached_library as _cached_library
 from tasks.closure.parallel import check_workers, process_checks
 from tasks.closure.summary import _candidates_frame, _closure_json, _verdict_json
@@ -132,7 +133,7 @@ def baseline_task(root: str, problem, settings: dict) -> dict:
     if not _done(store, "baseline"):
         model = problem.model
         fit, analysis = fits.baseline(model, freqs, u, settings["alpha_start"], noise_of(problem, settings),
-                                      settings["significance"], settings["restarts"], settings["seed"],
+                                      settings["significance"], restarts(store, model, settings), settings["seed"],
                                       tuple(settings["alpha_bounds"]), far_restarts=alpha_restarts)
         store.write_table("baseline", "baseline", _param_table(fit, {}))
         store.write_table("baseline", "residual_before",
@@ -318,32 +319,13 @@ def _searched(store, model, settings: dict, base, freqs, u) -> list:
     picked = {tuple(p) for p in record["picked"]}
     picks = [f for f in pick_found(found) if (f.effect, f.location) in picked]
     # The closure starts from the evidence too: what the update's exact screens found, with their alpha.
-    for e in _evidence_found(store, library):
+    for e in evidence_found(store, library):
         if all((e.effect, e.location) != (f.effect, f.location) for f in picks):
             picks.append(e)
     _logger().info("closure: far off (rms %.3g): exact search of %d places in %.1f s; checking %s",
                    float(np.sqrt(np.mean(base.residual ** 2))), sum(p["scanned"] for p in record["passes"]),
                    record["seconds"], ", ".join(f"{f.effect} at {f.location} = {f.values[0]:.4g}" for f in picks))
     return [as_candidate(f, base) for f in picks]
-
-
-def _evidence_found(store, library) -> list:
-    """The effects the update's evidence evaluated exactly (``summary.json``'s ``evidence.screens`` of the run whose
-    closure this is), as found candidates with the alpha fitted with them; none without them."""
-    from fe_core.closure.far.search import Found
-
-    path = store.root.parent / "summary.json"
-    try:
-        screens = (json.loads(path.read_text()).get("evidence") or {}).get("screens") or []
-    except (OSError, ValueError):
-        return []
-    out = []
-    for sc in screens:
-        if sc.get("exact") and sc.get("effect") in library and sc.get("effect_alpha"):
-            out.append(Found(sc["effect"], sc["location"], np.asarray(sc["values"], float),
-                             np.asarray(sc["effect_alpha"], float), float(sc["rss_effect"]), float(sc["rss_effect"]),
-                             len(library[sc["effect"]].locations())))
-    return out
 
 
 def _indexed(k, *args):
