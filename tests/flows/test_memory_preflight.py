@@ -101,6 +101,7 @@ def test_a_large_models_round_takes_the_workers_that_fit(tmp_path, monkeypatch, 
     import os
 
     import tasks.fe_runs as fe_runs
+    from fe_core.solvers.frf import STAGNATION_RTOL
     from tasks.runstore import RunStore
 
     monkeypatch.setattr(fe_runs, "LARGE_DOFS", 0)
@@ -121,7 +122,10 @@ def test_a_large_models_round_takes_the_workers_that_fit(tmp_path, monkeypatch, 
     for frame, x in zip(frames, points):
         Z = model.parameter_frf(x, problem.freqs_hz, problem.channels)
         got = (frame["real"].to_numpy() + 1j * frame["imag"].to_numpy()).reshape(Z.shape)
-        np.testing.assert_allclose(got, Z, rtol=1e-8)
+        # the Krylov FRF stops at STAGNATION_RTOL of the largest response (the round-off floor of PARDISO's factor,
+        # fe_core.solvers.frf); a factor reused in this process and a fresh one differ within it (on one CI run
+        # one line of 90 differed by 1.02e-8 of itself, 1e-8 of the largest response)
+        np.testing.assert_allclose(got, Z, rtol=0, atol=STAGNATION_RTOL * np.abs(Z).max())
 
 
 def test_the_closure_starts_without_the_updates_factors_and_basis():
