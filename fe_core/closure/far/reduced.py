@@ -324,7 +324,7 @@ def _joined(spaces, K, M, block: int = 64) -> tuple[np.ndarray, np.ndarray]:
     X = np.empty((n, k), order="F")
     j = 0
     for x in spaces:
-        X[:, j:j + x.shape[1]] = x / np.maximum(np.linalg.norm(x, axis=0), 1e-300)
+        np.divide(x, np.maximum(np.linalg.norm(x, axis=0), 1e-300), out=X[:, j:j + x.shape[1]])
         j += x.shape[1]
     Q, R = sla.qr(X, mode="economic", overwrite_a=True, check_finite=False)
     del X
