@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         if options["max_minutes"] is None:
             options["max_minutes"] = closure_minutes_left(time.monotonic() - started)
             print(f"closure: time limit {options['max_minutes']:g} min (what is left of 15 min since the command "
-                  "began, at least 5; --closure-minutes sets it)")
+                  "began, less half a minute for the command's end, at least 5; --closure-minutes sets it)")
         try:
             closure = diagnose(config.run_id, config.runs_dir, args.closure_name or "closure", problem=problem,
                                **options)
