@@ -1,6 +1,6 @@
 """What the update hands its closure (``flows.update --close-loop``, or ``flows.diagnose`` of a finished run): the
-effects its evidence evaluated exactly, as candidates to check, and whether its evidence weighed the basins already
-(then a large model's baseline makes no restarts)."""
+effects its evidence evaluated exactly, as candidates to check (:func:`evidence_picks`), and whether its evidence
+weighed the basins already (then a large model's baseline makes no restarts)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 from tasks.closure.store import _logger
 from tasks.fe_runs import is_large
 
-__all__ = ["evidence_found", "restarts"]
+__all__ = ["evidence_found", "evidence_picks", "restarts"]
 
 
 def evidence_found(store, library) -> list:
@@ -26,6 +26,30 @@ def evidence_found(store, library) -> list:
             out.append(Found(sc["effect"], sc["location"], np.asarray(sc["values"], float),
                              np.asarray(sc["effect_alpha"], float), float(sc["rss_effect"]), float(sc["rss_effect"]),
                              len(library[sc["effect"]].locations())))
+    return out
+
+
+def evidence_picks(store, model, library, picks: list, found: list) -> list:
+    """``picks`` (the exact search's, from its ``found``) and the evidence's exact finds at other places
+    (:func:`evidence_found`). For a large model (:func:`tasks.fe_runs.is_large`) an evidence find joins only if its sum
+    of squares is within :data:`fe_core.closure.far.picks.FACTOR` of the search's best, the rule the search's own
+    further finds are picked by: the search scanned every place exactly from the closure's baseline, and a check
+    started a factor of ten worse walks to where the search already is, taking minutes per FE solve (500k panel:
+    the evidence's node 125810, 28.8 against the search's 1.26, checked in 12 solves and 17 min and ended at the
+    search's node 66094; 150k: node 40610, 17.9 against 0.18, 121 s, ended at the search's 24957). Below that size
+    a check takes seconds and every evidence find is checked, as before."""
+    from fe_core.closure.far.picks import FACTOR
+
+    best = min((f.rss for f in found), default=float("inf"))
+    out = list(picks)
+    for e in evidence_found(store, library):
+        if any((e.effect, e.location) == (f.effect, f.location) for f in out):
+            continue
+        if is_large(model) and e.rss > FACTOR * best:
+            _logger().info("closure: the evidence's %s at %s (sum of squares %.4g) not checked: more than %g times "
+                           "the exact search's best (%.4g)", e.effect, e.location, e.rss, FACTOR, best)
+            continue
+        out.append(e)
     return out
 
 

@@ -36,7 +36,7 @@ from tasks.closure.store import (
     _screened,
     residual_table,
 )
-from tasks.closure.handover import evidence_found, restarts
+from tasks.closure.handover import evidence_picks, restarts
 from tasks.closure.library import cached_library as _cached_library
 from tasks.closure.parallel import check_workers, process_checks
 from tasks.closure.summary import _candidates_frame, _closure_json, _verdict_json
@@ -319,9 +319,7 @@ def _searched(store, model, settings: dict, base, freqs, u) -> list:
     picked = {tuple(p) for p in record["picked"]}
     picks = [f for f in pick_found(found) if (f.effect, f.location) in picked]
     # The closure starts from the evidence too: what the update's exact screens found, with their alpha.
-    for e in evidence_found(store, library):
-        if all((e.effect, e.location) != (f.effect, f.location) for f in picks):
-            picks.append(e)
+    picks = evidence_picks(store, model, library, picks, found)
     _logger().info("closure: far off (rms %.3g): exact search of %d places in %.1f s; checking %s",
                    float(np.sqrt(np.mean(base.residual ** 2))), sum(p["scanned"] for p in record["passes"]),
                    record["seconds"], ", ".join(f"{f.effect} at {f.location} = {f.values[0]:.4g}" for f in picks))

@@ -55,3 +55,26 @@ def test_the_evidences_exact_effects_are_handed_over_with_their_alpha(tmp_path):
     np.testing.assert_array_equal(found[0].alpha, EXACT["effect_alpha"])
     assert found[0].values.tolist() == [0.88] and found[0].rss == 28.8
     assert evidence_found(_store(tmp_path, None), library) == []
+
+
+@pytest.mark.parametrize("dofs, best, checked", [
+    (LARGE_DOFS, 1.26, ["node 66094", "node 66065"]),               # large, the evidence 23 times the search's best
+    (LARGE_DOFS, 2.9, ["node 66094", "node 66065", "node 12"]),     # large, within ten times: checked
+    (LARGE_DOFS - 1, 1.26, ["node 66094", "node 66065", "node 12"]),  # small: every evidence find checked
+])
+def test_a_large_models_evidence_find_far_worse_than_the_search_is_not_checked(tmp_path, dofs, best, checked):
+    """The 500k panel's case (session 30): the evidence's point mass at 28.8 against the exact search's 1.26; its
+    check took 17 minutes to walk to the search's own node. A find at the place of a pick is never checked twice."""
+    from fe_core.closure.far.search import Found
+    from tasks.closure.handover import evidence_picks
+
+    library = {"point_mass": SimpleNamespace(locations=lambda: ["node 12", "node 66065", "node 66094"])}
+    found = [Found("point_mass", "node 66094", np.array([0.82]), np.zeros(2), 7.8, best, 3),
+             Found("point_mass", "node 66065", np.array([0.88]), np.zeros(2), 1.7, best + 0.03, 3)]
+    store = _store(tmp_path, {"choice": "closure", "screens": [LINEAR, EXACT]})
+    picks = evidence_picks(store, SimpleNamespace(n_dofs=dofs), library, found, found)
+    assert [f.location for f in picks] == checked
+    again = {**EXACT, "location": "node 66065"}   # the evidence at a place the search picked: checked once
+    store = _store(tmp_path, {"choice": "closure", "screens": [again]})
+    picks = evidence_picks(store, SimpleNamespace(n_dofs=LARGE_DOFS - 1), library, found, found)
+    assert [f.location for f in picks] == ["node 66094", "node 66065"]
