@@ -133,10 +133,20 @@ def screen(model: ParametricModel, freqs_hz, base: Fit, library: Sequence[Effect
     return out
 
 
+#: The screen's derivative columns are formed :data:`SCREEN_BYTES` at a time (each location's fit is its own): an
+#: effect at every node of the 500k panel is an (L, N) array of 4.8 GB (167,500 nodes, 3,600 values), which made the
+#: closure's second-round screen the peak of its process tree (19.1 GB).
+SCREEN_BYTES = 2 ** 28
+
+
 def _linear_fits(lin: LinearisedResponse, effect: Effect, locations: Sequence[str], r_perp: np.ndarray,
                  q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bounded linear least squares of ``r_perp`` on each location's projected columns: values
-    (L, k) in the effect's units and residual sums of squares (L,)."""
+    (L, k) in the effect's units and residual sums of squares (L,); :data:`SCREEN_BYTES` of columns at a time."""
+    step = max(1, SCREEN_BYTES // (8 * max(r_perp.size, 1) * effect.n_parameters))
+    if len(locations) > step:
+        parts = [_linear_fits(lin, effect, locations[i:i + step], r_perp, q) for i in range(0, len(locations), step)]
+        return np.concatenate([d for d, _ in parts]), np.concatenate([rss for _, rss in parts])
     bounds = [effect.bounds_at(loc) for loc in locations]
     if effect.n_parameters == 1:  # in the effect's own units: a scale changes nothing here
         d, rss = _linear_fits_1(lin.batch_derivatives(effect, locations)[:, :, 0], r_perp, q)

@@ -73,3 +73,35 @@ def test_the_screen_s_one_value_fits_equal_the_explicit_projection():
             res = r_perp + v * jp[k]
             assert rss(np.full(5, v))[k] == pytest.approx(res @ res, rel=1e-9, abs=1e-12 * (r_perp @ r_perp))
     assert rss(d)[3] < 1e-15 * (r_perp @ r_perp)
+
+
+def test_the_screen_made_a_few_locations_at_a_time_is_the_screen_made_at_once(monkeypatch):
+    """The screen forms its derivative columns :data:`~fe_core.closure.screening.SCREEN_BYTES` at a time (the 500k
+    panel's every node is 4.8 GB at once): with room for 97 locations at a time, every candidate's values and sums of
+    squares are those of one pass (each location's fit is its own; the products' rounding may differ)."""
+    from pathlib import Path
+
+    from fe_core.closure import screening
+    from fe_core.closure.effects import extended_frf
+    from fe_core.closure.fits import Fit
+    from fe_core.inference.residual import log_residual
+    from tasks.closure.library import cached_library
+    from tasks.io.measured import read_measured
+    from tasks.problem import read_model_ref
+
+    model, _ = read_model_ref("three_plate")
+    library = list(cached_library(model, ["point_mass", "grounded_spring", "patch"]).values())
+    m = read_measured(Path(__file__).resolve().parents[2] / "data" / "cases" / "three_plate_closure_table"
+                      / "two_effects.csv")
+    alpha = np.array([0.05, -0.03, 0.02, 0.0, -0.04, 0.01])  # a point near the data's, not fitted (a screen's input)
+    base = Fit(alpha=alpha, effect=None, location=None, values=np.zeros(0), model_amplitude=None,
+               residual=log_residual(np.abs(extended_frf(model, alpha, m.frequencies_hz)), m.amplitude), evaluations=0)
+    lin = screening.LinearisedResponse(model, alpha, m.frequencies_hz, [])
+    once = {(c.effect, c.location): c for c in screening.screen(model, m.frequencies_hz, base, library, lin)}
+    monkeypatch.setattr(screening, "SCREEN_BYTES", 97 * 8 * m.amplitude.size)
+    chunked = screening.screen(model, m.frequencies_hz, base, library, lin)
+    assert len(chunked) == len(once) > 3 * 97
+    for c in chunked:
+        c0 = once[(c.effect, c.location)]
+        np.testing.assert_allclose(c.linear_values, c0.linear_values, rtol=1e-9, atol=1e-12 * np.abs(c0.linear_values).max())
+        assert c.linear_rss == pytest.approx(c0.linear_rss, rel=1e-9)
