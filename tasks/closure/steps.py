@@ -138,10 +138,13 @@ def baseline_task(root: str, problem, settings: dict) -> dict:
         store.write_table("baseline", "baseline", _param_table(fit, {}))
         store.write_table("baseline", "residual_before",
                           residual_table(freqs, sensors, fit.relative(u), fit.residual))
+        # The later steps rebuild the fit from these (store._baseline_fit), not from an FE solve each.
+        store.write_table("baseline", "amplitude",
+                          pd.DataFrame({"amplitude": np.asarray(fit.model_amplitude, float).ravel()}))
         # Structure no larger than one mode half a per cent off: the model's own error, unless effects take it to the
         # noise (fe_core.closure.far.shifts.unclaimed, in the decision).
         shifts = own_error(model, freqs, u, fit, analysis.sigma) if analysis.structured else None
-        store.finish("baseline", ["baseline", "residual_before"],
+        store.finish("baseline", ["baseline", "residual_before", "amplitude"],
                      {"analysis": analysis.to_dict(), "evaluations": fit.evaluations, "seconds": fit.seconds,
                       "message": fit.message, "own_error": None if shifts is None else shifts.to_dict()})
         _logger().info("closure baseline: %s%s", analysis.summary(), "" if shifts is None else f"; {shifts.reason()}")
@@ -178,17 +181,19 @@ def screen_task(root: str, problem, settings: dict) -> dict:
 
 
 def check_candidate(ref, effects, kind: str, location: str, linear_values, base_alpha, freqs, u,
-                    max_moves: int, alpha_bounds, start_alpha=None) -> dict:
+                    max_moves: int, alpha_bounds, start_alpha=None, base_residual=None) -> dict:
     """One full FE check (runs in a worker process; ``ref``: the model's :class:`tasks.problem.ModelRef`);
-    returns a flat record. ``start_alpha``: where the exact search fitted alpha with the candidate (the check
-    starts there). The checks fill the cores between them: each one's pieces run in its own thread."""
+    returns a flat record, the fit's model amplitudes with it (the decision rebuilds the fit from them, no FE solve).
+    ``start_alpha``: where the exact search fitted alpha with the candidate (the check starts there);
+    ``base_residual``: the baseline's residual (else one FE solve here). The checks fill the cores between them:
+    each one's pieces run in its own thread."""
     with at_most(1):
         return _check_candidate(ref, effects, kind, location, linear_values, base_alpha, freqs, u, max_moves,
-                                alpha_bounds, start_alpha)
+                                alpha_bounds, start_alpha, base_residual)
 
 
 def _check_candidate(ref, effects, kind, location, linear_values, base_alpha, freqs, u, max_moves, alpha_bounds,
-                     start_alpha) -> dict:
+                     start_alpha, base_residual=None) -> dict:
     model = ref.load()
     library = _cached_library(model, effects)
     cand = screening.Candidate(effect=kind, location=location, n_locations=len(library[kind].locations()),
@@ -197,13 +202,15 @@ def _check_candidate(ref, effects, kind, location, linear_values, base_alpha, fr
     base = fits.Fit(alpha=np.asarray(base_alpha, float), effect=None, location=None, values=np.zeros(0),
                     model_amplitude=None, residual=np.full(np.shape(u), np.inf), evaluations=0)
     # The base residual is only compared against (a fit worse than it restarts from zero):
-    base.residual = log_residual(np.abs(extended_frf(model, base.alpha, freqs)), u)
+    base.residual = (np.asarray(base_residual, float) if base_residual is not None else
+                     log_residual(np.abs(extended_frf(model, base.alpha, freqs)), u))
     screening.check(model, freqs, u, base, library[kind], cand, max_moves, tuple(alpha_bounds))
     f = cand.fit
     return {"effect": kind, "screened_location": location, "location": f.location,
             "moved_from": json.dumps(cand.moved_from), "values": json.dumps(list(map(float, f.values))),
             "alpha": json.dumps(list(map(float, f.alpha))), "rss": f.rss, "evaluations": f.evaluations,
-            "seconds": f.seconds, "message": f.message, "start": f.start}
+            "seconds": f.seconds, "message": f.message, "start": f.start,
+            "amplitude": np.asarray(f.model_amplitude, float).ravel()}
 
 
 @task(name="closure-check", cache_policy=NO_CACHE)
@@ -272,7 +279,8 @@ def emulated_check(model, settings: dict, base, freqs, u) -> dict | None:
     return {"effect": c.effect, "screened_location": c.location, "location": c.location,
             "moved_from": json.dumps(c.moved_from), "values": json.dumps(list(map(float, f.values))),
             "alpha": json.dumps(list(map(float, f.alpha))), "rss": f.rss, "evaluations": f.evaluations,
-            "seconds": found.seconds, "message": f.message, "start": f.start}
+            "seconds": found.seconds, "message": f.message, "start": f.start,
+            "amplitude": None if f.model_amplitude is None else np.asarray(f.model_amplitude, float).ravel()}
 
 
 def _run_checks(store, problem, settings: dict, base, freqs, u, wave) -> None:
@@ -284,7 +292,8 @@ def _run_checks(store, problem, settings: dict, base, freqs, u, wave) -> None:
     if not todo:
         return
     jobs = (delayed(_indexed)(k, problem.ref, settings.get("effects"), c.effect, c.location, c.linear_values,
-                              base.alpha, freqs, u, settings["max_moves"], settings["alpha_bounds"], c.start_alpha)
+                              base.alpha, freqs, u, settings["max_moves"], settings["alpha_bounds"], c.start_alpha,
+                              base.residual)
             for k, c in todo)
     n_jobs = check_workers(problem, min(len(todo), run_cores(settings)))  # as many as the memory left holds
     parallel = Parallel(n_jobs=n_jobs, backend="loky", return_as="generator_unordered")
@@ -363,7 +372,8 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
                                 linear_explained=c.linear_explained, linear_delta_bic=c.linear_delta_bic,
                                 linear_delta_ebic=c.linear_delta_ebic, moved_from=json.loads(r.moved_from))
         c.fit = _fit_from_parameters(model, library, freqs, u, json.loads(r.alpha), r.effect, r.location,
-                                     json.loads(r.values), r.evaluations, r.seconds, r.message)
+                                     json.loads(r.values), r.evaluations, r.seconds, r.message,
+                                     amplitude=getattr(r, "amplitude", None))
         c.fit.start = str(getattr(r, "start", "") or "")  # stores written before the joint fit's starts lack it
         checked.append(c)
     from fe_core.closure.decisions import dedupe_counting  # a tie with the emulated search keeps its FE solves

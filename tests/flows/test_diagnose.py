@@ -172,6 +172,32 @@ def test_a_closure_killed_during_its_checks_redoes_only_the_missing_ones(diagnos
     assert resumed["error_after"] == pytest.approx(summary["error_after"], rel=1e-6)
 
 
+@pytest.mark.slow
+def test_the_decision_rebuilds_the_baseline_and_the_checks_from_their_stored_amplitudes(diagnosed, tmp_path,
+                                                                                       monkeypatch, prefect_harness):
+    """The baseline and every check store their model amplitudes; the decision rebuilds their fits from them
+    without an FE solve each (at 500k DOFs one takes 1.5-2 min; a far-off case has 38 checks), to the same
+    decision as the first diagnosis, which solved."""
+    import shutil
+
+    from tasks.closure import store as closure_store
+
+    root, summary, _ = diagnosed
+    copy = tmp_path / "runs" / "pm"
+    shutil.copytree(root, copy)
+    for name in ("_step.json", "candidates.parquet", "residual_after.parquet"):
+        (copy / "closure" / "step=decide" / name).unlink(missing_ok=True)
+    (copy / "closure" / "closure.json").unlink()
+    solved = []
+    real = closure_store.extended_frf
+    monkeypatch.setattr(closure_store, "extended_frf", lambda *a, **k: solved.append(1) or real(*a, **k))
+    decided = dg.diagnose("pm", copy.parent, **OPTIONS)
+    assert solved == []
+    assert decided["effect"]["location"] == summary["effect"]["location"]
+    assert decided["effect"]["value"] == pytest.approx(summary["effect"]["value"], rel=1e-9)
+    assert decided["error_after"] == pytest.approx(summary["error_after"], rel=1e-6)
+
+
 def test_diagnosis_of_a_missing_or_unfinished_run_exits_2_naming_the_file(tmp_path, capsys):
     assert dg.main(["--run-id", "nothing", "--runs-dir", str(tmp_path)]) == 2
     assert "nothing/summary.json: no summary.json" in capsys.readouterr().err
