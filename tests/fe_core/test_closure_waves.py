@@ -103,5 +103,6 @@ def test_the_screen_made_a_few_locations_at_a_time_is_the_screen_made_at_once(mo
     assert len(chunked) == len(once) > 3 * 97
     for c in chunked:
         c0 = once[(c.effect, c.location)]
-        np.testing.assert_allclose(c.linear_values, c0.linear_values, rtol=1e-9, atol=1e-12 * np.abs(c0.linear_values).max())
+        np.testing.assert_allclose(c.linear_values, c0.linear_values, rtol=1e-9,
+                                   atol=1e-12 * np.abs(c0.linear_values).max())
         assert c.linear_rss == pytest.approx(c0.linear_rss, rel=1e-9)

@@ -176,8 +176,8 @@ def test_a_closure_killed_during_its_checks_redoes_only_the_missing_ones(diagnos
 def test_the_decision_rebuilds_the_baseline_and_the_checks_from_their_stored_amplitudes(diagnosed, tmp_path,
                                                                                        monkeypatch, prefect_harness):
     """The baseline and every check store their model amplitudes; the decision rebuilds their fits from them
-    without an FE solve each (at 500k DOFs one takes 1.5-2 min; a far-off case has 38 checks), to the same
-    decision as the first diagnosis, which solved."""
+    without an FE solve each (at 500k DOFs one takes 1.5-2 min; a far-off case has 38 checks), to the decision of
+    the diagnosis that stored them."""
     import shutil
 
     from tasks.closure import store as closure_store
