@@ -144,8 +144,8 @@ def _baseline_fit(store, model, freqs, u) -> fits.Fit:
     df = store.read_table("baseline")
     info = store.info("baseline")
     alpha = df.loc[df["name"].str.startswith("alpha_"), "value"].to_numpy()
-    path = store.path("baseline", "amplitude")
-    amplitude = pd.read_parquet(path)["amplitude"].to_numpy() if path.exists() else None
+    stored = store.path("baseline", "amplitude").exists()  # not in a store written before they were kept
+    amplitude = store.read_table("baseline", "amplitude")["amplitude"].to_numpy() if stored else None
     return _fit_from_parameters(model, {}, freqs, u, alpha, None, None, np.zeros(0), info["evaluations"],
                                 info["seconds"], info["message"], amplitude=amplitude)
 
