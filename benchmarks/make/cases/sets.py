@@ -42,7 +42,10 @@ structures, kinds and protocol as the fifth (the data at the tool's nodes, the t
 own mesh), new seeds, run in the order :data:`HELDOUT6_ORDER` (``numpy.random.default_rng(250_600)``'s permutation).
 The seventh (``heldout7``, ``hg``) and the eighth (``heldout8``, ``hh``, fixed on 2026-12-01 in session 28 before any
 of its cases was made or run, after the seventh's results and the closure's re-basin rule, ``a35b704``, refined in
-``ab91725`` before any of them ran) follow the same protocol with their own seeds and orders.
+``ab91725`` before any of them ran) follow the same protocol with their own seeds and orders. The ninth (``heldout9``,
+``hi``) was fixed on 2026-12-02 (session 32, 04:50 UTC) before any of its cases was made or run and before any rule
+was changed on the eighth's results (hh12's spring sized 24.8 % off, hh14's and hh20's verdicts cut by the closure's
+time limit): the same protocol, its own seed and order; a rule changed on the eighth is judged on it.
 """
 
 from __future__ import annotations
@@ -58,6 +61,7 @@ DEV_SEED, HELDOUT_SEED, HELDOUT2_SEED, HELDOUT3_SEED, HELDOUT4_SEED, HELDOUT5_SE
 HELDOUT6_SEED = 250_600
 HELDOUT7_SEED = 290_700
 HELDOUT8_SEED = 330_800
+HELDOUT9_SEED = 370_900
 
 DEV = [("holed_plate", "point_mass"), ("holed_plate", "patch"), ("holed_plate", "none"),
        ("ribbed_panel", "mount"), ("ribbed_panel", "point_mass"), ("ribbed_panel", "mass_layer"),
@@ -81,7 +85,7 @@ SETS = {"dev": (DEV, DEV_SEED, "dev", "vertex"), "heldout": (HELDOUT, HELDOUT_SE
         "heldout2": (HELDOUT, HELDOUT2_SEED, "hb", "model"), "heldout3": (HELDOUT, HELDOUT3_SEED, "hc", "model"),
         "heldout4": (HELDOUT, HELDOUT4_SEED, "hd", "model"), "heldout5": (HELDOUT, HELDOUT5_SEED, "he", "model"),
         "heldout6": (HELDOUT, HELDOUT6_SEED, "hf", "model"), "heldout7": (HELDOUT, HELDOUT7_SEED, "hg", "model"),
-        "heldout8": (HELDOUT, HELDOUT8_SEED, "hh", "model")}
+        "heldout8": (HELDOUT, HELDOUT8_SEED, "hh", "model"), "heldout9": (HELDOUT, HELDOUT9_SEED, "hi", "model")}
 
 #: The fifth set's run order (see the module's docstring).
 HELDOUT5_ORDER = ("he21 he24 he12 he15 he10 he17 he06 he20 he08 he07 he23 he03 he18 he09 he01 he14 he02 he22 he13 "
@@ -99,8 +103,12 @@ HELDOUT7_ORDER = ("hg01 hg10 hg20 hg15 hg05 hg18 hg17 hg02 hg22 hg04 hg21 hg07 h
 HELDOUT8_ORDER = ("hh21 hh06 hh19 hh20 hh24 hh22 hh09 hh01 hh02 hh10 hh15 hh08 hh18 hh16 hh12 hh23 hh04 hh03 hh07 hh11 "
                   "hh14 hh05 hh17 hh13").split()
 
+#: The ninth set's run order.
+HELDOUT9_ORDER = ("hi22 hi13 hi01 hi12 hi06 hi07 hi09 hi10 hi17 hi14 hi02 hi19 hi24 hi18 hi05 hi20 hi08 hi23 hi16 hi15 "
+                  "hi03 hi11 hi04 hi21").split()
+
 #: The sets whose solid structures' data are assembled on the tool's own mesh (default: a mesh of half its size).
-DATA_MESH = {"heldout5": "model", "heldout6": "model", "heldout7": "model", "heldout8": "model"}
+DATA_MESH = {"heldout5": "model", "heldout6": "model", "heldout7": "model", "heldout8": "model", "heldout9": "model"}
 
 
 def cases(which: str) -> list[dict]:
