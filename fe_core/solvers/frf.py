@@ -48,6 +48,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .block_krylov import COLUMN_MAJOR_ROWS, BlockKrylov, _as_load_matrix, _symmetric
+from .upper import half_bandwidth, upper_triangle
 
 __all__ = [
     "direct_frf",
@@ -324,11 +325,11 @@ def banded_cholesky(K: sp.spmatrix):
     """(banded, solve): whether K's half-bandwidth is at most MAX_BANDWIDTH and, if it is and K is
     positive-definite, ``rhs -> K^-1 rhs`` by LAPACK's banded Cholesky (dpbtrf/dpbtrs; ``rhs`` (n,) or
     (n, k)), else None. Only the upper triangle is read."""
-    coo = sp.coo_matrix(K)
-    upper = coo.row <= coo.col
-    bandwidth = int(np.max(coo.col[upper] - coo.row[upper], initial=0))
+    bandwidth = half_bandwidth(K)  # block by block: a large K is never copied to COO here
     if bandwidth > MAX_BANDWIDTH:
         return False, None
+    coo = sp.coo_matrix(K)
+    upper = coo.row <= coo.col
     ab = np.zeros((bandwidth + 1, K.shape[0]))
     ab[bandwidth + coo.row[upper] - coo.col[upper], coo.col[upper]] = coo.data[upper]
     factor, info = lapack.dpbtrf(ab, lower=0)
@@ -372,7 +373,7 @@ def spd_solver(A: sp.spmatrix):
     from pypardiso import PyPardisoSolver
     from pypardiso.pardiso_wrapper import PyPardisoError
 
-    upper = sp.triu(A, format="csr").astype(float)
+    upper = upper_triangle(A)
     upper.sort_indices()
     solver = PyPardisoSolver(mtype=2)  # real symmetric positive-definite
     try:

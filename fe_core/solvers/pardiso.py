@@ -36,6 +36,8 @@ from ctypes.util import find_library
 import numpy as np
 import scipy.sparse as sp
 
+from .upper import upper_triangle
+
 __all__ = ["cholesky", "ENABLED", "MAX_LOW_RANK", "stats", "clear"]
 
 log = logging.getLogger(__name__)
@@ -333,7 +335,7 @@ def cholesky(A: sp.spmatrix):
     numerically (see the module's docstring). The returned function holds its handle until it is
     garbage-collected; the handle then goes back to the pool with its factor.
     """
-    upper = sp.triu(A, format="csr").astype(float)
+    upper = upper_triangle(A)  # without scipy's COO copy (fe_core.solvers.upper)
     upper.sort_indices()
     key = (threading.get_ident(), upper.shape[0], mkl_threads())
     pattern = _digest(upper.indptr, upper.indices)

@@ -65,7 +65,7 @@ import scipy.sparse as sp
 
 from . import recycle
 from .columns import SPREAD, orthonormalise, touched_rows
-from .frf import _shifted_solver, hz_to_rad
+from .frf import banded_cholesky, hz_to_rad, spd_solver
 from .sketch import SKETCH_NONZEROS, SKETCH_ROWS, Estimate, sketched_estimate, sparse_sign_sketch
 from .frf_derivatives import projected_response
 from .sensitivity import frf_jacobian as full_frf_jacobian, segment_directions
@@ -452,9 +452,13 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
             loads, responses, column = model.combined_load(), slice(None), 0
         else:
             loads, responses, column = model.channel_loads(*channels)
-        # The preconditioner of the check: K at this point, factored (or held) by the run just made.
-        solve, sigma = _shifted_solver(model.stiffness(alpha), model.mass(gamma), None, 1.0)
-        if sigma != 0.0:  # K is not positive-definite (a free structure): no check, no basis
+        # The preconditioner of the check: K at this point, factored (or held) by the run just made (M is not
+        # assembled: its 0.3 GB at 500k DOFs would only serve a shifted factor, which gives no check).
+        K = model.stiffness(alpha)
+        banded, solve = banded_cholesky(K)
+        solve = solve if banded else spd_solver(K)
+        del K
+        if solve is None:  # K is not positive-definite (a free structure): no check, no basis
             return Z, dZ, False
         stiffness, mass = _parts(model)
         capacity = int(min(MAX_DIMENSION, MAX_BYTES // (8 * model.n_dofs)))
