@@ -115,14 +115,16 @@ class _Handle:
         self._ia = (upper.indptr + 1).astype(np.int32)  # 1-based, converted once (pypardiso does it per call)
         self._ja = (upper.indices + 1).astype(np.int32)
 
-    def call(self, phase: int, data: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    def call(self, phase: int, data: np.ndarray, rhs: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """PARDISO's ``phase`` on ``rhs``; the solution is written in ``out`` (a Fortran-ordered float array of
+        rhs's shape, returned as it is) when given, else in a new array returned in C order."""
         import ctypes
 
         from pypardiso.pardiso_wrapper import PyPardisoError
 
         s = self.solver
         b = np.asfortranarray(rhs, dtype=float)
-        x = np.zeros_like(b)
+        x = np.zeros_like(b) if out is None else out
         error = ctypes.c_int32(0)
         i32, f64 = ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_double)
         data = np.ascontiguousarray(data, dtype=float)
@@ -135,7 +137,7 @@ class _Handle:
                 lib.MKL_Set_Num_Threads_Local(previous)
         if error.value != 0:
             raise PyPardisoError(error.value)
-        return np.ascontiguousarray(x)
+        return x if out is not None else np.ascontiguousarray(x)
 
     def _pardiso(self, s, phase, data, b, x, error, i32, f64):
         import ctypes
@@ -177,12 +179,17 @@ class _Handle:
         """The upper triangle factored (shares the index arrays)."""
         return sp.csr_matrix((self.data, self.pattern.indices, self.pattern.indptr), shape=self.pattern.shape)
 
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
+    def solve(self, rhs: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         rhs = np.asarray(rhs, dtype=float)
         b = rhs.reshape(rhs.shape[0], -1)
         self.rhs_served += b.shape[1]
-        x = self.call(33, self.data, b)
-        return x.reshape(rhs.shape)
+        if out is not None and _writable_into(out, b.shape):
+            return self.call(33, self.data, b, out=out)
+        x = self.call(33, self.data, b).reshape(rhs.shape)
+        if out is None:
+            return x
+        out[...] = x
+        return out
 
     def release_factor(self):
         """Free the factor, keep the analysis (PARDISO phase 0): a new matrix of the pattern needs only its
@@ -407,6 +414,11 @@ def _changed_rows_sparse(upper: sp.csr_matrix, base: sp.csr_matrix):
     return R, D
 
 
+def _writable_into(out: np.ndarray, shape: tuple) -> bool:
+    """Whether PARDISO may write a solution of ``shape`` straight into ``out``."""
+    return out.shape == shape and out.dtype == np.float64 and out.flags.f_contiguous and out.flags.writeable
+
+
 def _pinned(pool: list, handle: _Handle, fn):
     """A solver reading ``handle``'s factor, which is not refactored while the solver lives; when the
     last such solver goes, the handle idles in the pool (the oldest idle beyond ``POOL_SIZE`` freed)."""
@@ -416,8 +428,15 @@ def _pinned(pool: list, handle: _Handle, fn):
     pool.remove(handle)
     pool.append(handle)  # the newest last
 
-    def solve(rhs):
-        return fn(rhs)
+    def solve(rhs, out=None):
+        """``A^-1 rhs``; with ``out`` (n x k), written there: straight from PARDISO when it is a Fortran-ordered
+        float array (a block of a column-major basis), so no n x k copies of the solution are made."""
+        if out is None:
+            return fn(rhs)
+        if fn == handle.solve:
+            return handle.solve(rhs, out=out)
+        out[...] = fn(rhs)
+        return out
 
     def unpin():
         with _LOCK:
@@ -430,5 +449,6 @@ def _pinned(pool: list, handle: _Handle, fn):
             elif handle in pool:
                 _trim(pool)
 
+    solve.writes_into = True
     weakref.finalize(solve, unpin)
     return solve

@@ -195,3 +195,33 @@ def test_factor_on_fewer_threads_than_its_analysis_does_not_crash(block):
     assert close(s(rhs), lu_solve(K, rhs)) < RTOL
     with pardiso.threads(2):
         assert close(s(rhs), lu_solve(K, rhs)) < RTOL  # a solve inside another setting: the handle's own
+
+
+def test_a_solution_written_into_a_column_major_block_is_the_returned_one(block):
+    """``solve(rhs, out=...)`` writes ``A^-1 rhs`` into a block of a Fortran-ordered array (the global basis's
+    columns) and leaves the rest of it alone; a Woodbury solver, or an ``out`` PARDISO cannot write in, is served
+    by a copy; against SuperLU."""
+    Ks, _, _, _ = block
+    pardiso.clear()
+    K = stiffness(Ks, np.array([0.1, -0.2]))
+    rng = np.random.default_rng(5)
+    rhs = np.asfortranarray(rng.standard_normal((K.shape[0], 3)))
+    ref = lu_solve(K, rhs)
+    solve = frf.spd_solver(K)
+    assert solve.writes_into
+    V = np.full((K.shape[0], 7), 9.0, order="F")
+    got = solve(rhs, out=V[:, 2:5])
+    assert np.shares_memory(got, V)
+    assert close(V[:, 2:5], ref) < RTOL
+    np.testing.assert_array_equal(V[:, [0, 1, 5, 6]], 9.0)
+    C = np.zeros((K.shape[0], 3))  # C order: not PARDISO's layout, filled by a copy
+    solve(rhs, out=C)
+    assert close(C, ref) < RTOL
+    K2 = K.tolil()
+    K2[3, 3] += 1e3 * K2[3, 3]  # one diagonal entry: Woodbury on the held factor
+    K2 = K2.tocsr()
+    solve2 = frf.spd_solver(K2)
+    W = np.zeros((K.shape[0], 3), order="F")
+    solve2(rhs, out=W)
+    assert close(W, lu_solve(K2, rhs)) < RTOL
+    assert pardiso.stats["woodbury"] >= 1
