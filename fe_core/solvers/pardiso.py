@@ -183,7 +183,7 @@ class _Handle:
         rhs = np.asarray(rhs, dtype=float)
         b = rhs.reshape(rhs.shape[0], -1)
         self.rhs_served += b.shape[1]
-        if out is not None and _writable_into(out, b.shape):
+        if out is not None and _writable_into(out, b):
             return self.call(33, self.data, b, out=out)
         x = self.call(33, self.data, b).reshape(rhs.shape)
         if out is None:
@@ -414,9 +414,11 @@ def _changed_rows_sparse(upper: sp.csr_matrix, base: sp.csr_matrix):
     return R, D
 
 
-def _writable_into(out: np.ndarray, shape: tuple) -> bool:
-    """Whether PARDISO may write a solution of ``shape`` straight into ``out``."""
-    return out.shape == shape and out.dtype == np.float64 and out.flags.f_contiguous and out.flags.writeable
+def _writable_into(out: np.ndarray, rhs: np.ndarray) -> bool:
+    """Whether PARDISO may write the solution for ``rhs`` straight into ``out`` (not where the two overlap: PARDISO
+    would read a right-hand side it is overwriting)."""
+    return (out.shape == rhs.shape and out.dtype == np.float64 and out.flags.f_contiguous and out.flags.writeable
+            and not np.may_share_memory(out, rhs))
 
 
 def _pinned(pool: list, handle: _Handle, fn):

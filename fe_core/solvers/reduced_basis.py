@@ -65,7 +65,8 @@ import scipy.sparse as sp
 
 from . import recycle
 from .columns import SPREAD, orthonormalise, touched_rows
-from .frf import banded_cholesky, hz_to_rad, spd_solver
+from . import frf
+from .frf import hz_to_rad
 from .sketch import SKETCH_NONZEROS, SKETCH_ROWS, Estimate, sketched_estimate, sparse_sign_sketch
 from .frf_derivatives import projected_response
 from .sensitivity import frf_jacobian as full_frf_jacobian, segment_directions
@@ -466,8 +467,8 @@ def frf_jacobian(model, theta, freqs_hz, channels=None):
         # The preconditioner of the check: K at this point, factored (or held) by the run just made (M is not
         # assembled: its 0.3 GB at 500k DOFs would only serve a shifted factor, which gives no check).
         K = model.stiffness(alpha)
-        banded, solve = banded_cholesky(K)
-        solve = solve if banded else spd_solver(K)
+        banded, solve = frf.banded_cholesky(K)  # looked up when called: benchmarks count frf.spd_solver's calls
+        solve = solve if banded else frf.spd_solver(K)
         del K
         if solve is None:  # K is not positive-definite (a free structure): no check, no basis
             return Z, dZ, False

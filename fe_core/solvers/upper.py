@@ -32,7 +32,7 @@ def _blocks(indptr: np.ndarray):
     n = indptr.size - 1
     r0 = 0
     while r0 < n:
-        r1 = int(np.searchsorted(indptr, indptr[r0] + BLOCK_ENTRIES, side="right")) - 1
+        r1 = int(np.searchsorted(indptr, int(indptr[r0]) + BLOCK_ENTRIES, side="right")) - 1
         r1 = min(n, max(r1, r0 + 1))
         yield r0, r1
         r0 = r1
@@ -47,7 +47,8 @@ def _row_minus_column(A: sp.csr_matrix, r0: int, r1: int) -> np.ndarray:
 
 def upper_triangle(A) -> sp.csr_matrix:
     """The upper triangle of A (the diagonal included) as a CSR matrix of floats: the same matrix as
-    ``scipy.sparse.triu(A, format="csr").astype(float)``, each row's entries in A's order."""
+    ``scipy.sparse.triu(A, format="csr").astype(float)``; each row's entries in A's order when A is canonical
+    (sorted, no duplicates: an assembled K), else as :meth:`~scipy.sparse.csr_matrix.sum_duplicates` leaves them."""
     A = _csr(A)
     n = A.shape[0]
     keep = np.empty(A.nnz, dtype=bool)
@@ -62,9 +63,7 @@ def upper_triangle(A) -> sp.csr_matrix:
     data = np.asarray(A.data[keep], dtype=float)
     indices = A.indices[keep]
     del keep
-    upper = sp.csr_matrix((data, indices, indptr.astype(index_type)), shape=A.shape)
-    upper.has_sorted_indices = bool(A.has_sorted_indices)
-    return upper
+    return sp.csr_matrix((data, indices, indptr.astype(index_type)), shape=A.shape)
 
 
 def _row_counts(flags: np.ndarray, local_indptr: np.ndarray) -> np.ndarray:

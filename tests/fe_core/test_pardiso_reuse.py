@@ -225,3 +225,21 @@ def test_a_solution_written_into_a_column_major_block_is_the_returned_one(block)
     solve2(rhs, out=W)
     assert close(W, lu_solve(K2, rhs)) < RTOL
     assert pardiso.stats["woodbury"] >= 1
+
+
+def test_an_out_overlapping_the_right_hand_side_is_filled_by_a_copy(block):
+    """PARDISO must not overwrite the right-hand side it reads: an ``out`` sharing memory with ``rhs`` is served by
+    a copy, and the solution is still right."""
+    Ks, _, _, _ = block
+    pardiso.clear()
+    K = stiffness(Ks, np.array([-0.1, 0.3]))
+    rng = np.random.default_rng(8)
+    V = np.asfortranarray(rng.standard_normal((K.shape[0], 6)))
+    ref = lu_solve(K, V[:, 0:4].copy())
+    solve = frf.spd_solver(K)
+    solve(V[:, 0:4], out=V[:, 1:5])  # overlapping columns
+    assert close(V[:, 1:5], ref) < RTOL
+    X = np.asfortranarray(rng.standard_normal((K.shape[0], 2)))
+    ref = lu_solve(K, X.copy())
+    solve(X, out=X)  # in place
+    assert close(X, ref) < RTOL

@@ -54,3 +54,12 @@ def test_half_bandwidth(monkeypatch, block):
     B = _random(40, 0.2, 3)
     coo = B.tocoo()
     assert upper.half_bandwidth(B) == int(np.max(coo.col - coo.row))
+
+
+def test_blocks_near_the_int32_limit_do_not_overflow(monkeypatch):
+    """Row blocks of an int32 indptr whose offsets are close to 2**31 (a matrix of two billion entries): the block
+    bound is computed in Python integers, without numpy's overflow warning (an error under the tests' settings)."""
+    monkeypatch.setattr(upper, "BLOCK_ENTRIES", 1 << 20)
+    top = np.iinfo(np.int32).max - 10
+    indptr = np.array([0, top - 100, top - 50, top], dtype=np.int32)
+    assert list(upper._blocks(indptr)) == [(0, 1), (1, 3)]
