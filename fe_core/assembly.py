@@ -266,14 +266,14 @@ class SegmentedMatrix:
     def own(self, i: int) -> sp.csr_matrix:
         """Segment ``i``'s matrix on its own entries (no explicit zeros): what a product with it costs.
 
-        Its values are a read-only view of the model's (a cached model's mapped pages, not a copy: 0.29 GB of the
-        500k-DOF panel's stiffness held twice by the Jacobian's directions); writing into them raises."""
+        Its values are a copy, in the process's own memory. A view of a cached model's mapped pages saves 0.29 GB
+        at 500k DOFs, but the one 500k update measured with it took 837 s against 603-687 s without
+        (docs/results/scaling.md); the machines here page out file pages cold for about a second (DAMON, no swap),
+        which the Jacobian's products, seconds apart, would read back each time."""
         slots, values = self.part(i)
         rows = np.searchsorted(self.pattern.indptr, slots, side="right") - 1
         indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=self.shape[0]))])
-        data = values.view()
-        data.flags.writeable = False
-        return sp.csr_matrix((data, self.pattern.indices[slots], indptr), shape=self.shape)
+        return sp.csr_matrix((values.copy(), self.pattern.indices[slots], indptr), shape=self.shape)
 
     def remainder(self) -> sp.csr_matrix:
         """The fixed remainder on the common pattern (zero when there is none)."""
