@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["SPREAD", "orthonormalise", "touched_rows"]
+__all__ = ["SPREAD", "orthonormalise", "solve_into", "touched_rows"]
 
 #: Kept columns whose singular values spread by more than this are orthonormalised a second time (their first pass
 #: by the Gram matrix is orthonormal to ~1e-16 times the spread squared: :func:`orthonormalise`).
@@ -43,3 +43,14 @@ def touched_rows(A) -> np.ndarray | None:
     counts = np.concatenate([[0], np.cumsum(A.data != 0, dtype=np.int64)])
     rows = np.flatnonzero(counts[A.indptr[1:]] > counts[A.indptr[:-1]])
     return None if rows.size > A.shape[0] // 2 else rows
+
+
+def solve_into(solve, rhs: np.ndarray, out: np.ndarray) -> None:
+    """``out[...] = solve(rhs)``, written by PARDISO straight into ``out`` where the solver can (a pooled factor,
+    :func:`fe_core.solvers.pardiso.cholesky`): no n x k copies of the solution (the global basis's derivative
+    solves at 500k DOFs)."""
+    rhs = np.asfortranarray(rhs)
+    if getattr(solve, "writes_into", False):
+        solve(rhs, out=out)
+    else:  # a solver without ``out`` (LAPACK's banded Cholesky)
+        out[...] = solve(rhs)

@@ -65,7 +65,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import recycle
-from .columns import SPREAD, orthonormalise, touched_rows
+from .columns import SPREAD, orthonormalise, solve_into, touched_rows
 from . import frf
 from .frf import hz_to_rad
 from .sketch import SKETCH_NONZEROS, SKETCH_ROWS, Estimate, sketched_estimate, sparse_sign_sketch
@@ -390,24 +390,13 @@ def enrich_derivatives(basis: ParametricBasis, W: np.ndarray, solve, directions)
     d = basis.dim
     t0 = time.perf_counter()
     for i, A in enumerate(directions):  # written in V's next columns, joined at once (ParametricBasis.absorb)
-        _solve_into(solve, A @ head, basis.V[:, d + i * c:d + (i + 1) * c])
+        solve_into(solve, A @ head, basis.V[:, d + i * c:d + (i + 1) * c])
     t1 = time.perf_counter()
     added = basis.absorb(c * len(directions))
     solving, joining = t1 - t0, time.perf_counter() - t1
     log.info("reduced basis: %d derivative directions of %d columns each: solves %.1f s, joined in %.1f s",
              len(directions), c, solving, joining)
     return added
-
-
-def _solve_into(solve, rhs: np.ndarray, out: np.ndarray) -> None:
-    """``out[...] = solve(rhs)``, written by PARDISO straight into ``out`` where the solver can (a pooled factor,
-    :func:`fe_core.solvers.pardiso.cholesky`): at 500k DOFs the solution's own n x 25 copies were a third of a
-    gigabyte at the derivative solves, the update's peak."""
-    rhs = np.asfortranarray(rhs)
-    if getattr(solve, "writes_into", False):
-        solve(rhs, out=out)
-    else:  # a solver without ``out`` (LAPACK's banded Cholesky)
-        out[...] = solve(rhs)
 
 
 def _weights(model, alpha, gamma):
