@@ -49,8 +49,7 @@ def solve_into(solve, rhs: np.ndarray, out: np.ndarray) -> None:
     """``out[...] = solve(rhs)``, written by PARDISO straight into ``out`` where the solver can (a pooled factor,
     :func:`fe_core.solvers.pardiso.cholesky`): no n x k copies of the solution (the global basis's derivative
     solves at 500k DOFs)."""
-    rhs = np.asfortranarray(rhs)
     if getattr(solve, "writes_into", False):
-        solve(rhs, out=out)
+        solve(np.asfortranarray(rhs), out=out)  # PARDISO's layout: no copy of it inside either
     else:  # a solver without ``out`` (LAPACK's banded Cholesky)
         out[...] = solve(rhs)

@@ -56,17 +56,16 @@ off. Plain numpy/scipy.
 
 from __future__ import annotations
 
-import logging
 import functools
+import logging
 import os
 import time
 
 import numpy as np
 import scipy.sparse as sp
 
-from . import recycle
+from . import frf, recycle
 from .columns import SPREAD, orthonormalise, solve_into, touched_rows
-from . import frf
 from .frf import hz_to_rad
 from .sketch import SKETCH_NONZEROS, SKETCH_ROWS, Estimate, sketched_estimate, sparse_sign_sketch
 from .frf_derivatives import projected_response
@@ -133,7 +132,7 @@ class ParametricBasis:
 
     Parameters
     ----------
-    stiffness, mass : list of sparse (n, n), or of functions returning one
+    stiffness, mass : list of sparse (n, n); a mass part may be a function returning one (touching every row)
         The affine parts: ``K = sum_t w_t stiffness[t]``, ``M = sum_t v_t mass[t]`` (the weights are given
         at evaluation: ``1 + alpha_i`` for a segment, 1 for a fixed part).
     loads : ndarray, shape (n, n_loads)
@@ -152,10 +151,11 @@ class ParametricBasis:
     def __init__(self, stiffness, mass, loads, outputs, precondition, sketch=None, capacity: int = MAX_DIMENSION):
         self.stiffness, self.mass = list(stiffness), list(mass)
         self.parts = self.stiffness + self.mass
-        n = _matrix(self.parts[0]).shape[0]
+        n = self.stiffness[0].shape[0]
         # The rows each part touches (a segment's DOFs: a ninth of the panel's): its projections read only those
-        # rows of V, once per extension (:meth:`extend`); None where it touches most of them (the mass, a fixed part).
-        self.rows = [touched_rows(_matrix(A)) for A in self.parts]
+        # rows of V, once per extension (:meth:`extend`); None where it touches most of them (the mass, a fixed part,
+        # and a part given as a function: the whole structure's M, not assembled here only to find that out).
+        self.rows = [None if callable(A) else touched_rows(A) for A in self.parts]
         S = sparse_sign_sketch(n) if sketch is None else sketch
         # The sketch of the preconditioned residual: S K0^-1 r = Y^T r with Y = K0^-1 S^T (k solves, once).
         self.sketch = np.ascontiguousarray(np.asarray(precondition(S.T.toarray()), dtype=float).T)  # (k, n)
