@@ -42,6 +42,7 @@ from prefect import flow  # noqa: E402
 from flows import problem as problems  # noqa: E402
 from flows.config import (TRAINERS, ConfigError, UpdateConfig, add_setting_flags, load_config,  # noqa: E402
                           settings_from_args)
+from flows.local_api import start_early  # noqa: E402
 from flows.rerun import rerun_stage, rerunnable  # noqa: E402
 from flows.run import run_update  # noqa: E402
 from flows.summary import print_summary  # noqa: E402
@@ -141,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, MeasuredDataError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    local_api = start_early()  # Prefect's temporary API starts beside the model's reading (flows/local_api.py)
     try:
         # Refuse bad inputs, a run in use, or a full / read-only disk before any work.
         problem = problems.resolve(config, measured)
@@ -157,14 +159,17 @@ def main(argv: list[str] | None = None) -> int:
             print(f"warning: {lock.path}: stale lock of pid {owner.get('pid')} on host {owner.get('host')}, which "
                   "no longer runs; taken over, resuming", file=sys.stderr)
     except (ConfigError, MeasuredDataError, RunLockedError) as exc:
+        local_api.abandon()
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
+        local_api.abandon()
         print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     try:
         for line in problem.model.placements:  # where the sensor and excitation points landed
             print(f"model: {line}")
+        local_api.wait()
         summary = update_flow(config, problem)
     finally:
         lock.release()
