@@ -226,6 +226,9 @@ def main(argv=None) -> int:
             row = json.loads(line)
             done[row["case"]] = row
     folder = args.root / args.set
+    if not folder.is_dir():
+        p.error(f"no cases of {args.set} under {args.root} (make them: python -m benchmarks.make.cases --set {args.set}"
+                f"{' --out ' + str(args.root) if args.root != ROOT else ''}; or give their root: --root)")
     ids = sorted(p_.name for p_ in folder.iterdir() if (p_ / "truth.json").exists())
     if args.only:
         missing = sorted(set(args.only) - set(ids))

@@ -1,5 +1,6 @@
 """The held-out runner's tally counts the effects a case's truth lacks (benchmarks.heldout.table) and scores effects
-found beside each other as the one closure.json says they are (benchmarks.heldout.score)."""
+found beside each other as the one closure.json says they are (benchmarks.heldout.score); a set not made is
+refused by its command line."""
 
 import pytest
 
@@ -49,3 +50,14 @@ def test_masses_found_beside_each_other_are_scored_as_the_one_between_their_node
     apart["effects"] = [{k: v for k, v in e.items() if k != "combined"} for e in effects]
     with pytest.raises(FileNotFoundError):  # its place is read from the structure's mesh, absent here
         score({**truth, "model": "no/such/model.toml"}, {"converged": True}, apart, run, {})
+
+
+def test_a_set_not_made_is_refused_with_the_command_that_makes_it(tmp_path, capsys):
+    from benchmarks.heldout import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["--set", "heldout9", "--root", str(tmp_path / "cases"), "--keep", str(tmp_path / "kept"), "--table",
+              "--no-lock"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "no cases of heldout9 under" in err and f"--set heldout9 --out {tmp_path / 'cases'}" in err
