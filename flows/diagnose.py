@@ -49,6 +49,7 @@ from prefect import flow  # noqa: E402
 from fe_core.closure.fits import ALPHA_BOUNDS  # noqa: E402
 from fe_core.closure.effects import registered_effects  # noqa: E402
 from flows.config import REPO, ConfigError  # noqa: E402
+from flows.local_api import start_early  # noqa: E402
 from tasks.closure.summary import STATUSES  # noqa: E402
 from tasks.problem import Problem  # noqa: E402
 from tasks.runstore import atomic_write_json  # noqa: E402
@@ -177,10 +178,23 @@ def diagnose(run_id: str, runs_dir: str | Path = "runs", name: str = "closure", 
     cfg = manifest.get("config", {})
     measured_path = Path(measured or cfg.get("measured", "data/benchmark/measured.csv"))
     measured_path = measured_path if measured_path.is_absolute() else REPO / measured_path
+    local_api = start_early()  # a model read here: Prefect's temporary API starts beside it (flows/local_api.py)
+    try:
+        if problem is None or measured is not None:
+            problem = run_problem(cfg, measured)
+        prepared = _closure_problem(root, summary, manifest, cfg, problem, measured_path, run_id, name, options)
+    except BaseException:
+        local_api.abandon()
+        raise
+    local_api.wait()
+    return diagnose_flow(run_id, *prepared)
+
+
+def _closure_problem(root, summary, manifest, cfg, problem, measured_path, run_id, name, options):
+    """The closure's settings checked and written, its run information and problem: ``(closure folder, settings,
+    run information, problem)`` for :func:`diagnose_flow`."""
     selection = {k: cfg[k] for k in _SELECTION_KEYS if k in cfg}
     model_name = cfg.get("model", "three_plate")
-    if problem is None or measured is not None:
-        problem = run_problem(cfg, measured)
     model, ref = problem.model, problem.ref
     data = closure_data(problem.data, model)  # refuse channel data first
     gammas = [k for k in summary["parameters"] if k.startswith("gamma_")]
@@ -222,7 +236,7 @@ def diagnose(run_id: str, runs_dir: str | Path = "runs", name: str = "closure", 
                 "overall_error": summary.get("overall_error"), "error_metric": metric}
     problem = Problem(model, ref, data, np.full(len(alpha), lower), np.full(len(alpha), upper),
                       worker_bytes=problem.worker_bytes)
-    return diagnose_flow(run_id, str(closure_root), dict(settings), run_info, problem)
+    return str(closure_root), dict(settings), run_info, problem
 
 
 def print_closure(summary: dict, file=None) -> None:
