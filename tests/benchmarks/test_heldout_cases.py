@@ -212,7 +212,8 @@ def test_data_on_the_tools_tetrahedra_are_the_tools_model_assembled_elsewhere(tm
                                                  ("heldout6", "HELDOUT6_SEED", "HELDOUT6_ORDER"),
                                                  ("heldout7", "HELDOUT7_SEED", "HELDOUT7_ORDER"),
                                                  ("heldout8", "HELDOUT8_SEED", "HELDOUT8_ORDER"),
-                                                 ("heldout9", "HELDOUT9_SEED", "HELDOUT9_ORDER")])
+                                                 ("heldout9", "HELDOUT9_SEED", "HELDOUT9_ORDER"),
+                                                 ("heldout10", "HELDOUT10_SEED", "HELDOUT10_ORDER")])
 def test_the_later_sets_orders_are_their_seeds_permutations_of_every_case(which, seed, order):
     from benchmarks.make.cases import sets
 
