@@ -24,24 +24,24 @@ DELAY = 1.0
 
 class EarlyAPI:
     """The temporary API's start, in a thread, after ``delay`` seconds unless :meth:`wait` or :meth:`abandon`
-    comes first. ``server``: Prefect's ``SubprocessASGIServer`` of the process, or None (a server is configured:
-    nothing to start)."""
+    comes first (``enabled`` False: a server is configured, nothing to start). The thread imports Prefect's server
+    module too (1-2 s), so that is spent beside the reading as well."""
 
-    def __init__(self, server=None, delay: float = DELAY):
-        self._server = server
+    def __init__(self, enabled: bool, delay: float = DELAY):
+        self._server = None   # Prefect's SubprocessASGIServer, when its start began here
         self._lock = threading.Lock()
-        self._state = "waiting" if server is not None else "cancelled"  # -> "starting" or "cancelled"
+        self._state = "waiting" if enabled else "cancelled"  # -> "starting" or "cancelled"
         self._cancel = threading.Event()
         self.error: Exception | None = None
         self._thread: threading.Thread | None = None
-        if server is not None:
+        if enabled:
             self._thread = threading.Thread(target=self._run, args=(delay,), name="prefect-local-api", daemon=True)
             self._thread.start()
 
     @property
     def started(self) -> bool:
-        """Whether the server's start began here (the model's reading outlasted the delay)."""
-        return self._state == "starting"
+        """Whether the server's start began here (the model's reading outlasted the delay, no server ran)."""
+        return self._server is not None
 
     def _run(self, delay: float) -> None:
         if self._cancel.wait(delay):
@@ -51,7 +51,13 @@ class EarlyAPI:
                 return
             self._state = "starting"
         try:
-            self._server.start()
+            from prefect.server.api.server import SubprocessASGIServer
+
+            server = SubprocessASGIServer()   # the process's one instance
+            if server.running:
+                return
+            self._server = server
+            server.start()
         except Exception as exc:  # noqa: BLE001 (the flow's client starts it again and raises)
             self.error = exc
 
@@ -75,7 +81,8 @@ class EarlyAPI:
         """The command stops before its flow (bad input, a run in use): a server started here is stopped."""
         if self._settle():
             self.wait()
-            self._server.stop()
+            if self._server is not None:
+                self._server.stop()
 
 
 def start_early(delay: float | None = None) -> EarlyAPI:
@@ -86,9 +93,4 @@ def start_early(delay: float | None = None) -> EarlyAPI:
     started from the thread's first step, before it answers)."""
     from prefect.settings import PREFECT_API_URL
 
-    if PREFECT_API_URL.value():
-        return EarlyAPI(None)
-    from prefect.server.api.server import SubprocessASGIServer
-
-    server = SubprocessASGIServer()
-    return EarlyAPI(None if server.running else server, DELAY if delay is None else delay)
+    return EarlyAPI(not PREFECT_API_URL.value(), DELAY if delay is None else delay)

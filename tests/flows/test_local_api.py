@@ -54,7 +54,9 @@ def test_a_long_reading_has_the_server_started_beside_it_and_wait_returns_once_i
     handle.wait()
     assert fake.answering.is_set() and handle.error is None and time.perf_counter() - t0 >= 0.35
     handle.wait()  # a second wait returns at once
-    assert not local_api.start_early(delay=0.0).started and fake.threads == ["prefect-local-api"]  # running
+    again = local_api.start_early(delay=0.0)
+    again.wait()
+    assert not again.started and fake.threads == ["prefect-local-api"]  # running already: not started twice
 
 
 def test_a_short_reading_or_bad_input_starts_no_server(monkeypatch, no_api_url):
