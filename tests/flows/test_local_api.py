@@ -6,7 +6,6 @@ flow's client."""
 from __future__ import annotations
 
 import threading
-import time
 
 import pytest
 from prefect.server.api import server as prefect_server
@@ -16,13 +15,14 @@ from flows import local_api
 
 
 class _SlowServer:
-    """Stands in for ``SubprocessASGIServer``: its start takes ``seconds`` and records the thread it ran on."""
+    """Stands in for ``SubprocessASGIServer``: its start records the thread it runs on (``entered``), then answers
+    once ``release`` is set (or fails, with ``fail``)."""
 
-    def __init__(self, seconds: float = 0.3, fail: bool = False):
-        self.seconds, self.fail = seconds, fail
+    def __init__(self, fail: bool = False):
+        self.fail = fail
         self.running = False
         self.threads: list[str] = []
-        self.answering = threading.Event()
+        self.entered, self.release, self.answering = threading.Event(), threading.Event(), threading.Event()
 
     def __call__(self):  # SubprocessASGIServer() returns the one instance of the process
         return self
@@ -30,7 +30,8 @@ class _SlowServer:
     def start(self):
         self.threads.append(threading.current_thread().name)
         self.running = True
-        time.sleep(self.seconds)
+        self.entered.set()
+        assert self.release.wait(30)
         if self.fail:
             self.running = False
             raise RuntimeError("Timed out while attempting to connect to ephemeral Prefect API server.")
@@ -44,15 +45,15 @@ def no_api_url():
 
 
 def test_a_long_reading_has_the_server_started_beside_it_and_wait_returns_once_it_answers(monkeypatch, no_api_url):
-    fake = _SlowServer(seconds=0.3)
+    fake = _SlowServer()
     monkeypatch.setattr(prefect_server, "SubprocessASGIServer", fake)
-    t0 = time.perf_counter()
-    handle = local_api.start_early(delay=0.05)
-    assert time.perf_counter() - t0 < 0.05  # the caller goes on and reads its model
-    time.sleep(0.15)  # the reading outlasts the delay: the start has begun, not ended
+    handle = local_api.start_early(delay=0.0)  # returns while the start is under way (else this would block)
+    assert fake.entered.wait(30)  # the start has begun beside the caller (the model is read meanwhile)
     assert handle.started and fake.threads == ["prefect-local-api"] and not fake.answering.is_set()
+    releaser = threading.Timer(0.2, fake.release.set)
+    releaser.start()
     handle.wait()
-    assert fake.answering.is_set() and handle.error is None and time.perf_counter() - t0 >= 0.35
+    assert fake.answering.is_set() and handle.error is None  # wait returned once the server answered
     handle.wait()  # a second wait returns at once
     again = local_api.start_early(delay=0.0)
     again.wait()
@@ -62,23 +63,22 @@ def test_a_long_reading_has_the_server_started_beside_it_and_wait_returns_once_i
 def test_a_short_reading_or_bad_input_starts_no_server(monkeypatch, no_api_url):
     fake = _SlowServer()
     monkeypatch.setattr(prefect_server, "SubprocessASGIServer", fake)
-    handle = local_api.start_early(delay=0.2)
+    handle = local_api.start_early(delay=30.0)
     handle.wait()  # the model was read within the delay: the flow starts the server as it always did
-    time.sleep(0.3)
-    assert not handle.started and fake.threads == []
-    handle = local_api.start_early(delay=0.2)
+    assert not handle.started
+    handle = local_api.start_early(delay=30.0)
     handle.abandon()  # refused before the flow
-    time.sleep(0.3)
-    assert not handle.started and fake.threads == []
+    assert not handle.started and fake.threads == [] and not fake.entered.wait(0.3)
 
 
 def test_a_server_started_for_a_command_that_then_stops_is_stopped(monkeypatch, no_api_url):
-    fake = _SlowServer(seconds=0.1)
+    fake = _SlowServer()
     stopped = []
     fake.stop = lambda: stopped.append(fake.answering.is_set())
     monkeypatch.setattr(prefect_server, "SubprocessASGIServer", fake)
     handle = local_api.start_early(delay=0.0)
-    time.sleep(0.05)
+    assert fake.entered.wait(30)
+    fake.release.set()
     handle.abandon()
     assert handle.started and stopped == [True]  # stopped once it had started, not left to run
 
@@ -88,16 +88,16 @@ def test_a_configured_server_is_left_alone(monkeypatch):
     monkeypatch.setattr(prefect_server, "SubprocessASGIServer", fake)
     with temporary_settings(updates={PREFECT_API_URL: "http://127.0.0.1:4200/api"}):
         handle = local_api.start_early(delay=0.0)
-    time.sleep(0.1)
     handle.wait()
-    assert not handle.started and fake.threads == []
+    assert not handle.started and fake.threads == [] and not fake.entered.wait(0.3)
 
 
 def test_a_failed_start_is_kept_and_left_to_the_flows_client(monkeypatch, no_api_url):
-    fake = _SlowServer(seconds=0.05, fail=True)
+    fake = _SlowServer(fail=True)
     monkeypatch.setattr(prefect_server, "SubprocessASGIServer", fake)
     handle = local_api.start_early(delay=0.0)
-    time.sleep(0.02)
+    assert fake.entered.wait(30)
+    fake.release.set()
     handle.wait()
     assert isinstance(handle.error, RuntimeError) and not fake.running  # Prefect's client starts it again
 
