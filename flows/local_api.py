@@ -14,6 +14,7 @@ A server that fails to start here is started again, and its error raised, by the
 
 from __future__ import annotations
 
+import contextvars
 import threading
 
 __all__ = ["DELAY", "EarlyAPI", "start_early"]
@@ -25,17 +26,20 @@ DELAY = 1.0
 class EarlyAPI:
     """The temporary API's start, in a thread, after ``delay`` seconds unless :meth:`wait` or :meth:`abandon`
     comes first (``enabled`` False: a server is configured, nothing to start). The thread imports Prefect's server
-    module too (1-2 s), so that is spent beside the reading as well."""
+    module too (1-2 s), so that is spent beside the reading as well, and runs in a copy of the caller's context
+    (Prefect's settings, e.g. a ``temporary_settings`` block, are context variables)."""
 
     def __init__(self, enabled: bool, delay: float = DELAY):
         self._server = None   # Prefect's SubprocessASGIServer, when its start began here
         self._lock = threading.Lock()
         self._state = "waiting" if enabled else "cancelled"  # -> "starting" or "cancelled"
+        self._abandoned = False
         self._cancel = threading.Event()
         self.error: Exception | None = None
         self._thread: threading.Thread | None = None
         if enabled:
-            self._thread = threading.Thread(target=self._run, args=(delay,), name="prefect-local-api", daemon=True)
+            self._thread = threading.Thread(target=contextvars.copy_context().run, args=(self._run, delay),
+                                            name="prefect-local-api", daemon=True)
             self._thread.start()
 
     @property
@@ -46,20 +50,26 @@ class EarlyAPI:
     def _run(self, delay: float) -> None:
         if self._cancel.wait(delay):
             return
-        with self._lock:
-            if self._state != "waiting":
-                return
-            self._state = "starting"
         try:
             from prefect.server.api.server import SubprocessASGIServer
-
+        except Exception as exc:  # noqa: BLE001 (the flow's client imports it again and raises)
+            self.error = exc
+            return
+        with self._lock:
+            if self._state != "waiting":   # waited for or abandoned during the import: the flow starts it
+                return
+            self._state = "starting"
             server = SubprocessASGIServer()   # the process's one instance
             if server.running:
                 return
             self._server = server
+        try:
             server.start()
         except Exception as exc:  # noqa: BLE001 (the flow's client starts it again and raises)
             self.error = exc
+        with self._lock:
+            if self._abandoned:   # the command stopped while the server started
+                server.stop()
 
     def _settle(self) -> bool:
         """No start from now on unless one began; returns whether one did."""
@@ -78,19 +88,26 @@ class EarlyAPI:
             self._thread = None
 
     def abandon(self) -> None:
-        """The command stops before its flow (bad input, a run in use): a server started here is stopped."""
-        if self._settle():
-            self.wait()
-            if self._server is not None:
-                self._server.stop()
+        """The command stops before its flow (bad input, a run in use, an interrupt): a server started here is
+        stopped, at once if it answers, else by the thread when its start ends (at the process's exit by Prefect's
+        own handler); the caller does not wait for it."""
+        self._settle()
+        with self._lock:
+            self._abandoned = True
+            thread_done = self._thread is None or not self._thread.is_alive()
+            server = self._server
+        if server is not None and thread_done:
+            server.stop()
 
 
 def start_early(delay: float | None = None) -> EarlyAPI:
     """Prefect's temporary local API started in a thread after ``delay`` seconds (:data:`DELAY`) when no server is
-    configured and none runs in the process; returns its handle.
+    configured, Prefect may start one (``PREFECT_SERVER_EPHEMERAL_ENABLED``, as its client asks) and none runs in
+    the process; returns its handle.
 
     Between this call and :meth:`EarlyAPI.wait` the caller must not use a Prefect client (the server counts as
     started from the thread's first step, before it answers)."""
-    from prefect.settings import PREFECT_API_URL
+    from prefect.settings import PREFECT_API_URL, PREFECT_SERVER_EPHEMERAL_ENABLED
 
-    return EarlyAPI(not PREFECT_API_URL.value(), DELAY if delay is None else delay)
+    enabled = not PREFECT_API_URL.value() and bool(PREFECT_SERVER_EPHEMERAL_ENABLED.value())
+    return EarlyAPI(enabled, DELAY if delay is None else delay)

@@ -159,13 +159,16 @@ def main(argv: list[str] | None = None) -> int:
             print(f"warning: {lock.path}: stale lock of pid {owner.get('pid')} on host {owner.get('host')}, which "
                   "no longer runs; taken over, resuming", file=sys.stderr)
     except (ConfigError, MeasuredDataError, RunLockedError) as exc:
-        local_api.abandon()
         print(f"error: {exc}", file=sys.stderr)
+        local_api.abandon()
         return 2
     except OSError as exc:
-        local_api.abandon()
         print(f"error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
+        local_api.abandon()
         return 2
+    except BaseException:  # an interrupt, an unexpected error: the server started for the flow goes too
+        local_api.abandon()
+        raise
     try:
         for line in problem.model.placements:  # where the sensor and excitation points landed
             print(f"model: {line}")

@@ -1,17 +1,23 @@
 """Prefect's temporary API started beside the model's reading (flows/local_api.py): the caller goes on while the
 server starts (after a delay: a small model or bad input starts none), ``wait`` returns once it answers, a server
-started for a command that stops is stopped, a configured server is left alone, a failed start is left to the
-flow's client."""
+started for a command that stops is stopped (without waiting for it), a configured server is left alone, a failed
+start is left to the flow's client; the real command in a process of its own runs on the server started so."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
+from pathlib import Path
 
 import pytest
 from prefect.server.api import server as prefect_server
 from prefect.settings import PREFECT_API_URL, temporary_settings
 
 from flows import local_api
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 class _SlowServer:
@@ -56,6 +62,7 @@ def test_a_long_reading_has_the_server_started_beside_it_and_wait_returns_once_i
     assert fake.answering.is_set() and handle.error is None  # wait returned once the server answered
     handle.wait()  # a second wait returns at once
     again = local_api.start_early(delay=0.0)
+    again._thread.join(30)  # let it look before a wait could cancel it
     again.wait()
     assert not again.started and fake.threads == ["prefect-local-api"]  # running already: not started twice
 
@@ -71,16 +78,23 @@ def test_a_short_reading_or_bad_input_starts_no_server(monkeypatch, no_api_url):
     assert not handle.started and fake.threads == [] and not fake.entered.wait(0.3)
 
 
-def test_a_server_started_for_a_command_that_then_stops_is_stopped(monkeypatch, no_api_url):
+def test_a_server_started_for_a_command_that_then_stops_is_stopped_without_waiting_for_it(monkeypatch, no_api_url):
     fake = _SlowServer()
-    stopped = []
-    fake.stop = lambda: stopped.append(fake.answering.is_set())
+    stops = []
+    fake.stop = lambda: stops.append(fake.answering.is_set())
     monkeypatch.setattr(prefect_server, "SubprocessASGIServer", fake)
     handle = local_api.start_early(delay=0.0)
     assert fake.entered.wait(30)
+    handle.abandon()  # returns at once: the error is printed, the start is still under way
+    assert handle.started and stops == []
     fake.release.set()
+    handle._thread.join(30)
+    assert stops == [True]  # stopped by the thread once its start had ended
+    fake.running = False  # a second command whose server answers before it stops: stopped at once
+    handle = local_api.start_early(delay=0.0)
+    handle._thread.join(30)
     handle.abandon()
-    assert handle.started and stopped == [True]  # stopped once it had started, not left to run
+    assert handle.started and stops == [True, True]
 
 
 def test_a_configured_server_is_left_alone(monkeypatch):
@@ -102,28 +116,28 @@ def test_a_failed_start_is_kept_and_left_to_the_flows_client(monkeypatch, no_api
     assert isinstance(handle.error, RuntimeError) and not fake.running  # Prefect's client starts it again
 
 
-def test_the_update_runs_on_the_server_started_beside_its_reading(tmp_path, monkeypatch, no_api_url):
-    """The real command, its server started at once beside the benchmark's reading: one server, the one started
-    here, and the run converges on it."""
-    from prefect.server.api.server import SubprocessASGIServer
+_EARLY_UPDATE = """
+import sys, threading
+from prefect.server.api.server import SubprocessASGIServer
+from flows import local_api, update
+local_api.DELAY = 0.0
+spawned = []
+spawn = SubprocessASGIServer._run_uvicorn_command
+SubprocessASGIServer._run_uvicorn_command = lambda self: spawned.append(threading.current_thread().name) or spawn(self)
+code = update.main(sys.argv[1:])
+print("spawned by", spawned, "exit", code)
+"""
 
-    from flows import update
 
-    monkeypatch.setenv("PREFECT_HOME", str(tmp_path / "prefect"))  # the server's database, in its process
-    monkeypatch.setattr(local_api, "DELAY", 0.0)
-    spawned = []
-    spawn = SubprocessASGIServer._run_uvicorn_command
-    monkeypatch.setattr(SubprocessASGIServer, "_run_uvicorn_command",
-                        lambda self: spawned.append(threading.current_thread().name) or spawn(self))
-    try:
-        assert update.main(["--runs-dir", str(tmp_path / "runs"), "--run-id", "early", "--no-intervals"]) == 0
-    finally:
-        from prefect.events.worker import EventsWorker
-        from prefect.logging.handlers import APILogWorker
-
-        APILogWorker.drain_all(timeout=10)  # the run's last log lines and events sent before the server stops
-        EventsWorker.drain_all(timeout=10)
-        SubprocessASGIServer().stop()
-    assert spawned == ["prefect-local-api"]
+@pytest.mark.slow
+def test_the_update_runs_on_the_server_started_beside_its_reading(tmp_path):
+    """The real command in a process of its own (no Prefect server configured), its server started at once beside
+    the benchmark's reading: one server, the one started there, and the run converges on it."""
+    env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
+    env.update(PREFECT_HOME=str(tmp_path / "prefect"), PYTHONPATH=str(REPO))
+    done = subprocess.run([sys.executable, "-c", _EARLY_UPDATE, "--runs-dir", str(tmp_path / "runs"), "--run-id",
+                           "early", "--no-intervals"], cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
+    assert "spawned by ['prefect-local-api'] exit 0" in done.stdout, done.stdout[-2000:] + done.stderr[-2000:]
+    assert done.returncode == 0
     summary = (tmp_path / "runs" / "early" / "summary.json").read_text()
     assert '"converged": true' in summary
