@@ -30,6 +30,7 @@ the closure's measure, so the screen's predictions and the basins' values compar
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
@@ -44,6 +45,9 @@ from .fits import Fit, far_off
 from .screening import screen
 from ..inference.residual import analyse_residual
 from ..model import ParametricModel
+from ..model_error import floor_of
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Screen", "Evidence", "screen_point", "screen_points", "exact_screen", "weigh", "weigh_round",
            "own_error_at", "FAR_BETTER", "CLOSE_EXACT"]
@@ -190,7 +194,10 @@ def own_error_at(model: ParametricModel, data, alpha, noise=None,
     point = _point_fit(model, freqs_hz, amplitude, alpha)
     analysis = analyse_residual(point.residual, freqs_hz, point.n_parameters, data.noise_spec(noise), significance,
                                 point.relative(amplitude))
-    return (own_error(model, freqs_hz, amplitude, point, analysis.sigma) if analysis.structured else None), point
+    if not analysis.structured:
+        return None, point
+    floor = floor_of(model, freqs_hz, point.alpha, log=log)
+    return own_error(model, freqs_hz, amplitude, point, analysis.sigma, None if floor is None else floor.rms), point
 
 
 def _point_fit(model, freqs_hz, amplitude, alpha) -> Fit:

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..model import ParametricModel
+from ..model_error import floor_of
 from .effects import Effect, build_library
 from .decisions import ClosureResult, verdict
 from .fits import ALPHA_BOUNDS, baseline, far_off
@@ -89,7 +90,9 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
     times["baseline"] = time.perf_counter() - t
     log.info("baseline: %s", before.summary())
     # Structure no larger than one mode half a per cent off: the model's own error, unless effects take it to the noise.
-    shifts = own_error(model, freqs, u, base, before.sigma) if before.structured else None
+    floor = floor_of(model, freqs, base.alpha, log=log) if before.structured else None
+    shifts = (own_error(model, freqs, u, base, before.sigma, None if floor is None else floor.rms)
+              if before.structured else None)
     if shifts is not None:
         log.info("baseline: %s", shifts.reason())
     handed = {}
@@ -115,7 +118,8 @@ def close_loop(model: ParametricModel, freqs_hz, amplitude, alpha_start, library
         not_claimed, sel.steps, sel.final, sel.after = sel.steps, [], base, before
         sel.weights, sel.rivals, sel.spreads, sel.located = [], [], [], []
         sel.stopped = "the model's own error"
-    misfit = judge_misfit(base.residual, sel.final.residual, sel.after.sigma, sel.stopped == "nothing stands out")
+    misfit = judge_misfit(base.residual, sel.final.residual, sel.after.sigma, sel.stopped == "nothing stands out",
+                          bar=shifts.bar if shifts is not None and floor is not None else None)
     result = ClosureResult(base, before, sel.rounds[0] if sel.rounds else [], sel.steps[0] if sel.steps else None,
                            sel.final, sel.after, times, sel.steps,
                            verdict(before, sel.after, len(sel.steps), sel.identified, misfit.own, left),

@@ -24,7 +24,7 @@ from ..refine import refine_tet10
 from .mesh_file import read_mesh
 from .model_toml.spec import ModelFileError, _load
 
-__all__ = ["write_refined", "RefinementError"]
+__all__ = ["write_refined", "refined_model", "RefinementError", "MAX_FINE_DOFS"]
 
 _MESH_KEY = re.compile(r"""^(?P<key>[ \t]*mesh[ \t]*=[ \t]*)(?P<q>["']).*?(?P=q)""", re.MULTILINE)
 _POINT_KEY = re.compile(r"^(?P<indent>[ \t]*)point[ \t]*=[ \t]*(?P<value>\[[^\]\n]*\])", re.MULTILINE)
@@ -91,3 +91,42 @@ def write_refined(model_toml: str | Path, out_dir: str | Path) -> Path:
                       + new_text)
     record.write_text(json.dumps(stamp))
     return target
+
+
+#: The most free DOFs a refined model may have for :func:`refined_model` to build it (eight times the model's, about:
+#: a model of up to ~50,000 DOFs); its assembly and one response then take under a minute and 2-3 GB.
+MAX_FINE_DOFS = 420_000
+
+_MEMO: dict = {}
+
+
+def refined_model(model, max_dofs: int = MAX_FINE_DOFS):
+    """The model (a :class:`fe_core.model.ParametricModel` read from a model file) on its once-refined mesh, read
+    and assembled, and None with the reason when it cannot be: no model file, not a ten-node tetrahedral mesh,
+    more than ``max_dofs`` free DOFs expected (``CHILDREN_PER_CELL`` times the model's). Built once per model file
+    and text in a process (the update's evidence and the closure share it); the file is written to a temporary
+    folder and read back as any model file is."""
+    import tempfile
+
+    from ..refine import CHILDREN_PER_CELL
+    from .model_toml import read_model_toml
+
+    source = getattr(model, "source", None)
+    if not source or not str(source).endswith(".toml") or not Path(source).is_file():
+        return None, "the model has no model file to refine"
+    expected = CHILDREN_PER_CELL * int(model.n_dofs)
+    if expected > max_dofs:
+        return None, (f"its refined mesh would have about {expected:,} free DOFs (more than {max_dofs:,}): "
+                      "too large to build beside the model")
+    key = (str(Path(source).resolve()), Path(source).read_text())
+    if key in _MEMO:
+        return _MEMO[key]
+    try:
+        with tempfile.TemporaryDirectory(prefix="refined-") as tmp:
+            fine = read_model_toml(write_refined(source, tmp))
+        out = (fine, "")
+    except RefinementError as exc:
+        out = (None, str(exc))
+    _MEMO.clear()   # one refined model held at a time
+    _MEMO[key] = out
+    return out

@@ -21,6 +21,7 @@ from fe_core.closure.effects import extended_frf
 from fe_core.closure.far.misfit import judge_misfit
 from fe_core.closure.far.plausible import mark_first_negligible
 from fe_core.closure.far.shifts import own_error, unclaimed
+from fe_core.model_error import floor_of
 from fe_core.closure.far.search import alpha_restarts
 from fe_core.closure.selection import forward_select
 from fe_core.inference.residual import analyse_residual, log_residual
@@ -143,10 +144,14 @@ def baseline_task(root: str, problem, settings: dict) -> dict:
                           pd.DataFrame({"amplitude": np.asarray(fit.model_amplitude, float).ravel()}))
         # Structure no larger than one mode half a per cent off: the model's own error, unless effects take it to the
         # noise (fe_core.closure.far.shifts.unclaimed, in the decision).
-        shifts = own_error(model, freqs, u, fit, analysis.sigma) if analysis.structured else None
+        # Where the model can be refined, the bar is what it leaves against its own refined mesh.
+        floor = floor_of(model, freqs, fit.alpha, log=_logger()) if analysis.structured else None
+        shifts = (own_error(model, freqs, u, fit, analysis.sigma, None if floor is None else floor.rms)
+                  if analysis.structured else None)
         store.finish("baseline", ["baseline", "residual_before", "amplitude"],
                      {"analysis": analysis.to_dict(), "evaluations": fit.evaluations, "seconds": fit.seconds,
-                      "message": fit.message, "own_error": None if shifts is None else shifts.to_dict()})
+                      "message": fit.message, "own_error": None if shifts is None else shifts.to_dict(),
+                      "mesh_floor": None if floor is None else floor.to_dict()})
         _logger().info("closure baseline: %s%s", analysis.summary(), "" if shifts is None else f"; {shifts.reason()}")
     return store.info("baseline")
 
@@ -415,7 +420,7 @@ def decide_task(root: str, problem, settings: dict, run_info: dict, deadline: fl
     # The structure left beyond the noise: the model's own misfit when nothing more stands out from it and it is small
     # beside what the effects explained (fe_core.closure.far.misfit.judge_misfit); closure.json reports its size.
     misfit = judge_misfit(base.residual, final.residual, after.sigma, sel is not None and sel.stopped ==
-                          "nothing stands out")
+                          "nothing stands out", bar=own.get("bar") if own.get("floor") else None)
     verdict = decisions.verdict(before, after, len(steps), True if sel is None else sel.identified,
                                 misfit.own and after.structured, left)
     cand_df = _candidates_frame(ranked, library)

@@ -112,3 +112,51 @@ def test_the_floor_takes_out_most_of_a_right_models_misfit_and_a_missing_mass_st
     assert clean["rms_beyond"] < 0.25 * clean["rms_data"] and clean["floor_share_of_data"] > 0.8
     assert results[1].beyond.structured and mass["rms_beyond"] > 3 * clean["rms_beyond"]
     assert clean["fine_dofs"] == mass["fine_dofs"] > 5 * 2000
+
+
+def test_the_floor_from_the_refined_mesh_is_what_the_model_leaves_against_a_finer_independent_mesh(block):
+    """:func:`fe_core.model_error.floor_of` (the model against its own refinement, half its element size) against
+    the misfit the model leaves fitted to noise-free data of scikit-fem's P2 on a mesh a quarter of its size: one
+    halving of a tet10 mesh leaves about a sixteenth of the frequency error, so the floor is most of that misfit."""
+    from fe_core.closure.fits import fit_update
+    from fe_core.model_error import floor_of
+
+    d, model = block["data"], block["model"]
+    K, M = fem_data.assembled(d, ALPHA)
+    Kc, Mc = fem_data.condensed(K, M, d["free"])
+    freqs = np.linspace(60.0, 1500.0, 240)
+    modes = fem_data.spectral(Kc, Mc, d["outputs"][:, d["free"]], d["load"][d["free"]], 2.0 * freqs[-1] + 1.0)
+    u = np.abs(fem_data.modal_frf(modes, model.damping, freqs))
+    against_data = float(np.sqrt(np.mean(fit_update(model, freqs, u, ALPHA).residual ** 2)))
+    floor = floor_of(model, freqs, ALPHA)
+    assert floor is not None and floor.fine_dofs == block["fine"].n_dofs
+    assert 0.8 * against_data < floor.rms < 1.1 * against_data
+    assert floor.rms > 0.02   # the coarse block's own error is far above a 1 % noise: the bar matters
+
+
+def test_a_model_without_a_refinable_mesh_file_or_with_another_sensor_gets_no_floor(block):
+    import dataclasses
+
+    from fe_core.model_error import floor_of
+
+    freqs = np.linspace(60.0, 1500.0, 40)
+    assert floor_of(dataclasses.replace(block["model"], source=None), freqs, ALPHA) is None
+    renamed = dataclasses.replace(block["model"], sensor_names=["elsewhere"] + list(block["model"].sensor_names[1:]))
+    assert floor_of(renamed, freqs, ALPHA) is None
+
+
+def test_the_own_error_bar_is_the_floor_times_its_factor_where_measured_and_judges_the_misfit_left():
+    from fe_core.closure.far.misfit import judge_misfit
+    from fe_core.closure.far.shifts import FLOOR_FACTOR, ModeShifts
+
+    s = ModeShifts(np.array([100.0]), np.zeros(1), before=0.05, after=0.04, single=0.06)
+    assert s.within and s.bar == 0.06
+    s.floor = 0.03
+    assert s.bar == pytest.approx(FLOOR_FACTOR * 0.03) and not s.within
+    assert "refined mesh" in s.reason() and s.to_dict()["floor"] == 0.03
+    rng = np.random.default_rng(1)
+    before, after = 0.26 * rng.standard_normal((400, 4)), 0.063 * rng.standard_normal((400, 4))
+    assert judge_misfit(before, after, 0.0, True).own                      # a quarter of the misfit: own, no bar
+    judged = judge_misfit(before, after, 0.0, True, bar=FLOOR_FACTOR * 0.0153)   # hi04's floor: 1.53 %
+    assert not judged.own and "refined mesh" in judged.reason
+    assert judge_misfit(before, after, 0.0, True, bar=0.08).own
