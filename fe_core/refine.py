@@ -1,4 +1,5 @@
-"""Uniform refinement of a quadratic tetrahedral mesh: each ten-node tetrahedron into eight.
+"""Uniform refinement of a quadratic tetrahedral mesh, each ten-node tetrahedron into eight, and of a hexahedral one,
+each eight-node hexahedron into eight (:func:`refine_hex8`).
 
 The finer mesh of the same structure is how the tool sizes the model's own discretisation error (the misfit a
 model of this mesh leaves against its own refinement, :mod:`fe_core.model_error`). Each cell is split as in the
@@ -15,10 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .elements import tet10
+from .elements import hex8, tet10
 from .mesh import Mesh
 
-__all__ = ["refine_tet10", "CHILDREN_PER_CELL"]
+__all__ = ["refine_tet10", "refine_hex8", "CHILDREN_PER_CELL"]
 
 CHILDREN_PER_CELL = 8
 
@@ -127,5 +128,58 @@ def refine_tet10(mesh: Mesh) -> Mesh:
         face_in = member[faces].all(axis=2)  # (n, 4)
         on = (face_in[:, None, :] & _EDGE_FACES[None]).any(axis=2) & (new_nodes >= 0)  # (n, 27)
         added = np.unique(new_nodes[on])
+        out.add_node_set(name, np.concatenate([np.asarray(idx, dtype=np.int64), added]))
+    return out
+
+
+#: The 27 points of a hexahedron's refinement in reference coordinates (-1, 0, 1 along each axis).
+_GRID = np.array([[x, y, z] for z in (-1, 0, 1) for y in (-1, 0, 1) for x in (-1, 0, 1)], dtype=float)
+#: For each grid point, the parent corners whose signs it shares on its nonzero coordinates: one (a corner), two (an
+#: edge's midpoint), four (a face's centre) or eight (the centre).
+_TOUCH = [np.flatnonzero(np.all((hex8.NODE_SIGNS == g) | (g == 0), axis=1)) for g in _GRID]
+#: Each child's eight corners as grid points (octant by octant, oriented as the parent).
+_HEX_CHILDREN = np.array([[int(np.flatnonzero(np.all(_GRID == (np.array(o) - 1) + (sgn + 1) // 2, axis=1))[0])
+                           for sgn in hex8.NODE_SIGNS] for o in np.ndindex(2, 2, 2)])
+
+
+def refine_hex8(mesh: Mesh) -> Mesh:
+    """The mesh with each eight-node hexahedron split into eight by its trilinear map (edge midpoints, face centres
+    and its centre added, shared ones once): cells ``8 e + k`` the children of cell ``e``, each oriented as its
+    parent, the coarse nodes first and in their order, cell sets carried over, a new node added to a node set when
+    it lies on a cell face whose four corners are all in the set (as :func:`refine_tet10`)."""
+    cells = np.asarray(mesh.cells, dtype=np.int64)
+    if cells.ndim != 2 or cells.shape[1] != hex8.NODES:
+        raise ValueError(f"refine_hex8 refines eight-node hexahedra; the cells have shape {cells.shape}")
+    nodes = np.asarray(mesh.nodes, dtype=float)
+    n_cells, n_nodes = cells.shape[0], nodes.shape[0]
+    N = hex8.shape_functions(_GRID)                                    # (27, 8)
+    grid_node = np.empty((n_cells, _GRID.shape[0]), dtype=np.int64)
+    new_xyz, next_id = [], n_nodes
+    for size in (1, 2, 4, 8):
+        points = [g for g, t in enumerate(_TOUCH) if t.size == size]
+        if size == 1:
+            grid_node[:, points] = cells[:, [int(_TOUCH[g][0]) for g in points]]
+            continue
+        keys = np.sort(np.stack([cells[:, _TOUCH[g]] for g in points], axis=1), axis=2)   # (n, k, size)
+        unique, first, inverse = np.unique(keys.reshape(-1, size), axis=0, return_index=True, return_inverse=True)
+        grid_node[:, points] = next_id + inverse.reshape(n_cells, len(points))
+        cell_of, which = np.divmod(first, len(points))
+        new_xyz.append(np.einsum("ka,kaj->kj", N[np.asarray(points)[which]], nodes[cells[cell_of]]))
+        next_id += unique.shape[0]
+    out = Mesh(nodes=np.vstack([nodes, *new_xyz]), cells=grid_node[:, _HEX_CHILDREN].reshape(-1, hex8.NODES))
+    children = np.arange(CHILDREN_PER_CELL)
+    for name, idx in mesh.cell_sets.items():
+        idx = np.asarray(idx, dtype=np.int64)
+        out.add_cell_set(name, (CHILDREN_PER_CELL * idx[:, None] + children[None, :]).ravel())
+    faces = [(d, sgn) for d in range(3) for sgn in (-1, 1)]
+    for name, idx in mesh.node_sets.items():
+        member = np.zeros(n_nodes, bool)
+        member[np.asarray(idx, dtype=np.int64)] = True
+        on = np.zeros_like(grid_node, dtype=bool)
+        for d, sgn in faces:
+            corners = np.flatnonzero(hex8.NODE_SIGNS[:, d] == sgn)
+            whole = member[cells[:, corners]].all(axis=1)                      # (n,)
+            on |= whole[:, None] & (_GRID[:, d] == sgn)[None, :]
+        added = np.unique(grid_node[on & (grid_node >= n_nodes)])
         out.add_node_set(name, np.concatenate([np.asarray(idx, dtype=np.int64), added]))
     return out

@@ -1,4 +1,5 @@
-"""A model file of the same structure on its once-refined mesh (ten-node tetrahedra, :func:`fe_core.refine.refine_tet10`).
+"""A model file of the same structure on its once-refined mesh (ten-node tetrahedra, :func:`fe_core.refine.refine_tet10`;
+eight-node hexahedra, :func:`fe_core.refine.refine_hex8`).
 
 ``write_refined(model_toml, out_dir)`` writes ``out_dir/refined.vtu`` and ``out_dir/model.toml``: the model file's text
 with its ``mesh`` pointing to the refined mesh, everything else as written (materials, segments by cell set,
@@ -20,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..refine import refine_tet10
+from ..refine import refine_hex8, refine_tet10
 from .mesh_file import read_mesh
 from .model_toml.spec import ModelFileError, _load
 
@@ -28,6 +29,10 @@ __all__ = ["write_refined", "refined_model", "RefinementError", "MAX_FINE_DOFS"]
 
 _MESH_KEY = re.compile(r"""^(?P<key>[ \t]*mesh[ \t]*=[ \t]*)(?P<q>["']).*?(?P=q)""", re.MULTILINE)
 _POINT_KEY = re.compile(r"^(?P<indent>[ \t]*)point[ \t]*=[ \t]*(?P<value>\[[^\]\n]*\])", re.MULTILINE)
+
+
+#: The cell types refined, each by its own splitting (:mod:`fe_core.refine`).
+_REFINE = {"tetra10": refine_tet10, "hexahedron": refine_hex8}
 
 
 class RefinementError(ValueError):
@@ -38,7 +43,7 @@ def write_refined(model_toml: str | Path, out_dir: str | Path) -> Path:
     """Write the model file on the once-refined mesh into ``out_dir``; returns its ``model.toml``.
 
     Raises :class:`RefinementError` for a model file without a mesh (matrices, a solver deck) or a mesh of other
-    cells than ``tetra10``; an existing refinement of the same model file (same text and mesh) is kept.
+    cells than ``tetra10`` or ``hexahedron``; an existing refinement of the same model file (same text and mesh) is kept.
     """
     import meshio
 
@@ -56,11 +61,11 @@ def write_refined(model_toml: str | Path, out_dir: str | Path) -> Path:
     if target.is_file() and vtu.is_file() and record.is_file() and json.loads(record.read_text()) == stamp:
         return target
     mf = read_mesh(mesh_path)
-    if mf.cell_type != "tetra10":
+    if mf.cell_type not in _REFINE:
         raise RefinementError(f"{model_toml}: its mesh {mesh_path.name} has {mf.cell_type} cells; refinement is "
-                              "implemented for ten-node tetrahedra (tetra10)")
+                              "implemented for ten-node tetrahedra (tetra10) and eight-node hexahedra (hexahedron)")
     coarse = mf.mesh
-    fine = refine_tet10(coarse)
+    fine = _REFINE[mf.cell_type](coarse)
     n_coarse, n_file = coarse.n_nodes, int(mf.file_node.max()) + 1
     file_index = np.concatenate([mf.file_node, n_file + np.arange(fine.n_nodes - n_coarse)])
     points = np.zeros((n_file + fine.n_nodes - n_coarse, 3))
@@ -76,7 +81,7 @@ def write_refined(model_toml: str | Path, out_dir: str | Path) -> Path:
         flag[file_index[idx]] = 1
         point_data[name] = flag
     out_dir.mkdir(parents=True, exist_ok=True)
-    meshio.write(vtu, meshio.Mesh(points, [("tetra10", file_index[fine.cells])], cell_data=cell_data,
+    meshio.write(vtu, meshio.Mesh(points, [(mf.cell_type, file_index[fine.cells])], cell_data=cell_data,
                                   point_data=point_data))
     new_text, n = _MESH_KEY.subn(lambda m: f'{m["key"]}"{vtu.resolve().as_posix()}"', text, count=1)
     if spec.data.get("point_placement", "nearest") == "nearest":

@@ -113,3 +113,46 @@ def test_only_ten_node_tetrahedra_are_refined():
     nodes, cells = box_tets(BEAM, (2, 1, 1), 1)
     with pytest.raises(ValueError, match="ten-node tetrahedra"):
         refine_tet10(Mesh(nodes=nodes, cells=cells))
+
+
+def hex_beam(n=(8, 1, 1)):
+    from fe_core.mesh import Block, mesh_blocks
+
+    mesh = mesh_blocks([Block(*(np.linspace(0.0, length, k + 1) for length, k in zip(BEAM, n)), "beam")])
+    mesh.add_node_set("root", np.flatnonzero(mesh.nodes[:, 0] < 1e-12))
+    mesh.add_node_set("tip corner", np.flatnonzero(np.all(np.isclose(mesh.nodes, BEAM), axis=1)))
+    return mesh
+
+
+def hex_frequencies(mesh, k=3):
+    from fe_core.elements import hex8
+
+    nodes, cells = mesh.nodes, mesh.cells
+    D, n = isotropic_elasticity(E, NU), 3 * len(nodes)
+    K = assemble(hex8.element_stiffness(nodes[cells], D), dofs_of(cells), n)
+    M = assemble(hex8.element_mass(nodes[cells], RHO), dofs_of(cells), n)
+    free = free_dof_map(n, np.flatnonzero(np.repeat(nodes[:, 0] < 1e-12, 3)))
+    lam = spla.eigsh(K[free][:, free], k=k, M=M[free][:, free], sigma=0.0, return_eigenvectors=False)
+    return np.sqrt(np.sort(lam)) / (2 * np.pi)
+
+
+def test_a_refined_hexahedral_box_is_the_box_meshed_with_twice_the_cells():
+    """On a box the trilinear split is the uniform grid of twice the cells along each axis: the same nodes, the same
+    volume, cells oriented as their parents, the root face's new nodes in its set and the corner's set unchanged, and
+    the first three cantilever frequencies those of the box meshed so (another program's mesh of the same size)."""
+    from fe_core.elements import hex8
+    from fe_core.refine import refine_hex8
+
+    coarse = hex_beam()
+    fine, twice = refine_hex8(coarse), hex_beam((16, 2, 2))
+    assert fine.n_cells == CHILDREN_PER_CELL * coarse.n_cells and fine.n_nodes == twice.n_nodes
+    np.testing.assert_array_equal(fine.nodes[: coarse.n_nodes], coarse.nodes)
+    key = lambda x: np.lexsort(np.round(x, 12).T)   # noqa: E731
+    np.testing.assert_allclose(fine.nodes[key(fine.nodes)], twice.nodes[key(twice.nodes)], atol=1e-14)
+    volumes = hex8.element_volumes(fine.nodes[fine.cells])
+    assert np.all(volumes > 0) and volumes.sum() == pytest.approx(np.prod(BEAM), rel=1e-12)
+    assert set(fine.node_sets["root"]) == set(np.flatnonzero(fine.nodes[:, 0] < 1e-12))
+    np.testing.assert_array_equal(fine.node_sets["tip corner"], coarse.node_sets["tip corner"])
+    f_coarse, f_fine = hex_frequencies(coarse), hex_frequencies(fine)
+    np.testing.assert_allclose(f_fine, hex_frequencies(twice), rtol=1e-8)
+    assert np.all(f_fine < f_coarse)

@@ -11,8 +11,8 @@ The closure's size rule (:data:`.plausible.MIN_SHIFT`) holds half a per cent of 
 own error: an effect that shifts no mode by that much cannot be told from it. The same bar read the other way: a
 misfit that per-mode shifts all within it take out is what the model's own error would give.
 
-That bar is one number for every model; a model's own error is its own. Where the model can be refined (a ten-node
-tetrahedral mesh of moderate size, :func:`fe_core.model_error.floor_of`), the bar is the misfit the model leaves
+That bar is one number for every model; a model's own error is its own. Where the model can be refined (a mesh of
+ten-node tetrahedra or eight-node hexahedra of moderate size, :func:`fe_core.model_error.floor_of`), the bar is the misfit the model leaves
 against its own refined mesh at the fit (``floor``, noise-free, factors refitted) times :data:`FLOOR_FACTOR`: the
 misfit beyond the noise is within the model's own error when it is at most that. :data:`FLOOR_FACTOR` was set on the
 fourth held-out set (session 22's study, docs/results/held-out.md: its data on a mesh of half the model's size, clean
