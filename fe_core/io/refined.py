@@ -36,7 +36,8 @@ _REFINE = {"tetra10": refine_tet10, "hexahedron": refine_hex8}
 
 
 class RefinementError(ValueError):
-    """A model that cannot be refined (not a mesh model, not ten-node tetrahedra); the message names the file."""
+    """A model that cannot be refined (not a mesh model, cells other than ten-node tetrahedra or eight-node
+    hexahedra); the message names the file."""
 
 
 def write_refined(model_toml: str | Path, out_dir: str | Path) -> Path:
@@ -107,7 +108,7 @@ _MEMO: dict = {}
 
 def refined_model(model, max_dofs: int = MAX_FINE_DOFS):
     """The model (a :class:`fe_core.model.ParametricModel` read from a model file) on its once-refined mesh, read
-    and assembled, and None with the reason when it cannot be: no model file, not a ten-node tetrahedral mesh,
+    and assembled, and None with the reason when it cannot be: no model file, cells that are not refined (:data:`_REFINE`),
     more than ``max_dofs`` free DOFs expected (``CHILDREN_PER_CELL`` times the model's). Built once per model file
     and text in a process (the update's evidence and the closure share it); the file is written to a temporary
     folder and read back as any model file is."""

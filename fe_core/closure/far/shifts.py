@@ -68,8 +68,9 @@ class ModeShifts:
 
     @property
     def within(self) -> bool:
-        """Whether the misfit beyond the noise is at most what one mode off by the size rule's bar would leave: no
-        effect of a size the closure would accept hides in it (it is the model's own error, or noise)."""
+        """Whether the misfit beyond the noise is at most :attr:`bar` (what the model leaves against its refined mesh,
+        times :data:`FLOOR_FACTOR`, or what one mode off by the size rule's bar would leave): no effect of a size the
+        closure would accept hides in it (it is the model's own error, or noise)."""
         return bool(self.before <= self.bar)
 
     def reason(self) -> str:
