@@ -93,9 +93,8 @@ def own_error(model, fine, freqs_hz, amplitude, alpha, *, noise=None, significan
     data_fit = timed("fits", fit_update, model, freqs, u, np.asarray(alpha, float), alpha_bounds=alpha_bounds)
     a_d = np.asarray(data_fit.alpha, float)
     say("model error: the model fitted to the data: alpha %s", np.round(a_d, 4).tolist())
-    u_f = np.abs(timed("fine", extended_frf, fine, a_d, freqs))
-    biased = timed("fits", fit_update, model, freqs, u_f, a_d, alpha_bounds=alpha_bounds)
-    bias = np.asarray(biased.alpha, float) - a_d
+    biased = timed("fine", mesh_floor, model, fine, freqs, a_d, alpha_bounds=alpha_bounds)   # step 2: the bias
+    bias = biased.alpha - a_d
     a_c = np.clip(a_d - bias, lo, hi)
     say("model error: the factors' bias from the mesh %s; the structure's factors %s", np.round(bias, 4).tolist(),
         np.round(a_c, 4).tolist())
@@ -146,11 +145,8 @@ def floor_of(model, freqs_hz, alpha, log=None) -> MeshFloor | None:
 
     t = time.perf_counter()
     fine, why = refined_model(model)
-    if fine is None:
-        if log is not None:
-            log.info("the model's own error from its refined mesh: not measured (%s)", why)
-        return None
-    fine, why = _seen_as(model, fine)
+    if fine is not None:
+        fine, why = _seen_as(model, fine)
     if fine is None:
         if log is not None:
             log.info("the model's own error from its refined mesh: not measured (%s)", why)
