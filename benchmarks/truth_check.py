@@ -45,7 +45,8 @@ TIE = 0.01
 def closure_data(run: Path):
     """(frequencies, amplitudes (p, n), the closure's record) of a kept run folder: the lines the closure fitted."""
     t = pd.read_parquet(run / "closure" / "frf_closure.parquet")
-    u = t.pivot(index="frequency_hz", columns="sensor", values="measured")
+    # the channels in the table's order (the closure's), not pivot's sorted one ("S10" before "S2")
+    u = t.pivot(index="frequency_hz", columns="sensor", values="measured")[list(pd.unique(t["sensor"]))]
     return u.index.to_numpy(float), u.to_numpy(float), json.loads((run / "closure" / "closure.json").read_text())
 
 
