@@ -24,8 +24,11 @@ full FE model confirms what is kept (:func:`fe_core.closure.fits.fit_update`).
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import scipy.linalg as sla
+import scipy.sparse as sp
 
 from ...solvers.adjoint import modal_sum, project_rows
 from ...threads import thread_map
@@ -81,13 +84,58 @@ class ReducedModel:
         self.right = np.asarray(right, float)              # (d,)
         self.segments = [_sym(project_rows(segment_stiffness(model, i), self.W)) for i in range(model.n_segments)]
         self.d = self.mu.size
+        self.V, self.k0 = None, None    # static vectors joined for one candidate (:meth:`with_local`)
+        self._local = None
+        self._local_lock = threading.Lock()
         self._modal_cache: dict = {}
         self._units: dict = {}
+
+    # -- the local flexibility of a candidate's place (:mod:`.local`) -----------------------------------------
+    @property
+    def local(self):
+        """The :class:`.local.LocalFlexibility` of this point (made on first use: one factorisation of K)."""
+        from .local import LocalFlexibility
+
+        if self.V is not None:
+            raise ValueError("the local flexibility is of the model's own space, not of one bordered by it")
+        with self._local_lock:
+            if self._local is None:
+                self._local = LocalFlexibility(self)
+        return self._local
+
+    def with_local(self, rows) -> "ReducedModel":
+        """This reduced model with the static vectors of ``rows`` (free-DOF indices) joined to its space: a
+        candidate at those rows is evaluated with its local flexibility (:mod:`.local`). Shares the basis."""
+        out = ReducedModel.__new__(ReducedModel)
+        out.__dict__.update(self.__dict__)
+        parts = self.local.border(rows)
+        out.V, out.k0, out.segments = parts["V"], parts["k0"], parts["segments"]
+        out.left, out.right = parts["left"], parts["right"]
+        out.d = out.k0.shape[0]
+        out._local, out._modal_cache, out._units = None, {}, {}
+        return out
+
+    def basis_rows(self, rows) -> np.ndarray:
+        """The basis at free-DOF ``rows`` (any integer array shape), the joined static vectors' columns last."""
+        if self.V is None:
+            return self.W[rows]
+        return np.concatenate([self.W[rows], self.V[rows]], axis=-1)
+
+    def project(self, A) -> np.ndarray:
+        """``B^T A B`` of a sparse (n, n) change on the basis ``B`` (joined vectors included), through A's rows."""
+        if self.V is None:
+            return _sym(project_rows(A, self.W))
+        A = sp.csr_matrix(A)
+        rows = np.flatnonzero(np.diff(A.indptr))
+        if rows.size == 0:
+            return np.zeros((self.d, self.d))
+        Ar = A[rows]
+        return _sym(self.basis_rows(rows).T @ np.hstack([Ar @ self.W, Ar @ self.V]))
 
     # -- the reduced pencil ------------------------------------------------------------------------------------
     def stiffness(self, alpha) -> np.ndarray:
         """``K_r(alpha)``, shape (d, d)."""
-        K = np.diag(self.mu)
+        K = np.diag(self.mu) if self.k0 is None else self.k0.copy()
         for da, S in zip(np.asarray(alpha, float) - self.alpha0, self.segments):
             if da:
                 K = K + da * S
@@ -124,15 +172,15 @@ class ReducedModel:
             m = self.model.n_segments
             zero = np.zeros(m)
             t = effect.derivative(zero, location, index)
-            dK = None if t.stiffness is None else _sym(project_rows(t.stiffness, self.W))
-            dM = None if t.mass is None else _sym(project_rows(t.mass, self.W))
+            dK = None if t.stiffness is None else self.project(t.stiffness)
+            dM = None if t.mass is None else self.project(t.mass)
             unit = np.zeros(effect.n_parameters)
             unit[index] = 1.0
             parts = []
             for i in range(m):
                 extra = effect.alpha_derivative(zero, location, unit, i)
                 parts.append(None if extra is None or extra.stiffness is None
-                             else _sym(project_rows(extra.stiffness, self.W)))
+                             else self.project(extra.stiffness))
             hit = self._units[key] = (dK, dM, t.damping_a, t.damping_b, t.gain, parts)
         dK, dM, da, db, gain, parts = hit
         if dK is not None and any(P is not None for P in parts):
@@ -220,12 +268,15 @@ class ReducedModel:
 
     # -- many low-rank candidates at many sizes ----------------------------------------------------------------
     def scan(self, alpha, U: np.ndarray, matrix: str, sizes: np.ndarray, log_u: np.ndarray,
-             project: np.ndarray | None = None, chunk: int = 64, lines: np.ndarray | None = None) -> np.ndarray:
+             project: np.ndarray | None = None, chunk: int = 64, lines: np.ndarray | None = None,
+             residual: np.ndarray | None = None) -> np.ndarray:
         """Sums of squares of ``ln|Z(s)| - log_u`` (with ``project``'s columns, orthonormal (p * n_s, k), projected
         out: alpha refitted linearly) for candidates ``U`` (N, d, q) at ``sizes`` (N, S) or (S,): shape (N, S).
 
         ``matrix``: "mass" or "stiffness" (the term ``s U U^T`` is added to that matrix). Exact in the reduced
-        space (Woodbury's identity in the modal coordinates of ``K_r(alpha)``)."""
+        space (Woodbury's identity in the modal coordinates of ``K_r(alpha)``); ``residual`` (N, q, q), the
+        candidates' local flexibility outside the space (:meth:`.local.LocalFlexibility.residual`), is added to
+        their drive-point receptance ``G``."""
         lines = np.arange(self.omegas.size) if lines is None else np.asarray(lines)
         mu, q = self.modal(alpha)
         left = self.left @ q                               # (n_s, d)
@@ -235,6 +286,7 @@ class ReducedModel:
         X = left[None, :, :] * inv[:, None, :]             # (p, n_s, d): l^T D0^-1
         Y = inv * right[None, :]                           # (p, d): D0^-1 f
         c = self._c(matrix)[lines]                         # (p,)
+        cb = self._c("stiffness")[lines]
         log_u = np.asarray(log_u)[lines]
         N = U.shape[0]
         sizes = np.asarray(sizes, float)
@@ -246,6 +298,8 @@ class ReducedModel:
         def block(k0):  # one chunk of candidates at every size (independent of the others: on the threads)
             Uc = np.einsum("dk,ndq->nkq", q, U[k0:k0 + chunk])          # modal coordinates (n, d, q)
             G = np.einsum("ndq,pd,ndr->npqr", Uc, inv, Uc, optimize=True)
+            if residual is not None:
+                G = G + residual[k0:k0 + chunk, None] / cb[None, :, None, None]
             L = np.einsum("psd,ndq->npsq", X, Uc, optimize=True)
             R = np.einsum("ndq,pd->npq", Uc, Y, optimize=True)
             for j in range(sizes.shape[1]):
@@ -284,7 +338,7 @@ def lowrank_factors(reduced: ReducedModel, effect: Effect, locations) -> tuple[s
         return None
     matrix, rows = diag
     rows = np.atleast_2d(np.asarray(rows, np.int64))
-    U = reduced.W[np.maximum(rows, 0)]                     # (L, q, d)
+    U = reduced.basis_rows(np.maximum(rows, 0))             # (L, q, d)
     U = np.where((rows >= 0)[:, :, None], U, 0.0)
     return matrix, np.ascontiguousarray(U.transpose(0, 2, 1))
 
