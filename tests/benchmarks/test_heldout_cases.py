@@ -214,12 +214,13 @@ def test_data_on_the_tools_tetrahedra_are_the_tools_model_assembled_elsewhere(tm
                                                  ("heldout8", "HELDOUT8_SEED", "HELDOUT8_ORDER"),
                                                  ("heldout9", "HELDOUT9_SEED", "HELDOUT9_ORDER"),
                                                  ("heldout10", "HELDOUT10_SEED", "HELDOUT10_ORDER"),
-                                                 ("heldout11", "HELDOUT11_SEED", "HELDOUT11_ORDER")])
+                                                 ("heldout11", "HELDOUT11_SEED", "HELDOUT11_ORDER"),
+                                                 ("heldout12", "HELDOUT12_SEED", "HELDOUT12_ORDER")])
 def test_the_later_sets_orders_are_their_seeds_permutations_of_every_case(which, seed, order):
     from benchmarks.make.cases import sets
 
     ids = [c["id"] for c in sets.cases(which)]
     permutation = np.random.default_rng(getattr(sets, seed)).permutation(len(ids))
     assert list(getattr(sets, order)) == [ids[i] for i in permutation]
-    assert {c["data_mesh"] for c in sets.cases(which)} == {"fine" if which == "heldout11" else "model"}
+    assert {c["data_mesh"] for c in sets.cases(which)} == {"fine" if which in ("heldout11", "heldout12") else "model"}
     assert {c["data_mesh"] for c in sets.cases("heldout4")} == {"fine"}
