@@ -39,18 +39,27 @@ class LocalFlexibility:
     ----------
     rm : ReducedModel
         Its ``model``, ``alpha0``, ``applied``, basis ``W`` (``W^T K0 W = diag(mu)``, ``W^T M W = I``) and ``mu``.
+    shift : float, optional
+        Solve with ``K0 + shift M`` (the flexibility at ``w^2 = -shift``); by default 0, or the band's lowest
+        ``w^2`` where ``K0`` is singular (a free structure).
     """
 
-    def __init__(self, rm):
+    def __init__(self, rm, shift: float | None = None):
         from ...solvers.frf import spd_solver
         from ..effects import extended_matrices
 
         self.rm = rm
         self.K, self.M, _, _ = extended_matrices(rm.model, rm.alpha0, rm.applied)
-        self.solve = spd_solver(self.K)
-        if self.solve is None:
-            raise np.linalg.LinAlgError("the stiffness at the reduced model's point is not positive-definite")
-        self._flex: dict = {}         # (row, row) -> the static flexibility K0^-1 between them
+        self.shift = 0.0 if shift is None else float(shift)
+        self.solve = spd_solver(self.K) if self.shift == 0.0 else None
+        if self.solve is None:  # a free structure (rigid-body modes): K + s M with s the band's lowest w^2
+            if shift is None:
+                self.shift = float(np.min(rm.omegas)) ** 2
+            self.solve = spd_solver(self.K + self.shift * self.M)
+            if self.solve is None:
+                raise np.linalg.LinAlgError(f"K + {self.shift:.3g} M at the reduced model's point is not "
+                                            "positive-definite (a negative stiffness?)")
+        self._flex: dict = {}         # (row, row) -> the (shifted) static flexibility between them
         self._lock = threading.Lock()   # one factor, solved from the search's threads one block at a time
 
     def _solve(self, E: np.ndarray) -> np.ndarray:
@@ -80,7 +89,7 @@ class LocalFlexibility:
                     for b in rows[k][rows[k] >= 0]:
                         flex[(int(a), int(b))] = float(X[a, at[int(b)]])
         out = np.zeros((L, q, q))
-        W, mu = self.rm.W, self.rm.mu
+        W, mu = self.rm.W, self.rm.mu + self.shift
         for k in range(L):
             valid = np.flatnonzero(rows[k] >= 0)
             r = rows[k][valid]
