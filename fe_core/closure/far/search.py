@@ -73,9 +73,10 @@ START_SIZES = (1.0,)
 #: (:mod:`.local`: on hk07 of the eleventh held-out set the true node's reduced fit went from 259 to the full
 #: model's 15.1).
 LOCAL = True
-#: Above this many free DOFs the scan goes without the local flexibility (a block solve per 96 places' rows: at
-#: 500k DOFs minutes a pass); the joint fits keep it (three solves a candidate).
-LOCAL_SCAN_MAX_DOFS = 150_000
+#: Above this many free DOFs the search goes without the local flexibility: its factor of K beside the flow's
+#: (2.1 GB at 500k DOFs, where the closure's search already passed 21 GB) and a block solve per 96 places' rows
+#: (minutes a pass there).
+LOCAL_MAX_DOFS = 150_000
 
 
 @dataclass
@@ -169,8 +170,7 @@ def _scan_kind(rm: ReducedModel, effect: Effect, locations: list[str], alpha, lo
     grid = np.array([size_grid(effect, loc, SIZES if low is not None else SIZES_DENSE) for loc in locations])
     if low is not None:
         matrix, U = low
-        scan_local = LOCAL and rm.W.shape[0] <= LOCAL_SCAN_MAX_DOFS
-        residual = rm.local.residual(effect.diagonal(locations)[1]) if scan_local else None
+        residual = rm.local.residual(effect.diagonal(locations)[1]) if _local(rm) else None
 
         def rss_at(sizes):
             return rm.scan(alpha, U, matrix, sizes, log_u, project, lines=lines, residual=residual)
@@ -252,10 +252,15 @@ def _scan(rm: ReducedModel, library: Sequence[Effect], alpha, log_u, taken: set,
 
 
 # -- joint reduced fits ----------------------------------------------------------------------------------------
+def _local(rm: ReducedModel) -> bool:
+    return LOCAL and rm.W.shape[0] <= LOCAL_MAX_DOFS
+
+
 def local_space(rm: ReducedModel, effect: Effect, location: str) -> ReducedModel:
     """The reduced model a candidate is fitted on: ``rm`` with the static vectors of its rows joined when it is a
-    low-rank kind (:data:`LOCAL`, :meth:`.reduced.ReducedModel.with_local`), else ``rm``."""
-    if not LOCAL or rm.V is not None or effect.n_parameters != 1:
+    low-rank kind (:data:`LOCAL`, up to :data:`LOCAL_MAX_DOFS`; :meth:`.reduced.ReducedModel.with_local`), else
+    ``rm``."""
+    if not _local(rm) or rm.V is not None or effect.n_parameters != 1:
         return rm
     diag = effect.diagonal([location])
     return rm if diag is None else rm.with_local(diag[1])
