@@ -9,12 +9,13 @@ from the wrong place, or from the right place at the linearised size, ends in an
    point; every location of every low-rank kind (point masses, springs to ground, the transducers' mass) on a
    spread of at most :data:`SPREAD` places (then every place near the best), each at :data:`SIZES` sizes across
    its plausible range plus a golden-section refinement, solved exactly in that space (Woodbury: a q x q solve
-   per line), alpha refitted linearly (the scan's sums of squares are of the residual with the reduced model's
-   alpha derivatives projected out). Kinds that are not low-rank (patches, segment masses, damping, gains) are
+   per line) with its local flexibility added (:mod:`.local`: the drive-point flexibility the space lacks), alpha
+   refitted linearly (the scan's sums of squares are of the residual with the reduced model's alpha derivatives
+   projected out). Kinds that are not low-rank (patches, segment masses, damping, gains) are
    scanned by a generalised eigenproblem of the reduced pencil per place and size, on fewer places.
 2. **Joint fits** (:func:`reduced_fit`): the best :data:`TOP` candidates (at most :data:`PER_KIND` of a kind)
    get a bounded least squares of alpha and the effect's value together, on the reduced model with its exact
-   derivatives.
+   derivatives (a low-rank candidate's with the static vectors of its rows joined: :func:`local_space`).
 3. **Passes**: the scan is repeated at the best joint fit's alpha (the place and size of a large effect are
    clearer where alpha no longer makes up for it), until the best candidate stays (at most :data:`PASSES`).
 
