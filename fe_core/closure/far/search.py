@@ -39,8 +39,8 @@ from ..fits import ALPHA_BOUNDS, ALPHA_SCALE, log_sized
 from .misfit import effective_values
 from .reduced import ReducedModel, Smoother, lowrank_factors
 
-__all__ = ["Found", "exact_search", "local_space", "alpha_restarts", "reduced_fit", "size_grid", "spread", "SPREAD", "TOP",
-           "PER_KIND", "PASSES", "LOCAL"]
+__all__ = ["Found", "exact_search", "local_space", "alpha_restarts", "reduced_fit", "size_grid", "spread", "SPREAD",
+           "TOP", "PER_KIND", "PASSES", "LOCAL"]
 
 log = logging.getLogger(__name__)
 
